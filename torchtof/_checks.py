@@ -1,0 +1,118 @@
+"""Input checks shared by every module.
+
+Each helper raises ``ValueError`` or ``TypeError`` with a message of the form
+``"<func>: expected <arg> ..., got ..."`` (see ``STYLE.md``). Data checks
+(NaN/Inf) only run in eager mode: under ``torch.jit``/``torch.onnx`` tracing
+they are skipped so exported graphs hold no data-dependent control flow.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+__all__ = [
+    "check_tensor",
+    "check_rank",
+    "check_shape",
+    "check_finite",
+    "check_positive",
+    "check_in_range",
+    "check_power_of_two",
+    "is_tracing",
+]
+
+
+def is_tracing() -> bool:
+    """True while ``torch.jit``/``torch.onnx``/``torch.compile`` trace the code."""
+    if torch.jit.is_tracing() or torch.jit.is_scripting():
+        return True
+    try:
+        if torch.onnx.is_in_onnx_export():
+            return True
+    except AttributeError:  # pragma: no cover - old torch
+        pass
+    compiler = getattr(torch, "compiler", None)
+    return bool(compiler is not None and compiler.is_compiling())
+
+
+def check_tensor(x: object, name: str, func: str) -> torch.Tensor:
+    """Raise ``TypeError`` unless ``x`` is a floating-point tensor."""
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{func}: expected {name} to be a torch.Tensor, got {type(x).__name__}")
+    if not (x.is_floating_point() or x.is_complex()):
+        raise TypeError(f"{func}: expected {name} to be a floating-point tensor, got dtype {x.dtype}")
+    return x
+
+
+def check_rank(x: torch.Tensor, rank: int, name: str, func: str, layout: str = "") -> None:
+    """Raise ``ValueError`` unless ``x.ndim == rank``."""
+    check_tensor(x, name, func)
+    if x.ndim != rank:
+        lay = f" {layout}" if layout else ""
+        raise ValueError(f"{func}: expected {name} of rank {rank}{lay}, got shape {tuple(x.shape)}")
+
+
+def check_shape(
+    x: torch.Tensor, shape: Sequence[int | None], name: str, func: str, layout: str = ""
+) -> None:
+    """Raise ``ValueError`` unless ``x`` matches ``shape`` (``None`` = any size)."""
+    check_rank(x, len(shape), name, func, layout)
+    for got, want in zip(x.shape, shape):
+        if want is not None and got != want:
+            exp = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{func}: expected {name} of shape {exp}, got {tuple(x.shape)}")
+
+
+def check_finite(x: torch.Tensor, name: str, func: str) -> None:
+    """Raise ``ValueError`` if ``x`` holds NaN or Inf (eager mode only)."""
+    if is_tracing():
+        return
+    if not bool(torch.isfinite(x).all()):
+        n_nan = int(torch.isnan(x).sum())
+        n_inf = int(torch.isinf(x).sum())
+        raise ValueError(f"{func}: {name} contains non-finite values ({n_nan} NaN, {n_inf} Inf)")
+
+
+def check_positive(value: float, name: str, func: str, strict: bool = True) -> float:
+    """Raise ``ValueError`` unless the scalar ``value`` is (strictly) positive and finite."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{func}: expected {name} to be a number, got {type(value).__name__}")
+    v = float(value)
+    if v != v or v in (float("inf"), float("-inf")) or (v <= 0 if strict else v < 0):
+        cmp = "> 0" if strict else ">= 0"
+        raise ValueError(f"{func}: expected {name} {cmp} and finite, got {value}")
+    return v
+
+
+def check_in_range(
+    value: float,
+    lo: float,
+    hi: float,
+    name: str,
+    func: str,
+    lo_open: bool = False,
+    hi_open: bool = False,
+) -> float:
+    """Raise ``ValueError`` unless ``lo (<|<=) value (<|<=) hi``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{func}: expected {name} to be a number, got {type(value).__name__}")
+    v = float(value)
+    ok_lo = v > lo if lo_open else v >= lo
+    ok_hi = v < hi if hi_open else v <= hi
+    if not (ok_lo and ok_hi) or v != v:
+        lb = "(" if lo_open else "["
+        rb = ")" if hi_open else "]"
+        raise ValueError(f"{func}: expected {name} in {lb}{lo}, {hi}{rb}, got {value}")
+    return v
+
+
+def check_power_of_two(n: int, name: str, func: str, lo: int = 1, hi: int | None = None) -> int:
+    """Raise unless ``n`` is an int power of two within ``[lo, hi]``."""
+    if isinstance(n, bool) or not isinstance(n, int):
+        raise TypeError(f"{func}: expected {name} to be an int, got {type(n).__name__}")
+    if n < lo or (hi is not None and n > hi) or n & (n - 1) != 0:
+        rng = f" in [{lo}, {hi}]" if hi is not None else f" >= {lo}"
+        raise ValueError(f"{func}: expected {name} to be a power of two{rng}, got {n}")
+    return n

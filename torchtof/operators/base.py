@@ -1,0 +1,119 @@
+"""``LinearOperator``: the measurement model ``y = A x`` as an ``nn.Module``.
+
+An operator maps images ``x`` of shape ``(B, C, n, n)`` to measurements ``y`` of
+shape ``(B, C, m)``; each row of ``A`` is one DMD pattern flattened row-major
+(paper Eq. 11, ``y = H O``). Subclasses implement :meth:`forward` and
+:meth:`adjoint`; the base class derives ``pinv``, ``normal``, ``matrix`` and
+the adjointness test from them (deepinv's ``LinearPhysics`` is the model).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .._checks import check_finite, check_rank, check_shape
+
+__all__ = ["LinearOperator"]
+
+
+class LinearOperator(nn.Module):
+    """Base class of the linear measurement operators.
+
+    Args:
+        n: side of the square image on the DMD (pixels).
+        m: number of measurements (patterns).
+
+    Attributes:
+        n, m: sizes; ``shape_in == (n, n)``.
+        orthonormal_rows: ``True`` when ``A Aᵀ = I`` (then ``pinv == adjoint``).
+
+    Shape:
+        - forward: ``(B, C, n, n) -> (B, C, m)``
+        - adjoint: ``(B, C, m) -> (B, C, n, n)``
+    """
+
+    orthonormal_rows: bool = False
+
+    def __init__(self, n: int, m: int) -> None:
+        super().__init__()
+        self.n = int(n)
+        self.m = int(m)
+
+    @property
+    def shape_in(self) -> tuple[int, int]:
+        return (self.n, self.n)
+
+    # -- checks shared by subclasses -------------------------------------------------
+    def _check_x(self, x: torch.Tensor, func: str) -> None:
+        check_shape(x, (None, None, self.n, self.n), "x", func, "(B, C, n, n)")
+
+    def _check_y(self, y: torch.Tensor, func: str) -> None:
+        check_shape(y, (None, None, self.m), "y", func, "(B, C, M)")
+        check_finite(y, "y", func)
+
+    # -- interface ---------------------------------------------------------------------
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def adjoint(self, y: torch.Tensor) -> torch.Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def normal(self, x: torch.Tensor) -> torch.Tensor:
+        """``AᵀA x``, shape ``(B, C, n, n) -> (B, C, n, n)``."""
+        return self.adjoint(self.forward(x))
+
+    def gram(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+        """Dense ``A Aᵀ`` of shape ``(m, m)`` (small problems and checks only)."""
+        a = self.matrix(dtype=dtype)
+        return a @ a.T
+
+    def pinv(self, y: torch.Tensor) -> torch.Tensor:
+        """Minimum-norm least-squares solution ``A⁺ y = Aᵀ (A Aᵀ)⁻¹ y``.
+
+        Orthonormal rows (``A Aᵀ = I``) reduce it to ``Aᵀ y`` (Gong 2015, pseudo-inverse GI).
+        Otherwise ``A Aᵀ`` is formed once and cached (pseudo-inverse through ``lstsq`` so a
+        rank-deficient pattern set still gives the minimum-norm answer).
+        """
+        self._check_y(y, f"{type(self).__name__}.pinv")
+        if self.orthonormal_rows:
+            return self.adjoint(y)
+        g = self._cached_gram_pinv(y.dtype, y.device)
+        z = torch.einsum("ij,bcj->bci", g, y)
+        return self.adjoint(z)
+
+    def _cached_gram_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        key = (dtype, device)
+        cache = self.__dict__.setdefault("_gram_pinv_cache", {})
+        if key not in cache:
+            g = self.gram(dtype=torch.float64)
+            cache[key] = torch.linalg.pinv(g, hermitian=True).to(dtype=dtype, device=device)
+        return cache[key]
+
+    def matrix(self, dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:
+        """The dense matrix ``A`` of shape ``(m, n*n)``, built by applying ``Aᵀ`` to the unit
+        measurement vectors (small problems and tests only: O(m·n²) memory)."""
+        eye = torch.eye(self.m, dtype=dtype, device=device).reshape(self.m, 1, self.m)
+        cols = self.adjoint(eye)  # (m, 1, n, n): row i of A
+        return cols.reshape(self.m, self.n * self.n)
+
+    def adjointness_test(
+        self, dtype: torch.dtype = torch.float64, batch: int = 2, channels: int = 1, seed: int = 0
+    ) -> float:
+        """Relative adjointness error ``|<Ax, y> − <x, Aᵀy>| / (‖Ax‖ ‖y‖)`` on random data."""
+        g = torch.Generator().manual_seed(seed)
+        x = torch.randn(batch, channels, self.n, self.n, generator=g, dtype=dtype)
+        y = torch.randn(batch, channels, self.m, generator=g, dtype=dtype)
+        ax = self.forward(x)
+        aty = self.adjoint(y)
+        lhs = (ax * y).sum()
+        rhs = (x * aty).sum()
+        denom = ax.norm() * y.norm()
+        return float((lhs - rhs).abs() / denom.clamp_min(torch.finfo(dtype).tiny))
+
+    def extra_repr(self) -> str:
+        return f"n={self.n}, m={self.m}"
+
+
+def _rank4(x: torch.Tensor, name: str, func: str) -> None:
+    check_rank(x, 4, name, func, "(B, C, H, W)")

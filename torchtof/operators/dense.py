@@ -1,0 +1,68 @@
+"""Dense pattern operator: ``y_i = Σ_u φ_i(u) x(u)`` for arbitrary patterns (paper Eq. 11)."""
+
+from __future__ import annotations
+
+import torch
+
+from .._checks import check_finite, check_rank, check_tensor
+from .base import LinearOperator
+
+__all__ = ["PatternOperator", "pattern_forward", "pattern_adjoint"]
+
+
+def pattern_forward(x: torch.Tensor, patterns: torch.Tensor) -> torch.Tensor:
+    """``y = Φ x``: one matmul of the flattened images with the ``(M, n²)`` pattern matrix.
+
+    Shape: ``x (B, C, n, n)``, ``patterns (M, n, n)`` → ``(B, C, M)``.
+    """
+    m = patterns.shape[0]
+    return x.flatten(-2) @ patterns.reshape(m, -1).T
+
+
+def pattern_adjoint(y: torch.Tensor, patterns: torch.Tensor) -> torch.Tensor:
+    """``x = Φᵀ y``: ``(B, C, M)`` → ``(B, C, n, n)``."""
+    m, n1, n2 = patterns.shape
+    return (y @ patterns.reshape(m, -1)).reshape(*y.shape[:-1], n1, n2)
+
+
+class PatternOperator(LinearOperator):
+    """Linear operator from an explicit stack of DMD patterns (dense matmul).
+
+    Args:
+        patterns: ``(M, n, n)`` real patterns (0/1 DMD masks, ±1 rows, speckle ...).
+
+    Example:
+        >>> P = PatternOperator(torch.ones(3, 4, 4))
+        >>> P(torch.ones(1, 1, 4, 4))
+        tensor([[[16., 16., 16.]]])
+    """
+
+    def __init__(self, patterns: torch.Tensor) -> None:
+        check_tensor(patterns, "patterns", "PatternOperator")
+        check_rank(patterns, 3, "patterns", "PatternOperator", "(M, n, n)")
+        if patterns.shape[1] != patterns.shape[2] or patterns.shape[0] < 1:
+            raise ValueError(
+                f"PatternOperator: expected patterns of shape (M, n, n) with M >= 1, "
+                f"got {tuple(patterns.shape)}"
+            )
+        check_finite(patterns, "patterns", "PatternOperator")
+        super().__init__(patterns.shape[1], patterns.shape[0])
+        self.register_buffer("patterns", patterns.detach().clone(), persistent=False)
+        g = patterns.reshape(self.m, -1).double()
+        self.orthonormal_rows = bool(
+            torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64), atol=1e-6)
+        )
+
+    def _p(self, like: torch.Tensor) -> torch.Tensor:
+        return self.patterns.to(dtype=like.dtype, device=like.device)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self._check_x(x, "PatternOperator.forward")
+        return pattern_forward(x, self._p(x))
+
+    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
+        self._check_y(y, "PatternOperator.adjoint")
+        return pattern_adjoint(y, self._p(y))
+
+    def matrix(self, dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:
+        return self.patterns.reshape(self.m, -1).to(dtype=dtype, device=device)

@@ -1,0 +1,172 @@
+"""DMD patterns: 2-D Hadamard rows in several orders, random binary and Gaussian speckle.
+
+The 2-D Hadamard basis of an ``n × n`` DMD has ``N = n²`` patterns
+``h_{ij} = h_i h_jᵀ`` (outer products of rows of the Sylvester matrix ``H_n``);
+the natural index ``k = i·n + j`` matches row ``k`` of ``H_N = H_n ⊗ H_n``
+(``scipy.linalg.hadamard(N)``). An *order* is a permutation of ``0 … N−1``; the
+first ``M`` entries choose the patterns at sampling rate ``SR = M/N``.
+
+Orders (domain-notes §3.3):
+
+- ``natural``: Sylvester/Kronecker index.
+- ``sequency``: ascending total number of sign changes ``s_i + s_j`` (Walsh order in
+  2-D; ties by ``max(s_i, s_j)`` then natural index).
+- ``russian_doll`` (Sun et al., Sci. Rep. 7:3464, 2017): nested square blocks —
+  all patterns with ``max(s_i, s_j) < 2^k`` come before any other, so the first
+  ``4^k`` patterns are exactly the ``2^k × 2^k`` block-average basis.
+- ``cake_cutting`` (Yu, Sensors 19:4122, 2019), the default: ascending number of
+  connected ±1 regions ("cake pieces"), ties by natural index. For an outer product
+  the regions form a ``(s_i+1) × (s_j+1)`` checkerboard of rectangles in which
+  neighbours always differ in sign, so the count is ``(s_i + 1)(s_j + 1)`` exactly
+  (the tests check it against ``scipy.ndimage.label``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+
+from .._checks import check_in_range, check_power_of_two
+from .fwht import sylvester
+
+__all__ = [
+    "ORDERS",
+    "hadamard_order",
+    "hadamard_patterns",
+    "row_sequency",
+    "random_binary_patterns",
+    "gaussian_speckle_patterns",
+    "num_patterns",
+]
+
+ORDERS = ("natural", "sequency", "russian_doll", "cake_cutting")
+N_MIN, N_MAX = 4, 256
+
+
+def row_sequency(n: int) -> torch.Tensor:
+    """Number of sign changes of each row of the Sylvester matrix ``H_n``, shape ``(n,)``."""
+    h = sylvester(n, torch.float64)
+    return (h[:, 1:] != h[:, :-1]).sum(dim=1)
+
+
+@functools.lru_cache(maxsize=64)
+def _order_cpu(n: int, order: str) -> torch.Tensor:
+    s = row_sequency(n).to(torch.int64)
+    si = s.repeat_interleave(n)  # s_i of natural index k = i*n + j
+    sj = s.repeat(n)
+    k = torch.arange(n * n, dtype=torch.int64)
+    big = n * n  # > any key component, so lexicographic keys pack into one int64
+    if order == "natural":
+        return k
+    if order == "sequency":
+        key = ((si + sj) * big + torch.maximum(si, sj)) * big + k
+    elif order == "russian_doll":
+        # doll level = bit_length(max(s_i, s_j)): 0 -> 0, 1 -> 1, 2..3 -> 2, 4..7 -> 3 ...
+        mx = torch.maximum(si, sj)
+        level = sum(((mx >> b) > 0).long() for b in range(n.bit_length()))
+        key = ((level * 2 * big + (si + sj)) * big) + k
+    elif order == "cake_cutting":
+        key = ((si + 1) * (sj + 1)) * big + k
+    else:  # pragma: no cover - validated by the caller
+        raise ValueError(order)
+    return torch.argsort(key, stable=True)
+
+
+def _check_n_order(n: int, order: str, func: str) -> None:
+    check_power_of_two(n, "n", func, lo=N_MIN, hi=N_MAX)
+    if order not in ORDERS:
+        raise ValueError(f"{func}: expected order in {ORDERS}, got {order!r}")
+
+
+def hadamard_order(n: int, order: str = "cake_cutting") -> torch.Tensor:
+    """Permutation of the natural 2-D Hadamard indices for ``order``.
+
+    Args:
+        n: DMD side, a power of two in [4, 256].
+        order: one of :data:`ORDERS`.
+
+    Returns:
+        ``int64`` tensor ``(n²,)``; entry ``r`` is the natural index ``i·n + j`` of the
+        ``r``-th pattern.
+
+    Raises:
+        ValueError: ``n`` not a power of two in range, or unknown ``order``.
+
+    Example:
+        >>> hadamard_order(4, "natural")[:3]
+        tensor([0, 1, 2])
+    """
+    _check_n_order(n, order, "hadamard_order")
+    return _order_cpu(n, order).clone()
+
+
+def num_patterns(n: int, sr: float | None = None, m: int | None = None, func: str = "") -> int:
+    """Resolve the number of patterns from a sampling rate ``sr = m / n²`` or ``m``."""
+    func = func or "num_patterns"
+    big = n * n
+    if (sr is None) == (m is None):
+        raise ValueError(f"{func}: give exactly one of sr and m, got sr={sr}, m={m}")
+    if sr is not None:
+        check_in_range(sr, 0.0, 1.0, "sr", func, lo_open=True)
+        return max(1, min(big, int(round(sr * big))))
+    if isinstance(m, bool) or not isinstance(m, int):
+        raise TypeError(f"{func}: expected m to be an int, got {type(m).__name__}")
+    if not 1 <= m <= big:
+        raise ValueError(f"{func}: expected m in [1, {big}], got {m}")
+    return m
+
+
+def hadamard_patterns(
+    n: int,
+    m: int | None = None,
+    order: str = "cake_cutting",
+    dtype: torch.dtype = torch.float32,
+    device=None,
+) -> torch.Tensor:
+    """The first ``m`` ±1 Hadamard patterns in ``order``, shape ``(m, n, n)``.
+
+    Pattern ``r`` is ``h_i h_jᵀ`` with ``(i, j) = divmod(order[r], n)``; only the
+    requested patterns are materialised (never the full ``N × N`` basis).
+    """
+    _check_n_order(n, order, "hadamard_patterns")
+    m = n * n if m is None else num_patterns(n, m=m, func="hadamard_patterns")
+    idx = _order_cpu(n, order)[:m]
+    h = sylvester(n, dtype, device)
+    i, j = idx // n, idx % n
+    return h[i.to(h.device)][:, :, None] * h[j.to(h.device)][:, None, :]
+
+
+def random_binary_patterns(
+    m: int, n: int, p: float = 0.5, generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor:
+    """I.i.d. Bernoulli(``p``) 0/1 DMD patterns, shape ``(m, n, n)``, from ``generator``."""
+    check_in_range(p, 0.0, 1.0, "p", "random_binary_patterns", lo_open=True, hi_open=True)
+    if m < 1 or n < 1:
+        raise ValueError(f"random_binary_patterns: expected m, n >= 1, got m={m}, n={n}")
+    u = torch.rand(m, n, n, generator=generator, dtype=torch.float64)
+    return (u < p).to(dtype)
+
+
+def gaussian_speckle_patterns(
+    m: int, n: int, grain: float = 0.0, generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor:
+    """Gaussian speckle patterns ``(m, n, n)``: i.i.d. N(0, 1), optionally correlated.
+
+    ``grain > 0`` blurs each pattern with a Gaussian of that σ (pixels, kornia) and
+    re-standardises it, giving speckle grains of about ``grain`` pixels
+    (pseudo-thermal light, Shapiro 2008 computational GI).
+    """
+    check_in_range(grain, 0.0, float(n), "grain", "gaussian_speckle_patterns")
+    if m < 1 or n < 1:
+        raise ValueError(f"gaussian_speckle_patterns: expected m, n >= 1, got m={m}, n={n}")
+    z = torch.randn(m, 1, n, n, generator=generator, dtype=torch.float64)
+    if grain > 0:
+        import kornia
+
+        k = 2 * int(3 * grain) + 1
+        z = kornia.filters.gaussian_blur2d(z, (k, k), (grain, grain), border_type="circular")
+        z = (z - z.mean(dim=(-2, -1), keepdim=True)) / z.std(dim=(-2, -1), keepdim=True)
+    return z[:, 0].to(dtype)

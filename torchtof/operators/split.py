@@ -1,0 +1,79 @@
+"""DMD split of ±1 Hadamard rows into two 0/1 patterns (DESIGN.md §2, domain-notes §3.2).
+
+A DMD mirror is on or off, so a ±1 row ``h`` is shown as ``φ⁺ = (1 + h)/2`` and
+``φ⁻ = (1 − h)/2``; the differential bucket ``y⁺ − y⁻ = ⟨h, x⟩`` recovers the ±1
+measurement and cancels offsets common to both frames (ambient light, the 5 m
+"no photon" floor). ``DMDSplit(A)`` is the 0/1 operator with ``2M`` rows, interleaved
+``[φ⁺_1, φ⁻_1, φ⁺_2, φ⁻_2, …]`` (the acquisition order); it is computed from the fast
+Hadamard transform: ``y^± = (Σx ± √N·(Ax)) / 2``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .._checks import check_shape
+from .base import LinearOperator
+from .hadamard import Hadamard
+
+__all__ = ["DMDSplit", "combine_split", "split_patterns"]
+
+
+def split_patterns(patterns: torch.Tensor) -> torch.Tensor:
+    """±1 patterns ``(M, n, n)`` → interleaved 0/1 DMD patterns ``(2M, n, n)``."""
+    plus = (1 + patterns) / 2
+    minus = (1 - patterns) / 2
+    return torch.stack((plus, minus), dim=1).reshape(-1, *patterns.shape[1:])
+
+
+def combine_split(y_split: torch.Tensor, n: int) -> torch.Tensor:
+    """Interleaved DMD buckets ``(B, C, 2M)`` → orthonormal Hadamard measurements
+    ``(B, C, M)``: ``y = (y⁺ − y⁻) / n`` (``n = √N``), so ``combine_split(S x) = A x``."""
+    check_shape(y_split, (None, None, None), "y_split", "combine_split", "(B, C, 2M)")
+    if y_split.shape[-1] % 2:
+        raise ValueError(
+            f"combine_split: expected y_split with an even number of measurements, "
+            f"got {y_split.shape[-1]}"
+        )
+    y = y_split.reshape(*y_split.shape[:-1], -1, 2)
+    return (y[..., 0] - y[..., 1]) / n
+
+
+class DMDSplit(LinearOperator):
+    """0/1 DMD operator of a :class:`Hadamard` operator: ``2M`` rows ``φ⁺, φ⁻`` interleaved.
+
+    Args:
+        hadamard: the ±1 operator ``A`` whose rows are split.
+
+    Shape:
+        ``(B, C, n, n) -> (B, C, 2M)``.
+    """
+
+    def __init__(self, hadamard: Hadamard) -> None:
+        if not isinstance(hadamard, Hadamard):
+            raise TypeError(
+                f"DMDSplit: expected hadamard to be a Hadamard operator, got {type(hadamard).__name__}"
+            )
+        super().__init__(hadamard.n, 2 * hadamard.m)
+        self.hadamard = hadamard
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self._check_x(x, "DMDSplit.forward")
+        total = x.sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩
+        h = self.hadamard(x) * self.n  # ⟨h, x⟩ with ±1 rows
+        return torch.stack(((total + h) / 2, (total - h) / 2), dim=-1).flatten(-2)
+
+    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
+        self._check_y(y, "DMDSplit.adjoint")
+        y2 = y.reshape(*y.shape[:-1], -1, 2)
+        s, d = y2[..., 0] + y2[..., 1], y2[..., 0] - y2[..., 1]
+        ones = s.sum(dim=-1)[..., None, None] / 2
+        return ones + self.hadamard.adjoint(d) * (self.n / 2)
+
+    def combine(self, y_split: torch.Tensor) -> torch.Tensor:
+        """``(y⁺ − y⁻)/n``: the measurements of the underlying orthonormal ``A``."""
+        return combine_split(y_split, self.n)
+
+    def patterns(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """The ``2M`` 0/1 DMD patterns ``(2M, n, n)`` in acquisition order."""
+        return split_patterns(self.hadamard.patterns(dtype))
