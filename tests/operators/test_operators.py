@@ -1,0 +1,170 @@
+import pytest
+import scipy.linalg
+import torch
+
+from torchtof.operators import (
+    DMDSplit,
+    Hadamard,
+    PatternOperator,
+    combine_split,
+    hadamard_patterns,
+)
+
+from .registry import OPERATORS
+
+
+@pytest.fixture(params=sorted(OPERATORS))
+def op(request):
+    return OPERATORS[request.param]()
+
+
+def test_adjointness_float64(op):
+    assert op.adjointness_test(dtype=torch.float64) < 1e-12
+
+
+def test_matrix_consistent_with_forward(op):
+    x = torch.randn(3, 2, op.n, op.n, dtype=torch.float64)
+    y = op(x)
+    yy = (x.reshape(3, 2, -1) @ op.matrix().T)
+    torch.testing.assert_close(y, yy, rtol=1e-12, atol=1e-12)
+
+
+def test_shapes_batch_and_dtype(op, dtype):
+    for b in (1, 3):
+        x = torch.randn(b, 2, op.n, op.n, dtype=dtype)
+        y = op(x)
+        assert y.shape == (b, 2, op.m) and y.dtype == dtype
+        assert op.adjoint(y).shape == x.shape and op.adjoint(y).dtype == dtype
+
+
+def test_batched_equals_stacked(op):
+    x = torch.randn(3, 1, op.n, op.n, dtype=torch.float64)
+    y = op(x)
+    singles = torch.cat([op(x[i : i + 1]) for i in range(3)])
+    torch.testing.assert_close(y, singles)
+
+
+def test_input_not_modified(op):
+    x = torch.randn(2, 1, op.n, op.n)
+    x0 = x.clone()
+    op.adjoint(op(x))
+    assert torch.equal(x, x0)
+
+
+def test_pinv_is_least_squares(op):
+    x = torch.randn(2, 1, op.n, op.n, dtype=torch.float64)
+    y = op(x)
+    xp = op.pinv(y)
+    torch.testing.assert_close(op(xp), y, rtol=1e-8, atol=1e-8)
+
+
+def test_gradcheck(op):
+    x = torch.randn(1, 1, op.n, op.n, dtype=torch.float64, requires_grad=True)
+    y = torch.randn(1, 1, op.m, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(op, (x,))
+    assert torch.autograd.gradcheck(op.adjoint, (y,))
+
+
+@pytest.mark.parametrize("n", [2, 4, 8, 16, 32])
+@pytest.mark.parametrize("order", ["natural", "cake_cutting", "sequency", "russian_doll"])
+def test_rows_are_scipy_hadamard_rows(n, order):
+    if n == 2:
+        with pytest.raises(ValueError, match="n"):
+            Hadamard(n, order=order)
+        return
+    big = n * n
+    A = Hadamard(n, order=order)
+    rows = (A.matrix() * n).round().to(torch.int64)
+    H = torch.from_numpy(scipy.linalg.hadamard(big)).to(torch.int64)
+    torch.testing.assert_close(rows, H[A.index])
+    # every order is a permutation of the full basis
+    assert torch.equal(torch.sort(A.index).values, torch.arange(big))
+
+
+@pytest.mark.parametrize("method", ["matmul", "fwht"])
+def test_orthonormal_rows(method):
+    A = Hadamard(16, sr=0.3, method=method)
+    a = A.matrix()
+    torch.testing.assert_close(a @ a.T, torch.eye(A.m, dtype=a.dtype), rtol=0, atol=1e-12)
+    assert A.orthonormal_rows
+
+
+def test_fwht_equals_matmul_float32():
+    x = torch.randn(4, 1, 32, 32)
+    a, b = Hadamard(32, sr=0.4, method="fwht"), Hadamard(32, sr=0.4, method="matmul")
+    torch.testing.assert_close(a(x), b(x), rtol=1e-5, atol=1e-4)
+    y = a(x)
+    torch.testing.assert_close(a.adjoint(y), b.adjoint(y), rtol=1e-5, atol=1e-5)
+
+
+def test_full_set_pinv_exact():
+    A = Hadamard(16)
+    x = torch.rand(2, 1, 16, 16, dtype=torch.float64)
+    torch.testing.assert_close(A.pinv(A(x)), x, rtol=0, atol=1e-12)
+
+
+def test_sr_prefix_property():
+    big, small = Hadamard(16, sr=0.5), Hadamard(16, sr=0.125)
+    x = torch.randn(1, 1, 16, 16)
+    torch.testing.assert_close(big(x)[..., : small.m], small(x))
+
+
+def test_dmd_split_patterns_binary_and_combine():
+    A = Hadamard(8, sr=0.5)
+    S = DMDSplit(A)
+    p = S.patterns()
+    assert set(p.unique().tolist()) <= {0.0, 1.0}
+    torch.testing.assert_close(p[0::2] + p[1::2], torch.ones_like(p[0::2]))
+    x = torch.rand(2, 1, 8, 8, dtype=torch.float64)
+    torch.testing.assert_close(combine_split(S(x), 8), A(x))
+    # offset common to both frames cancels: y⁺ − y⁻ is unchanged by a constant added to all
+    torch.testing.assert_close(S.combine(S(x) + 7.0), A(x))
+
+
+def test_pattern_operator_matches_hadamard():
+    A = Hadamard(8, sr=0.5)
+    P = PatternOperator(hadamard_patterns(8, A.m, dtype=torch.float64) / 8)
+    assert P.orthonormal_rows
+    x = torch.randn(2, 3, 8, 8, dtype=torch.float64)
+    torch.testing.assert_close(P(x), A(x))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(n=12), "power of two"),
+        (dict(n=512), "power of two"),
+        (dict(n=8, sr=0.0), "sr"),
+        (dict(n=8, sr=1.5), "sr"),
+        (dict(n=8, m=0), "m"),
+        (dict(n=8, m=65), "m"),
+        (dict(n=8, sr=0.5, m=4), "exactly one"),
+        (dict(n=8, order="zigzag"), "order"),
+        (dict(n=8, method="dense"), "method"),
+    ],
+)
+def test_bad_config(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Hadamard(**kwargs)
+
+
+def test_bad_inputs():
+    A = Hadamard(8, sr=0.25)
+    with pytest.raises(ValueError, match=r"Hadamard.forward: expected x of shape \(\*, \*, 8, 8\)"):
+        A(torch.zeros(1, 1, 4, 4))
+    with pytest.raises(ValueError, match="rank 4"):
+        A(torch.zeros(8, 8))
+    with pytest.raises(ValueError, match=r"expected y of shape \(\*, \*, 16\)"):
+        A.adjoint(torch.zeros(1, 1, 15))
+    with pytest.raises(ValueError, match="NaN"):
+        A.adjoint(torch.full((1, 1, 16), float("nan")))
+    with pytest.raises(TypeError, match="floating-point"):
+        A(torch.zeros(1, 1, 8, 8, dtype=torch.int64))
+    with pytest.raises(TypeError, match="torch.Tensor"):
+        A([[1.0]])
+    with pytest.raises(ValueError, match="patterns"):
+        PatternOperator(torch.zeros(3, 4, 5))
+    with pytest.raises(TypeError, match="Hadamard"):
+        DMDSplit(PatternOperator(torch.ones(2, 4, 4)))
+    with pytest.raises(ValueError, match="even"):
+        combine_split(torch.zeros(1, 1, 3), 4)

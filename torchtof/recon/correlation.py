@@ -1,0 +1,145 @@
+"""Correlation (ghost-imaging) reconstructors: g2, traditional GI and differential GI.
+
+The patterns are the rows ``φ_i`` of the operator ``A`` (``y_i = ⟨φ_i, x⟩``) and
+``⟨·⟩`` is the mean over the ``M`` measurements. With ``R_i = Σ_u φ_i(u)`` the row sums:
+
+- normalised second-order correlation (paper Eq. 9; Eq. 10 with depth buckets ``D_i``):
+  ``g2(u) = ⟨y φ(u)⟩ / (⟨y⟩ ⟨φ(u)⟩)``;
+- traditional GI: ``G(u) = ⟨y φ(u)⟩ − ⟨y⟩⟨φ(u)⟩``;
+- differential GI (Ferri et al., PRL 104, 253603, 2010):
+  ``G(u) = ⟨y φ(u)⟩ − (⟨y⟩ / ⟨R⟩) ⟨R φ(u)⟩``.
+
+Every sum over patterns is one adjoint ``Aᵀ`` (fast for Hadamard), never a Python loop.
+
+**Zero denominators.** ``g2`` divides by ``⟨y⟩⟨φ⟩`` and DGI by ``⟨R⟩``; both vanish for
+legitimate inputs (all-zero buckets; ±1 Hadamard rows, whose sums are zero except the
+first). Both quotients are taken as the Tikhonov-regularised ``a·b / (b² + δ²)`` with
+``δ = √ε·max|b| + tiny`` (ε the dtype's machine epsilon): equal to ``a/b`` to relative
+``ε`` wherever ``b`` is not negligible, and tending to 0 — never NaN or Inf — where it is.
+
+**Negative images.** With raw depth buckets (no gate) ``D_i`` falls as more light arrives
+(paper §3.1), so every correlation image comes out negative; the sign is physical and kept
+(resolve it with :func:`torchtof.metrics.resolve_sign`).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..operators.base import LinearOperator
+
+__all__ = ["cgi", "g2", "tgi", "dgi", "CGI", "TGI", "DGI"]
+
+
+def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a / b`` regularised as ``a b / (b² + δ²)``, ``δ = √eps · max|b| + tiny`` (per sample)."""
+    info = torch.finfo(b.dtype)
+    scale = b.abs().flatten(2).amax(dim=-1)[..., None, None] if b.ndim == 4 else b.abs().amax()
+    delta = scale * info.eps**0.5 + info.tiny**0.5
+    return a * b / (b * b + delta * delta)
+
+
+def _check(y: torch.Tensor, A: LinearOperator, func: str) -> None:
+    if not isinstance(A, LinearOperator):
+        raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
+    A._check_y(y, func)
+
+
+def _pattern_stats(A: LinearOperator, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row sums ``R = A·1`` ``(M,)`` and mean pattern ``⟨φ⟩ = Aᵀ1 / M`` ``(n, n)``."""
+    ones_x = like.new_ones(1, 1, A.n, A.n)
+    ones_y = like.new_ones(1, 1, A.m)
+    return A(ones_x)[0, 0], A.adjoint(ones_y)[0, 0] / A.m
+
+
+def tgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
+    """Traditional ghost image ``⟨yφ⟩ − ⟨y⟩⟨φ⟩ = Aᵀ(y − ⟨y⟩) / M``.
+
+    Args:
+        y: buckets ``(B, C, M)``.
+        A: operator whose rows are the patterns.
+
+    Returns:
+        ``(B, C, n, n)``.
+    """
+    _check(y, A, "tgi")
+    return A.adjoint(y - y.mean(dim=-1, keepdim=True)) / A.m
+
+
+def cgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
+    """Normalised second-order correlation ``g2 = ⟨yφ⟩ / (⟨y⟩⟨φ⟩)`` (paper Eqs. 9–10).
+
+    Args:
+        y: buckets ``(B, C, M)`` (intensity ``S_i`` or depth ``D_i``).
+        A: operator whose rows are the patterns ``φ_i`` (e.g. the 0/1 DMD patterns of
+            :class:`~torchtof.operators.DMDSplit`).
+
+    Returns:
+        ``(B, C, n, n)``; a zero mean bucket gives 0 (see module docstring), never NaN.
+
+    Example:
+        >>> from torchtof.operators import Hadamard, DMDSplit
+        >>> S = DMDSplit(Hadamard(8))
+        >>> x = torch.zeros(1, 1, 8, 8); x[..., 2:5, 3:6] = 1
+        >>> g = cgi(S(x), S)
+        >>> bool(g[0, 0, 3, 4] > g[0, 0, 0, 0])
+        True
+    """
+    _check(y, A, "cgi")
+    _, mean_phi = _pattern_stats(A, y)
+    num = A.adjoint(y) / A.m
+    den = y.mean(dim=-1, keepdim=True)[..., None] * mean_phi
+    return _safe_div(num, den)
+
+
+g2 = cgi
+
+
+def dgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
+    """Differential ghost image ``⟨yφ⟩ − (⟨y⟩/⟨R⟩)⟨Rφ⟩`` (Ferri et al. 2010).
+
+    Args:
+        y: buckets ``(B, C, M)``.
+        A: operator whose rows are the patterns; ``R_i`` are its row sums.
+
+    Returns:
+        ``(B, C, n, n)``. Patterns with ``⟨R⟩ = 0`` (balanced ±1 rows) reduce it to
+        ``⟨yφ⟩`` (the regularised quotient vanishes).
+    """
+    _check(y, A, "dgi")
+    r, _ = _pattern_stats(A, y)
+    ratio = _safe_div(y.mean(dim=-1, keepdim=True), r.mean().expand(y.shape[:-1] + (1,)))
+    return A.adjoint(y - ratio * r) / A.m
+
+
+class _Correlation(torch.nn.Module):
+    _fn = staticmethod(tgi)
+
+    def __init__(self, A: LinearOperator) -> None:
+        super().__init__()
+        if not isinstance(A, LinearOperator):
+            raise TypeError(
+                f"{type(self).__name__}: expected A to be a LinearOperator, got {type(A).__name__}"
+            )
+        self.A = A
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return type(self)._fn(y, self.A)
+
+
+class CGI(_Correlation):
+    """Module of :func:`cgi` (g2, paper Eq. 9/10): ``forward(y (B,C,M)) -> (B,C,n,n)``."""
+
+    _fn = staticmethod(cgi)
+
+
+class TGI(_Correlation):
+    """Module of :func:`tgi` (traditional GI)."""
+
+    _fn = staticmethod(tgi)
+
+
+class DGI(_Correlation):
+    """Module of :func:`dgi` (differential GI, Ferri 2010)."""
+
+    _fn = staticmethod(dgi)
