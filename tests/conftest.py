@@ -1,7 +1,9 @@
 import pytest
 import torch
 
-torch.set_num_threads(min(2, torch.get_num_threads()))
+# One intra-op thread per test process: tiny kernels (4×4 convs) are ~1000x slower when
+# two OpenMP threads contend with the other xdist worker on a 2-core machine.
+torch.set_num_threads(1)
 
 
 @pytest.fixture(params=[torch.float32, torch.float64], ids=["f32", "f64"])

@@ -1,0 +1,19 @@
+"""torchtof: depth imaging with time-of-flight cameras as bucket detectors of computational
+ghost imaging, as PyTorch modules (see README and DESIGN.md)."""
+
+from . import bucket, experiment, metrics, operators, recon, scenes, sensor
+from .experiment import PaperExperiment
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "operators",
+    "sensor",
+    "bucket",
+    "recon",
+    "metrics",
+    "scenes",
+    "experiment",
+    "PaperExperiment",
+    "__version__",
+]

@@ -1,0 +1,147 @@
+"""Tests of the ToF pixel noise: shot (Poisson / Gaussian), read noise, full well, ADC."""
+
+import pytest
+import torch
+
+from torchtof.sensor.noise import ToFNoise, adc_quantize, read_noise, shot_noise, tof_noise
+
+DTYPES = [torch.float32, torch.float64]
+MEANS = torch.tensor([10.0, 50.0, 100.0, 400.0])
+
+
+def _gen(seed=0):
+    return torch.Generator().manual_seed(seed)
+
+
+def _const_taps(h=64, w=64, dtype=torch.float64):
+    return MEANS.to(dtype).view(1, 4, 1, 1).expand(1, 4, h, w).clone()
+
+
+@pytest.mark.parametrize("mode", ["poisson", "gaussian"])
+def test_shot_noise_statistics(mode):
+    x = _const_taps()
+    y = shot_noise(x, mode, _gen(1))
+    mean = y.mean(dim=(0, 2, 3))
+    var = y.var(dim=(0, 2, 3))
+    # 4096 samples per tap: mean within ~4 sigma, variance within 10 %
+    assert torch.allclose(mean, MEANS.double(), atol=float(4 * (MEANS.max() / 4096) ** 0.5))
+    torch.testing.assert_close(var, MEANS.double(), rtol=0.1, atol=0)
+    if mode == "poisson":
+        assert torch.equal(y, y.round()) and bool((y >= 0).all())
+
+
+@pytest.mark.parametrize("mode", ["poisson", "gaussian"])
+def test_shot_noise_seeded_reproducible(mode):
+    x = _const_taps(4, 4)
+    assert torch.equal(shot_noise(x, mode, _gen(7)), shot_noise(x, mode, _gen(7)))
+    assert not torch.equal(shot_noise(x, mode, _gen(7)), shot_noise(x, mode, _gen(8)))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("mode", ["poisson", "gaussian"])
+def test_shot_noise_dtype_shape_noinplace(dtype, mode):
+    for b in (1, 3):
+        x = torch.full((b, 4, 2, 3), 20.0, dtype=dtype)
+        x0 = x.clone()
+        y = shot_noise(x, mode, _gen())
+        assert y.dtype == dtype and y.shape == (b, 4, 2, 3)
+        assert torch.equal(x, x0)
+
+
+def test_shot_noise_zero_and_negative_taps():
+    x = torch.tensor([0.0, -3.0, 0.0, 0.0]).view(1, 4, 1, 1)
+    assert shot_noise(x, "poisson", _gen()).flatten().tolist() == [0.0, 0.0, 0.0, 0.0]
+    assert shot_noise(x, "gaussian", _gen()).flatten().tolist() == [0.0, 0.0, 0.0, 0.0]
+
+
+def test_poisson_straight_through_gradient():
+    x = torch.full((1, 4, 2, 2), 30.0, dtype=torch.float64, requires_grad=True)
+    shot_noise(x, "poisson", _gen()).sum().backward()
+    assert bool((x.grad == 1).all())
+
+
+def test_gaussian_shot_gradcheck_and_zero_gradient():
+    x = (torch.rand(1, 4, 2, 2, dtype=torch.float64, generator=_gen(2)) * 50 + 5).requires_grad_()
+    assert torch.autograd.gradcheck(lambda t: shot_noise(t, "gaussian", _gen(3)), (x,))
+    z = torch.zeros(1, 4, 1, 1, dtype=torch.float64, requires_grad=True)
+    shot_noise(z, "gaussian", _gen()).sum().backward()
+    assert torch.isfinite(z.grad).all()
+
+
+def test_read_noise_statistics_and_identity():
+    x = torch.full((1, 4, 64, 64), 100.0, dtype=torch.float64)
+    y = read_noise(x, 3.0, _gen(4))
+    assert abs(float(y.mean()) - 100.0) < 0.1
+    assert abs(float(y.std()) - 3.0) < 0.1
+    assert torch.equal(read_noise(x, 0.0, _gen()), x)
+
+
+def test_adc_saturation_and_rounding():
+    x = torch.tensor([-5.0, 0.4, 0.6, 2.5, 4094.6, 4095.0, 5000.0, 1e9]).view(1, 4, 1, 2)
+    out = adc_quantize(x, bits=12).flatten().tolist()
+    assert out == [0.0, 0.0, 1.0, 2.0, 4095.0, 4095.0, 4095.0, 4095.0]
+    # gain 10 e-/DN, 8 bits: 123 e- -> 12 DN; 3000 e- -> 255 (saturated)
+    x = torch.tensor([0.0, 123.0, 127.0, 3000.0]).view(1, 4, 1, 1)
+    assert adc_quantize(x, bits=8, gain_e_per_dn=10.0).flatten().tolist() == [
+        0.0,
+        12.0,
+        13.0,
+        255.0,
+    ]
+
+
+def test_adc_straight_through_gradient():
+    x = torch.tensor([-1.0, 12.3, 40.6, 1e6], dtype=torch.float64).view(1, 4, 1, 1).requires_grad_()
+    adc_quantize(x, bits=12, gain_e_per_dn=2.0).sum().backward()
+    assert x.grad.flatten().tolist() == [0.0, 0.5, 0.5, 0.0]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_adc_dtype(dtype):
+    assert adc_quantize(torch.ones(3, 4, 2, 2, dtype=dtype) * 7.7).dtype == dtype
+
+
+def test_tof_noise_noise_free_identity():
+    x = torch.rand(3, 4, 5, 5, generator=_gen()) * 100
+    assert torch.equal(tof_noise(x, shot=None, read_noise_e=0.0, adc_bits=None), x)
+
+
+def test_tof_noise_full_well_and_order():
+    x = torch.tensor([10.0, 500.0, 2000.0, 9000.0]).view(1, 4, 1, 1)
+    out = tof_noise(x, shot=None, full_well_e=1000.0, adc_bits=12, gain_e_per_dn=0.5)
+    assert out.flatten().tolist() == [20.0, 1000.0, 2000.0, 2000.0]  # well clips before ADC
+
+
+def test_tof_noise_seeded_and_module_equals_function():
+    x = _const_taps(8, 8, torch.float32)
+    kw = dict(shot="poisson", read_noise_e=2.0, full_well_e=None, adc_bits=12, gain_e_per_dn=1.0)
+    a = tof_noise(x, **kw, generator=_gen(5))
+    b = ToFNoise(**kw)(x, _gen(5))
+    assert torch.equal(a, b) and a.dtype == torch.float32
+    assert torch.equal(a, a.round())  # ADC output is integer DN
+
+
+def test_noise_errors():
+    x = torch.ones(1, 4, 2, 2)
+    with pytest.raises(ValueError, match="shot_noise: expected mode in"):
+        shot_noise(x, "laplace")
+    with pytest.raises(ValueError, match=r"shot_noise: expected taps of shape \(\*, 4"):
+        shot_noise(torch.ones(1, 1, 2, 2))
+    with pytest.raises(ValueError, match="shot_noise: expected taps of rank 4"):
+        shot_noise(torch.ones(4, 2, 2))
+    with pytest.raises(TypeError, match="shot_noise: expected taps to be a real"):
+        shot_noise(x.to(torch.complex64))
+    with pytest.raises(ValueError, match="read_noise: expected sigma_e >= 0"):
+        read_noise(x, -1.0)
+    with pytest.raises(ValueError, match=r"adc_quantize: expected bits in \[1, 32\]"):
+        adc_quantize(x, bits=0)
+    with pytest.raises(TypeError, match="adc_quantize: expected bits to be an int"):
+        adc_quantize(x, bits=12.0)
+    with pytest.raises(ValueError, match="adc_quantize: expected gain_e_per_dn > 0"):
+        adc_quantize(x, gain_e_per_dn=0.0)
+    with pytest.raises(ValueError, match="tof_noise: expected shot in"):
+        tof_noise(x, shot="gauss")
+    with pytest.raises(ValueError, match="ToFNoise: expected full_well_e > 0"):
+        ToFNoise(full_well_e=0.0)
+    with pytest.raises(ValueError, match="shot_noise: taps contains non-finite"):
+        shot_noise(torch.full((1, 4, 1, 1), float("nan")))

@@ -1,0 +1,225 @@
+"""Tests of torchtof.scenes: the character 天, depth scenes, scikit-image scenes, registry."""
+
+import pytest
+import torch
+
+from torchtof.scenes import (
+    SCENES,
+    SKIMAGE_NAMES,
+    Scene,
+    binary_scene,
+    depth_scene,
+    depth_steps,
+    get_scene,
+    motorcycle_depth,
+    skimage_scene,
+    sky_character,
+)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Tiny tensors: avoid OpenMP oversubscription on a shared 2-core runner (results unchanged)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _runs(row: torch.Tensor) -> list[tuple[int, int]]:
+    """(start, length) of the runs of ones in a 1-D 0/1 tensor."""
+    out, start = [], None
+    for j, v in enumerate(row.tolist() + [0.0]):
+        if v and start is None:
+            start = j
+        elif not v and start is not None:
+            out.append((start, j - start))
+            start = None
+    return out
+
+
+# ---------------------------------------------------------------- sky_character
+@pytest.mark.parametrize("n", [8, 16, 31, 32, 64])
+def test_sky_shape_binary_symmetric(n):
+    x = sky_character(n)
+    assert x.shape == (1, 1, n, n)
+    assert x.dtype == torch.float32
+    assert set(x.unique().tolist()) == {0.0, 1.0}
+    assert torch.equal(x, x.flip(-1)), "天 must be left-right symmetric"
+    assert torch.equal(x, sky_character(n)), "must be deterministic"
+
+
+def test_sky_dtype_device():
+    x = sky_character(16, dtype=torch.float64, device="cpu")
+    assert x.dtype == torch.float64 and x.device.type == "cpu"
+
+
+@pytest.mark.parametrize("n, width", [(32, 2), (64, 4), (48, 3), (47, 3)])
+def test_sky_stroke_structure(n, width):
+    x = sky_character(n)[0, 0]
+    rows = x.sum(1)
+    # margin: nothing on the outer rows/columns
+    assert rows[0] == 0 and rows[-1] == 0 and x[:, 0].sum() == 0 and x[:, -1].sum() == 0
+    # two horizontal bars = two groups of `width` wide rows, the upper one shorter
+    bar_rows = (rows >= 0.4 * n).nonzero().flatten().tolist()
+    groups = _runs((rows >= 0.4 * n).float())
+    assert [g[1] for g in groups] == [width, width], groups
+    top, mid = groups
+    assert rows[top[0]] < rows[mid[0]]
+    assert bar_rows[0] > 0.1 * n and bar_rows[-1] < 0.6 * n
+    # between the bars: only the vertical stroke, `width` px wide, centred
+    for r in range(top[0] + top[1], mid[0]):
+        (run,) = _runs(x[r])
+        assert run[1] == width + (n - width) % 2 and run[0] + run[1] / 2 == n / 2
+    # below the crossing: two legs whose gap widens downwards, reaching the lower quarter
+    gaps = []
+    for r in range(mid[0] + mid[1] + width + 1, n):
+        runs = _runs(x[r])
+        if not runs:
+            break
+        assert len(runs) == 2, (r, runs)
+        gaps.append(runs[1][0] - (runs[0][0] + runs[0][1]))
+    assert len(gaps) > n // 4
+    assert all(b >= a for a, b in zip(gaps[:-1], gaps[1:], strict=True)) and gaps[-1] > gaps[0]
+
+
+def test_sky_errors():
+    with pytest.raises(ValueError, match="sky_character: expected n >= 8"):
+        sky_character(7)
+    with pytest.raises(TypeError, match="sky_character: expected n to be an int"):
+        sky_character(32.0)
+
+
+# ---------------------------------------------------------------- depth_scene
+def test_depth_scene_known_answer():
+    m = torch.tensor([[[[0.0, 1.0], [1.0, 0.0]]]])
+    m0 = m.clone()
+    s = depth_scene(m, object_m=2.0)
+    assert isinstance(s, Scene)
+    assert torch.equal(s.reflectance, m) and torch.equal(s.depth_m, 2.0 * m)
+    s = depth_scene(m, object_m=2.0, background_m=4.0)
+    assert torch.equal(s.reflectance, torch.ones_like(m))
+    assert torch.equal(s.depth_m, torch.tensor([[[[4.0, 2.0], [2.0, 4.0]]]]))
+    assert torch.equal(m, m0)
+
+
+@pytest.mark.parametrize("b", [1, 3])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_depth_scene_batch_dtype(b, dtype):
+    m = (torch.rand(b, 1, 5, 5, generator=torch.Generator().manual_seed(0)) > 0.5).to(dtype)
+    s = depth_scene(m, 1.5, 3.0)
+    assert s.depth_m.shape == (b, 1, 5, 5) and s.depth_m.dtype == dtype
+    singles = torch.cat([depth_scene(m[i : i + 1], 1.5, 3.0).depth_m for i in range(b)])
+    assert torch.equal(s.depth_m, singles)
+
+
+def test_depth_scene_bool_mask():
+    s = depth_scene(sky_character(16).bool())
+    assert s.reflectance.dtype == torch.float32 and float(s.depth_m.max()) == 2.0
+
+
+def test_depth_scene_errors():
+    with pytest.raises(ValueError, match="depth_scene: expected object_mask to hold only 0 and 1"):
+        depth_scene(torch.full((1, 1, 2, 2), 0.5))
+    with pytest.raises(ValueError, match="depth_scene: expected object_mask of rank 4"):
+        depth_scene(torch.ones(2, 2))
+    with pytest.raises(ValueError, match="depth_scene: expected object_m > 0"):
+        depth_scene(torch.ones(1, 1, 2, 2), object_m=0.0)
+    with pytest.raises(ValueError, match="depth_scene: expected background_m > 0"):
+        depth_scene(torch.ones(1, 1, 2, 2), background_m=-1.0)
+    with pytest.raises(TypeError, match="depth_scene: expected object_mask to be a torch.Tensor"):
+        depth_scene([[1.0]])
+
+
+# ---------------------------------------------------------------- depth_steps
+def test_depth_steps():
+    s = depth_steps(32)
+    assert s.depth_m.shape == (1, 1, 32, 32) and s.depth_m.dtype == torch.float32
+    assert torch.equal(s.reflectance, torch.ones_like(s.reflectance))
+    assert set(s.depth_m.unique().tolist()) == {1.5, 2.0, 2.5, 3.0}
+    assert float(s.depth_m[0, 0, 0, 0]) in {1.5, 2.0, 2.5, 3.0}
+    assert torch.equal(s.depth_m, depth_steps(32).depth_m), "same seed, same scene"
+    assert not torch.equal(s.depth_m, depth_steps(32, seed=1).depth_m)
+    t = depth_steps(16, levels=(1.0, 4.0), dtype=torch.float64)
+    assert t.depth_m.dtype == torch.float64 and set(t.depth_m.unique().tolist()) <= {1.0, 4.0}
+    assert float(t.depth_m.max()) == 4.0  # the farthest level is the background
+
+
+def test_depth_steps_errors():
+    with pytest.raises(ValueError, match="depth_steps: expected at least two levels"):
+        depth_steps(16, levels=(2.0,))
+    with pytest.raises(ValueError, match="depth_steps: expected levels > 0"):
+        depth_steps(16, levels=(2.0, -1.0))
+
+
+# ---------------------------------------------------------------- scikit-image scenes
+@pytest.mark.parametrize("name", SKIMAGE_NAMES)
+def test_skimage_scene_all_names(name):
+    x = skimage_scene(name, 16)
+    assert x.shape == (1, 1, 16, 16) and x.dtype == torch.float32
+    assert torch.isfinite(x).all() and x.min() >= 0 and x.max() <= 1 and x.max() > x.min()
+
+
+def test_skimage_scene_deterministic_and_errors():
+    assert torch.equal(skimage_scene("camera", 32), skimage_scene("camera", 32))
+    with pytest.raises(ValueError, match="skimage_scene: expected name in"):
+        skimage_scene("kidney", 32)  # not bundled (needs a download)
+    with pytest.raises(ValueError, match="skimage_scene: expected n >= 8"):
+        skimage_scene("camera", 4)
+
+
+def test_binary_scene_horse():
+    x = binary_scene("horse", 32)
+    assert x.shape == (1, 1, 32, 32)
+    assert set(x.unique().tolist()) == {0.0, 1.0}
+    assert 0.1 < float(x.mean()) < 0.5  # the horse is the object, not the white background
+    assert float(x[0, 0, 0].mean()) < 0.5
+    assert binary_scene("coins", 16, dtype=torch.float64).dtype == torch.float64
+
+
+# ---------------------------------------------------------------- motorcycle
+def test_motorcycle_depth():
+    z = motorcycle_depth(32)
+    assert z.shape == (1, 1, 32, 32) and z.dtype == torch.float32
+    assert torch.isfinite(z).all()
+    assert float(z.min()) == pytest.approx(1.0, abs=1e-6)
+    assert float(z.max()) == pytest.approx(4.0, abs=1e-6)
+    assert z.std() > 0.3  # a real, structured depth map
+    z2 = motorcycle_depth(16, near_m=2.0, far_m=3.0, dtype=torch.float64)
+    assert z2.dtype == torch.float64 and z2.min() >= 2.0 - 1e-12 and z2.max() <= 3.0 + 1e-12
+
+
+def test_motorcycle_errors():
+    with pytest.raises(ValueError, match="motorcycle_depth: expected far_m > near_m"):
+        motorcycle_depth(16, near_m=3.0, far_m=2.0)
+
+
+# ---------------------------------------------------------------- registry
+@pytest.mark.parametrize("name", [*SCENES, "skimage:camera", "binary:horse"])
+@pytest.mark.parametrize("dtype", [None, torch.float64])
+def test_get_scene_every_name(name, dtype):
+    s = get_scene(name, 16, dtype=dtype, device="cpu")
+    assert isinstance(s, Scene)
+    for t in s:
+        assert t.shape == (1, 1, 16, 16)
+        assert t.dtype == (dtype or torch.float32)
+        assert torch.isfinite(t).all()
+    assert s.reflectance.min() >= 0 and s.reflectance.max() <= 1
+    assert s.depth_m.min() >= 0
+    lit = s.reflectance > 0
+    assert (s.depth_m[lit] > 0).all(), "every pixel that returns light has a distance"
+
+
+def test_get_scene_sky_is_paper_object():
+    s = get_scene()
+    assert torch.equal(s.reflectance, sky_character(32))
+    assert torch.equal(s.depth_m, 2.0 * sky_character(32))
+
+
+def test_get_scene_errors():
+    with pytest.raises(ValueError, match="get_scene: expected name in"):
+        get_scene("moon")
+    with pytest.raises(ValueError, match="skimage_scene: expected name in"):
+        get_scene("skimage:nope")
+    with pytest.raises(ValueError, match="get_scene: expected object_m > 0"):
+        get_scene("skimage:camera", object_m=0.0)

@@ -1,0 +1,757 @@
+"""TVAL3: total-variation minimisation by an augmented Lagrangian (Li, Yin, Jiang, Zhang 2013).
+
+The solver is a batched transcription of TVAL3's ``ftvcs_alp`` (v1.0; C. Li, Rice MS thesis
+2009). It solves
+
+.. math::
+
+    \\min_u \\sum_i \\|D_i u\\| \\quad \\text{s.t.}\\quad A u = b \\qquad (u \\ge 0 \\text{ optional})
+
+by splitting ``w_i = D_i u`` and minimising the augmented Lagrangian
+
+.. math::
+
+    \\mathcal L(w, u) = \\sum_i \\|w_i\\| - \\sigma^T (Du - w) + \\tfrac{\\beta}{2}\\|Du - w\\|^2
+    - \\delta^T (Au - b) + \\tfrac{\\mu}{2}\\|Au - b\\|^2
+
+by alternating a shrinkage ``w``-step with one steepest-descent ``u``-step (Barzilai–Borwein
+length, Barzilai & Borwein 1988; nonmonotone Armijo search, Zhang & Hager 2004) until the inner
+relative change drops below ``tol_inner``, then updating the multipliers
+``σ ← σ − β(Du − w)``, ``δ ← δ − μ(Au − b)``. The TV-L2 model
+``min Σ‖D_i u‖ + μ/2‖Au − b‖²`` (TVAL3's ``ftvcs_al_TVL2p``) is the same iteration with
+``δ ≡ 0``; it is what ``mu="auto"`` uses on noisy buckets (see :func:`tval3`).
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from .._checks import check_finite, check_positive, check_shape, check_tensor
+from ..operators.base import LinearOperator
+from ._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
+
+__all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma"]
+
+#: Spread ``max(b) − min(b)`` that the buckets are scaled to (TVAL3's ``Scaleb`` keeps spreads in
+#: ``[0.5, 1.5]`` and maps larger ones to 1.5; we always map to 1.5, see :func:`tval3`).
+B_SPREAD = 1.5
+#: ``mu="auto"``: constant ``κ`` of the TV-L2 weight ``μ = κ / σ_s`` (``σ_s`` the noise std of the
+#: scaled buckets), calibrated on binary and natural scenes (see :func:`tval3`).
+AUTO_KAPPA = 1.0
+#: ``mu="auto"`` keeps the equality-constrained model (``μ = 2⁸``) when ``κ / σ_s`` exceeds this.
+AUTO_MU_MAX = 2.0**8
+_POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
+_N_BACKTRACK = 5  # ftvcs_alp gives up after 5 backtracks
+
+
+class TVAL3Result(NamedTuple):
+    """Output of :func:`tval3`.
+
+    Attributes:
+        x: reconstruction ``(B, C, n, n)``.
+        n_iter: inner iterations run per sample ``(B, C)`` (int64).
+        residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)`` (0 for an all-zero ``y``).
+        converged: ``(B, C)`` bool, ``True`` where the outer stopping rule was met before
+            ``max_iter``.
+    """
+
+    x: torch.Tensor
+    n_iter: torch.Tensor
+    residual: torch.Tensor
+    converged: torch.Tensor
+
+
+# -- small helpers ----------------------------------------------------------------------------
+
+
+def _i(s: torch.Tensor) -> torch.Tensor:  # per-sample scalar (B, C) -> image broadcast
+    return s[..., None, None]
+
+
+def _f(s: torch.Tensor) -> torch.Tensor:  # per-sample scalar -> gradient-field broadcast
+    return s[..., None, None, None]
+
+
+def _dot_i(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(dim=(-2, -1))
+
+
+def _dot_f(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(dim=(-3, -2, -1))
+
+
+def _dot_v(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(dim=-1)
+
+
+def _tv_of_w(w: torch.Tensor, isotropic: bool) -> torch.Tensor:
+    """``Σ_i ‖w_i‖`` of a gradient field ``(B, C, 2, n, n) -> (B, C)``."""
+    if isotropic:
+        return torch.sqrt((w * w).sum(dim=-3)).sum(dim=(-2, -1))
+    return w.abs().sum(dim=(-3, -2, -1))
+
+
+def bucket_noise_sigma(y: torch.Tensor, tail: float = 0.25) -> torch.Tensor:
+    """Noise std of the buckets from the high-order tail of ``y`` (median absolute value).
+
+    For Hadamard orders that put low sequencies first (cake-cutting, sequency, Russian-doll,
+    DESIGN.md §2) the last measurements carry little signal, so the robust estimate
+    ``σ̂ = median(|y_tail|) / 0.6745`` (Donoho & Johnstone 1994, MAD of the finest-scale
+    coefficients) over the last ``tail`` fraction of the measurements (at least 8 of them) is
+    dominated by noise. Signal left in the tail biases ``σ̂`` upwards; for operators without
+    such an order pass the noise level to :func:`tval3` instead.
+
+    Args:
+        y: buckets ``(B, C, M)``.
+        tail: fraction of the measurements (from the end) used, in ``(0, 1]``.
+
+    Returns:
+        ``(B, C)`` estimated noise std, in the units of ``y``.
+    """
+    m = y.shape[-1]
+    k = min(m, max(8, int(math.ceil(tail * m))))
+    t = y[..., m - k :].abs()
+    med = torch.sort(t, dim=-1).values[..., (k - 1) // 2]  # lower median, ONNX-friendly
+    return med / 0.6745
+
+
+# -- exact u-step: (D^T D + rho A^T A) u = r by Woodbury around the FFT-diagonal D^T D ----------
+
+_EXACT_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _exact_factors(A: LinearOperator, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Cached ``(kinv, lam, V, aV, a)`` for :func:`_exact_solve` (computed in float64).
+
+    ``K = DᵀD + P₀`` (periodic Laplacian plus the projector on constants, FFT-diagonal, SPD);
+    ``S = A K⁻¹ Aᵀ = V diag(lam) Vᵀ`` (``m × m``); ``a = A e₀`` with ``e₀ = 1/n`` (unit constant).
+    """
+    per_op = _EXACT_CACHE.setdefault(A, {})
+    key = (like.dtype, like.device)
+    if key not in per_op:
+        n, m = A.n, A.m
+        with torch.no_grad():
+            dt = torch.float64
+            eig = laplacian_eigs(n, n, dtype=dt, device=like.device)[:, : n // 2 + 1]
+            eig[0, 0] = 1.0
+            kinv = 1.0 / eig
+            eye = torch.eye(m, dtype=dt, device=like.device).reshape(m, 1, m)
+            cols = torch.fft.irfft2(torch.fft.rfft2(A.adjoint(eye)) * kinv, s=(n, n))
+            s = A(cols).reshape(m, m)
+            lam, v = torch.linalg.eigh((s + s.T) / 2)
+            a = A(torch.full((1, 1, n, n), 1.0 / n, dtype=dt, device=like.device)).reshape(m)
+            out = (kinv, lam.clamp_min(0), v, a @ v, a)
+        per_op[key] = tuple(t.to(dtype=like.dtype) for t in out)
+    return per_op[key]
+
+
+def _exact_solve(
+    r: torch.Tensor,
+    rho: torch.Tensor,
+    fwd,
+    adj,
+    factors: tuple[torch.Tensor, ...],
+    inv_s2: float,
+    has_dc: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Solve ``(DᵀD + ρ AᵀA) u = r`` per sample; return ``(u, A u)``.
+
+    Woodbury identity with ``U = [Aᵀ, e₀]``, ``E = diag(ρ I, −1)`` around ``K = DᵀD + P₀``
+    (Hager 1989): the capacitance ``[[I/ρ + S, a], [aᵀ, 0]]`` is solved through the cached
+    eigendecomposition of ``S`` (so each sample may have its own ``ρ``) and a scalar border.
+    Without a constant component in the row space (``a = 0``) the border drops and ``u`` is
+    the zero-mean solution. ``inv_s2`` is TVAL3's ``ScaleA`` factor (``A ← A/√s2``).
+    """
+    kinv, lam, v, av, a = factors
+    n = r.shape[-1]
+    lam = lam * inv_s2
+    av = av * math.sqrt(inv_s2)
+    z = torch.fft.irfft2(torch.fft.rfft2(r) * kinv, s=(n, n))
+    p = fwd(z)
+    dinv = 1.0 / (1.0 / rho[..., None] + lam)  # (B, C, m)
+    pv = p @ v
+    if has_dc:
+        q = z.sum(dim=(-2, -1)) / n
+        t = (_dot_v(av * dinv, pv) - q) / _dot_v(av * av, dinv)
+        xv = (pv - t[..., None] * av) * dinv
+    else:
+        t = torch.zeros_like(rho)
+        xv = pv * dinv
+    x = xv @ v.T
+    u = z - torch.fft.irfft2(torch.fft.rfft2(adj(x)) * kinv, s=(n, n)) - _i(t) / n
+    au = p - (xv * lam) @ v.T - t[..., None] * (a * math.sqrt(inv_s2))
+    return u, au
+
+
+# -- the solver --------------------------------------------------------------------------------
+
+
+def _largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
+    """Largest eigenvalue of ``AᵀA`` by power iteration (TVAL3 ``ScaleA`` uses ``eigs``)."""
+    n = A.n
+    with torch.no_grad():
+        k = torch.arange(n * n, dtype=torch.float64, device=like.device)
+        x = (1.0 + 0.5 * torch.cos(k * 2.399963)).reshape(1, 1, n, n)  # deterministic start
+        s = 0.0
+        for _ in range(_POWER_STEPS):
+            x = x / x.norm()
+            z = A.normal(x)
+            s = float((z * x).sum())
+            x = z
+    return s
+
+
+def _where(mask: torch.Tensor, new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
+    """``torch.where`` with a per-sample ``(B, C)`` mask (logical ops for bool state: ONNX
+    Runtime has no boolean ``Where``)."""
+    if new.dtype == torch.bool:
+        return (mask & new) | (~mask & old)
+    return torch.where(mask.reshape(mask.shape + (1,) * (new.ndim - mask.ndim)), new, old)
+
+
+def tval3(
+    y: torch.Tensor,
+    A: LinearOperator,
+    mu: float | str = "auto",
+    beta: float = 2.0**5,
+    tol: float = 1e-6,
+    tol_inner: float = 1e-3,
+    max_iter: int = 1025,
+    tv: str = "isotropic",
+    nonneg: bool = False,
+    *,
+    tvl2: bool = False,
+    noise_sigma: float | torch.Tensor | None = None,
+    max_outer: int = 10,
+    ctn_steps: int = 0,
+    rate_ctn: float = 2.0,
+    u_step: str = "bb",
+    adaptive: bool = True,
+) -> TVAL3Result:
+    """TVAL3 reconstruction ``min Σ‖D_i u‖ s.t. A u = y`` (Li, Yin, Jiang, Zhang 2013).
+
+    One inner iteration of ``ftvcs_alp`` (TVAL3 v1.0), per sample, all ``B·C`` samples at once:
+
+    1. step length: steepest descent ``τ = dᵀd / (‖Dd‖² + (μ/β)‖Ad‖²)`` on the first inner
+       step, else Barzilai–Borwein ``τ = |sᵀs / max(sᵀy, ε)|`` with ``s = u_k − u_{k−1}``,
+       ``y = Dᵀ(Du−w)_k − Dᵀ(Du−w)_{k−1} + (μ/β)(AᵀAu_k − AᵀAu_{k−1})``; the direction is
+       ``d = Dᵀ(Du − w) + (μ/β)Aᵀ(Au − b) − (Dᵀσ + Aᵀδ)/β`` (gradient of ``ℒ`` over ``β``);
+    2. ``u⁺ = u − τ d`` (``max(u⁺, 0)`` if ``nonneg``);
+    3. nonmonotone Armijo search (Zhang & Hager 2004, Eq. 1.4): accept ``α ∈ {1, .6, …, .6⁵}``
+       at the first ``f(u + α(u⁺ − u)) ≤ C − α · 10⁻⁵ β τ ‖d‖²``; ``f`` is quadratic in ``α``
+       along the segment, so every trial costs a few scalars (cached ``Au``, ``AᵀAu``, ``Du``
+       are updated linearly, as ``ftvcs_alp`` does). After 5 failures: ``γ_Q ← 0.9 γ_Q`` and a
+       steepest-descent step from ``u``;
+    4. shrinkage ``w = shrink(Du − σ/β, 1/β)`` (isotropic: per-pixel 2-vector; anisotropic:
+       componentwise);
+    5. reference value ``Q ← γ_Q Q + 1``, ``C ← (γ_Q Q_old C + f)/Q`` (``γ_Q = 0.9995``);
+    6. if ``‖u_k − u_{k−1}‖/‖u_{k−1}‖ < tol_inner`` (not on a first step): stop when
+       ``‖u − u_last‖/‖u_{k−1}‖ < tol`` (``u_last`` = ``u`` at the previous multiplier update)
+       or after ``max_outer`` updates, else ``σ ← σ − β(Du − w)``, ``δ ← δ − μ(Au − b)``,
+       continuation ``β ← min(2β, β_f)``, ``μ ← min(2μ, μ_f)``, reset ``C = f``, ``Q = 1``.
+
+    Scaling: rows are left alone when ``A.orthonormal_rows`` (TVAL3's ``A Aᵀ = I`` test); else
+    ``A`` and ``y`` are divided by ``√s₂``, ``s₂`` the largest eigenvalue of ``AᵀA`` (power
+    iteration; ``ScaleA``) when ``s₂ > 1``. The buckets of each sample are then multiplied by
+    ``scl = 1.5 / (max y − min y)`` and the result divided by it (``Scaleb``; TVAL3 rescales
+    only spreads outside ``[0.5, 1.5]`` and maps large ones to 1.5 — we always map to 1.5, so
+    ``tval3(c·y) = c·tval3(y)`` exactly for every ``c > 0``). A sample whose buckets are all
+    equal uses ``max |y|`` for the spread; an all-zero ``y`` returns zeros (``n_iter = 0``,
+    ``residual = 0``, ``converged = True``). The start is ``u₀ = Aᵀb`` (TVAL3 ``init = 1``).
+
+    Noise (``mu="auto"``, the default): the equality-constrained model fits the noise, so each
+    sample gets its model from its noise level ``σ`` (``noise_sigma`` in the units of ``y``, or
+    :func:`bucket_noise_sigma` of ``y``), measured in scaled units ``σ_s = σ·scl/√s₂``: if
+    ``μ_auto = AUTO_KAPPA / σ_s`` exceeds ``AUTO_MU_MAX = 2⁸`` (noise negligible) the published
+    constrained model with ``μ = 2⁸``; otherwise the TV-L2 model
+    ``min Σ‖D_i u‖ + μ_auto/2 ‖Au − b‖²`` (TVAL3's ``TVL2`` option; δ stays 0). ``μ ∝ 1/σ``
+    because TV is 1-homogeneous: the TV subgradient is bounded, so the data gradient
+    ``μ Aᵀ(Au − b)`` that balances it must stay bounded as the residual ``∼σ`` grows.
+
+    Args:
+        y: buckets ``(B, C, M)``, ``M = A.m``; float32 or float64.
+        A: measurement operator (:class:`~torchtof.operators.LinearOperator`).
+        mu: data weight ``μ > 0`` (published default ``2⁸``) or ``"auto"`` (see above).
+        beta: TV splitting weight ``β > 0`` (TVAL3 default ``2⁵``).
+        tol: outer tolerance on the relative change between multiplier updates.
+        tol_inner: inner tolerance on the relative change of one step.
+        max_iter: total number of inner iterations (``≥ 1``).
+        tv: ``"isotropic"`` (TVAL3 ``TVnorm = 2``) or ``"anisotropic"`` (``TVnorm = 1``).
+        nonneg: project ``u`` onto ``u ≥ 0`` after each step (projected gradient).
+        tvl2: with a numeric ``mu``, solve the TV-L2 model instead of the constrained one.
+        noise_sigma: noise std of ``y`` for ``mu="auto"`` (float or ``(B, C)`` tensor);
+            ``None`` estimates it with :func:`bucket_noise_sigma`.
+        max_outer: maximum number of multiplier updates (TVAL3 ``maxcnt = 10``).
+        ctn_steps: continuation: start at ``μ/2^k``, ``β/2^k`` (TVAL3 ``mu0``, ``beta0``) and
+            double both at every multiplier update up to ``μ``, ``β`` (``rate_ctn = 2``).
+        rate_ctn: continuation factor (``> 1``).
+        u_step: ``"bb"`` (published: one BB step + nonmonotone search) or ``"exact"``:
+            minimise ``ℒ`` over ``u`` exactly, ``(βDᵀD + μAᵀA)u = Dᵀ(βw + σ) + Aᵀ(μb + δ)``,
+            by Woodbury around the FFT-diagonal ``DᵀD`` with a cached ``M × M``
+            eigendecomposition (one forward, one adjoint, two FFT solves per step; with
+            ``nonneg`` the exact minimiser is projected, then it is no longer exact).
+        adaptive: ``True``: early exit once every sample has converged and work for the
+            steepest-descent/fallback branches only where some sample needs it. ``False``:
+            exactly ``max_iter`` iterations with every branch computed and selected by masks,
+            no ``.item()`` or Python ``if`` on tensor values, so ``torch.onnx.export`` and
+            ``torch.jit.trace`` can record it (graph size grows with ``max_iter``). Both give
+            the same iterates (converged samples stay frozen in both).
+
+    Returns:
+        :class:`TVAL3Result` ``(x, n_iter, residual, converged)``.
+
+    Raises:
+        TypeError: ``y`` not a floating tensor, ``A`` not a ``LinearOperator``, bad option types.
+        ValueError: wrong shape of ``y``, NaN/Inf in ``y``, ``mu``/``beta``/tolerances not
+            positive, ``max_iter < 1``, unknown ``tv``/``u_step``, ``tvl2`` with ``mu="auto"``.
+
+    Shape:
+        ``y (B, C, M) -> x (B, C, n, n)``; ``n_iter``, ``residual``, ``converged``: ``(B, C)``.
+
+    Example:
+        >>> from torchtof.operators import Hadamard
+        >>> A = Hadamard(8, sr=0.5)
+        >>> x = torch.zeros(1, 1, 8, 8); x[..., 2:6, 2:6] = 1.0
+        >>> res = tval3(A(x), A, mu=2**8)
+        >>> bool((res.x - x).abs().max() < 1e-2), res.x.shape
+        (True, torch.Size([1, 1, 8, 8]))
+    """
+    fn = "tval3"
+    check_tensor(y, "y", fn)
+    if not isinstance(A, LinearOperator):
+        raise TypeError(f"{fn}: expected A to be a LinearOperator, got {type(A).__name__}")
+    check_shape(y, (None, None, A.m), "y", fn, "(B, C, M)")
+    if y.is_complex() or y.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{fn}: expected y of dtype float32 or float64, got {y.dtype}")
+    check_finite(y, "y", fn)
+    opts = _check_options(
+        fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn_steps, rate_ctn, u_step
+    )
+
+    # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
+    s2 = 1.0 if A.orthonormal_rows else _largest_eig_normal(A, y)
+    inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
+    spread = y.amax(dim=-1) - y.amin(dim=-1)
+    spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
+    zero = spread == 0
+    scl = B_SPREAD / torch.where(zero, torch.ones_like(spread), spread)
+    b = y * (scl * math.sqrt(inv_s2))[..., None]
+
+    # Model and weights per sample.
+    if mu == "auto":
+        sigma = bucket_noise_sigma(y) if noise_sigma is None else _sigma_tensor(noise_sigma, y)
+        sigma_s = sigma * scl * math.sqrt(inv_s2)
+        mu_auto = AUTO_KAPPA / sigma_s.clamp_min(torch.finfo(y.dtype).tiny)
+        constrained = mu_auto > AUTO_MU_MAX
+        mu_f = torch.where(constrained, torch.full_like(mu_auto, AUTO_MU_MAX), mu_auto)
+    else:
+        mu_f = torch.full_like(spread, float(mu))
+        constrained = (torch.zeros_like if tvl2 else torch.ones_like)(spread, dtype=torch.bool)
+
+    u = _solve(b, A, mu_f, constrained, zero, inv_s2, nonneg=nonneg, adaptive=adaptive, **opts)
+    x = u.x / _i(scl)
+    ax = A(x)
+    ynorm = y.norm(dim=-1)
+    residual = (ax - y).norm(dim=-1) / torch.where(zero, torch.ones_like(ynorm), ynorm)
+    return TVAL3Result(x, u.n_iter, residual, u.converged)
+
+
+def _sigma_tensor(noise_sigma: float | torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    if isinstance(noise_sigma, torch.Tensor):
+        s = noise_sigma.to(dtype=y.dtype, device=y.device)
+        if s.ndim > 2 or bool((s < 0).any()) or not bool(torch.isfinite(s).all()):
+            raise ValueError(
+                f"tval3: expected noise_sigma >= 0 and finite, broadcastable to (B, C), "
+                f"got shape {tuple(s.shape)}"
+            )
+        return torch.broadcast_to(s, y.shape[:-1])
+    check_positive(noise_sigma, "noise_sigma", "tval3", strict=False)
+    return y.new_full(y.shape[:-1], float(noise_sigma))
+
+
+def _check_options(fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn, rate, u_step):
+    if isinstance(mu, str):
+        if mu != "auto":
+            raise ValueError(f"{fn}: expected mu to be a positive number or 'auto', got {mu!r}")
+        if tvl2:
+            raise ValueError(f"{fn}: tvl2=True needs a numeric mu, got mu='auto'")
+    else:
+        check_positive(mu, "mu", fn)
+    check_positive(beta, "beta", fn)
+    check_positive(tol, "tol", fn)
+    check_positive(tol_inner, "tol_inner", fn)
+    check_positive(rate, "rate_ctn", fn)
+    if rate <= 1:
+        raise ValueError(f"{fn}: expected rate_ctn > 1, got {rate}")
+    for name, val, lo in (
+        ("max_iter", max_iter, 1),
+        ("max_outer", max_outer, 1),
+        ("ctn_steps", ctn, 0),
+    ):
+        if isinstance(val, bool) or not isinstance(val, int):
+            raise TypeError(f"{fn}: expected {name} to be an int, got {type(val).__name__}")
+        if val < lo:
+            raise ValueError(f"{fn}: expected {name} >= {lo}, got {val}")
+    if tv not in ("isotropic", "anisotropic"):
+        raise ValueError(f"{fn}: expected tv in ('isotropic', 'anisotropic'), got {tv!r}")
+    if u_step not in ("bb", "exact"):
+        raise ValueError(f"{fn}: expected u_step in ('bb', 'exact'), got {u_step!r}")
+    return dict(
+        beta=float(beta),
+        tol=float(tol),
+        tol_inner=float(tol_inner),
+        max_iter=max_iter,
+        isotropic=tv == "isotropic",
+        max_outer=max_outer,
+        ctn_steps=ctn,
+        rate_ctn=float(rate),
+        u_step=u_step,
+    )
+
+
+class _Out(NamedTuple):
+    x: torch.Tensor
+    n_iter: torch.Tensor
+    converged: torch.Tensor
+
+
+def _solve(
+    b: torch.Tensor,
+    A: LinearOperator,
+    mu_f: torch.Tensor,
+    constrained: torch.Tensor,
+    zero: torch.Tensor,
+    inv_s2: float,
+    disc2: torch.Tensor | None = None,
+    *,
+    beta: float,
+    tol: float,
+    tol_inner: float,
+    max_iter: int,
+    isotropic: bool,
+    nonneg: bool,
+    max_outer: int,
+    ctn_steps: int,
+    rate_ctn: float,
+    u_step: str,
+    adaptive: bool,
+    c: float = 1e-5,
+    gamma: float = 0.6,
+    gam0: float = 0.9995,
+    rate_gam: float = 0.9,
+) -> _Out:
+    """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`)."""
+    sq = math.sqrt(inv_s2)
+    if sq == 1.0:
+        fwd, adj = A.forward, A.adjoint
+    else:
+
+        def fwd(u):
+            return A(u) * sq
+
+        def adj(r):
+            return A.adjoint(r) * sq
+
+    exact = u_step == "exact"
+    if exact:
+        factors = _exact_factors(A, b)
+        has_dc = bool(factors[4].abs().max() > 1e-6)  # property of A, not of the data
+    eps = torch.finfo(torch.float64).eps  # MATLAB eps in max(sy, eps)
+    tiny = torch.finfo(b.dtype).tiny
+    alphas = gamma ** torch.arange(_N_BACKTRACK + 1, dtype=b.dtype, device=b.device)
+
+    def shrink_w(du, sig, bet):
+        return shrink(du - sig / _f(bet), _f(1.0 / bet), isotropic)
+
+    def objective(lam1, v, r, sig, dlt, bet, mu):
+        return (
+            lam1 + bet / 2 * _dot_f(v, v) + mu / 2 * _dot_v(r, r) - _dot_f(sig, v) - _dot_v(dlt, r)
+        )
+
+    ctn = rate_ctn ** (-ctn_steps)
+    beta_f = torch.full_like(mu_f, beta)
+    zeros = torch.zeros_like(mu_f)
+    bet, mu = beta_f * ctn, mu_f * ctn
+    mu_dlt = torch.where(constrained, torch.ones_like(mu_f), zeros)  # 0: TV-L2 (δ ≡ 0)
+    atb = adj(b)
+    u = atb
+    du = grad2(u)
+    sig = torch.zeros_like(du)
+    dlt = torch.zeros_like(b)
+    w = shrink_w(du, sig, bet)
+    lam1 = _tv_of_w(w, isotropic)
+    au = fwd(u)
+    g = adj(au) - atb
+    v = du - w
+    g2 = grad2_adjoint(v)
+    f = objective(lam1, v, au - b, sig, dlt, bet, mu)
+    st = dict(
+        u=u,
+        du=du,
+        au=au,
+        g=g,
+        w=w,
+        g2=g2,
+        f=f,
+        d=g2 + _i(mu / bet) * g,
+        dts=torch.zeros_like(u),
+        sig=sig,
+        dlt=dlt,
+        bet=bet,
+        mu=mu,
+        cref=f,
+        q=torch.ones_like(f),
+        gam=torch.full_like(f, gam0),
+        tau_bb=torch.ones_like(f),
+        first=torch.ones_like(zero),
+        count=torch.ones_like(f, dtype=torch.int64),
+        n_iter=torch.zeros_like(f, dtype=torch.int64),
+        rcd=u,
+        done=zero.clone(),
+    )
+
+    def sd_length(d, rho):
+        dd_ = grad2(d)
+        ad = fwd(d)
+        return _dot_i(d, d) / (_dot_f(dd_, dd_) + rho * _dot_v(ad, ad)).clamp_min(tiny)
+
+    def step(st: dict) -> dict:
+        active = ~st["done"]
+        first, bet, mu, sig, dlt, dts = (
+            st["first"],
+            st["bet"],
+            st["mu"],
+            st["sig"],
+            st["dlt"],
+            st["dts"],
+        )
+        w, d, f, gam = st["w"], st["d"], st["f"], st["gam"]
+        up, gp, g2p, aup, dup = st["u"], st["g"], st["g2"], st["au"], st["du"]
+        rho = mu / bet
+        if exact:
+            rhs = grad2_adjoint(w) + _i(rho) * atb + dts
+            u, au = _exact_solve(rhs, rho, fwd, adj, factors, inv_s2, has_dc)
+            if nonneg:
+                u = u.clamp_min(0)
+                au = fwd(u)
+            du = grad2(u)
+            g = gp  # AᵀAu − Aᵀb is only needed at a multiplier update (computed there)
+        else:
+            # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
+            tau_sd = None
+            if (not adaptive) or bool((first & active).any()):
+                tau_sd = sd_length(d, rho)
+                tau = torch.where(first, tau_sd, st["tau_bb"])
+            else:
+                tau = st["tau_bb"]
+            # 2. trial step
+            u1 = up - _i(tau) * d
+            if nonneg:
+                u1 = u1.clamp_min(0)
+            du1 = grad2(u1)
+            au1 = fwd(u1)
+            g1 = adj(au1) - atb
+            # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
+            dU, dDU, dAu = u1 - up, du1 - dup, au1 - aup
+            vp, rp = dup - w, aup - b
+            a1 = bet * _dot_f(vp, dDU) + mu * _dot_v(rp, dAu) - _dot_f(sig, dDU) - _dot_v(dlt, dAu)
+            a2 = bet / 2 * _dot_f(dDU, dDU) + mu / 2 * _dot_v(dAu, dAu)
+            const = c * bet * tau * _dot_i(d, d)
+            al = alphas.reshape(-1, *([1] * f.ndim))
+            ok = f + al * a1 + al * al * a2 <= st["cref"] - al * const
+            fallback = ~ok.any(dim=0)
+            alpha = torch.where(fallback, zeros, alphas[torch.argmax(ok.to(f.dtype), dim=0)])
+            u = up + _i(alpha) * dU
+            du = dup + _f(alpha) * dDU
+            au = aup + alpha[..., None] * dAu
+            g = gp + _i(alpha) * (g1 - gp)
+            gam = torch.where(fallback, gam * rate_gam, gam)
+            if (not adaptive) or bool((fallback & active).any()):
+                # five failed backtracks: steepest-descent step from up (ftvcs_alp)
+                if tau_sd is None:
+                    tau_sd = sd_length(d, rho)
+                usd = up - _i(tau_sd) * d
+                if nonneg:
+                    usd = usd.clamp_min(0)
+                ausd = fwd(usd)
+                u = _where(fallback, usd, u)
+                du = _where(fallback, grad2(usd), du)
+                au = _where(fallback, ausd, au)
+                g = _where(fallback, adj(ausd) - atb, g)
+        # 4. shrinkage w-step at the new u
+        w = shrink_w(du, sig, bet)
+        lam1 = _tv_of_w(w, isotropic)
+        v = du - w
+        g2 = grad2_adjoint(v)
+        r = au - b
+        s = u - up
+        ss = _dot_i(s, s)
+        out = dict(st, u=u, du=du, au=au, g=g, w=w, g2=g2, gam=gam)
+        if not exact:
+            f = objective(lam1, v, r, sig, dlt, bet, mu)
+            # 5. Zhang-Hager reference value; BB length for the next step
+            q = gam * st["q"] + 1
+            out["cref"] = (gam * st["q"] * st["cref"] + f) / q
+            out["q"], out["f"] = q, f
+            sy = _dot_i(s, (g2 - g2p) + _i(rho) * (g - gp))
+            out["tau_bb"] = (ss / sy.clamp_min(eps)).abs()
+            out["d"] = g2 + _i(rho) * g - dts
+        # 6. inner / outer stopping rules
+        nrm_up = up.norm(dim=(-2, -1)).clamp_min(tiny)
+        inner = active & ~first & (ss.sqrt() / nrm_up < tol_inner)
+        count = st["count"] + inner.to(torch.int64)
+        rel_out = (u - st["rcd"]).norm(dim=(-2, -1)) / nrm_up
+        stop = inner & ((rel_out < tol) | (count > max_outer))
+        if disc2 is not None:
+            stop = stop | (inner & (_dot_v(r, r) <= disc2))
+        outer = inner & ~stop
+        out.update(
+            count=count,
+            rcd=_where(inner, u, st["rcd"]),
+            first=outer,
+            done=st["done"] | stop,
+            n_iter=st["n_iter"] + 1,
+        )
+        if (not adaptive) or bool(outer.any()):
+            # multiplier update, continuation, reset of the nonmonotone reference
+            if exact:
+                g = adj(au) - atb
+                d = g2 + _i(rho) * g - dts
+            else:
+                d = out["d"]
+            sig_o = sig - _f(bet) * v
+            dlt_o = dlt - (mu * mu_dlt)[..., None] * r
+            bet_o = torch.minimum(bet * rate_ctn, beta_f)
+            mu_o = torch.minimum(mu * rate_ctn, mu_f)
+            ratio = _i(bet / bet_o)
+            # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
+            dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
+            d_o = g2 + _i(mu_o / bet_o) * g - dts_o
+            f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
+            out.update(
+                sig=_where(outer, sig_o, sig),
+                dlt=_where(outer, dlt_o, dlt),
+                bet=torch.where(outer, bet_o, bet),
+                mu=torch.where(outer, mu_o, mu),
+                dts=_where(outer, dts_o, dts),
+                d=_where(outer, d_o, out["d"]),
+            )
+            if not exact:
+                out.update(
+                    f=torch.where(outer, f_o, out["f"]),
+                    cref=torch.where(outer, f_o, out["cref"]),
+                    q=torch.where(outer, torch.ones_like(f_o), out["q"]),
+                    gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
+                )
+        return out
+
+    for _ in range(max_iter):
+        if adaptive and bool(st["done"].all()):
+            break
+        new = step(st)
+        if adaptive and not bool(st["done"].any()):
+            st = new
+        else:
+            active = ~st["done"]
+            st = {k: _where(active, new[k], st[k]) for k in st}
+    return _Out(st["u"], st["n_iter"], st["done"])
+
+
+class TVAL3(nn.Module):
+    """TVAL3 reconstructor: ``forward(y) -> x`` with the operator held inside (see :func:`tval3`).
+
+    Args:
+        A: measurement operator (registered as a submodule, so ``.to()`` moves its buffers).
+        mu, beta, tol, tol_inner, max_iter, tv, nonneg: as in :func:`tval3`.
+        **options: the keyword-only options of :func:`tval3` (``tvl2``, ``noise_sigma``,
+            ``max_outer``, ``ctn_steps``, ``rate_ctn``, ``u_step``, ``adaptive``).
+
+    Attributes:
+        last_result: the :class:`TVAL3Result` of the last call (``None`` before the first).
+
+    Shape:
+        ``(B, C, M) -> (B, C, n, n)``.
+
+    Example:
+        >>> from torchtof.operators import Hadamard
+        >>> rec = TVAL3(Hadamard(8, sr=0.5), mu=2**8)
+        >>> rec(torch.zeros(2, 1, 32)).shape
+        torch.Size([2, 1, 8, 8])
+    """
+
+    def __init__(
+        self,
+        A: LinearOperator,
+        mu: float | str = "auto",
+        beta: float = 2.0**5,
+        tol: float = 1e-6,
+        tol_inner: float = 1e-3,
+        max_iter: int = 1025,
+        tv: str = "isotropic",
+        nonneg: bool = False,
+        **options,
+    ) -> None:
+        super().__init__()
+        if not isinstance(A, LinearOperator):
+            raise TypeError(f"TVAL3: expected A to be a LinearOperator, got {type(A).__name__}")
+        unknown = set(options) - set(_KW_OPTIONS)
+        if unknown:
+            raise TypeError(f"TVAL3: unexpected options {sorted(unknown)}")
+        opts = {k: options.get(k, v) for k, v in _KW_OPTIONS.items()}
+        _check_options(
+            "TVAL3",
+            mu,
+            beta,
+            tol,
+            tol_inner,
+            max_iter,
+            tv,
+            opts["tvl2"],
+            opts["max_outer"],
+            opts["ctn_steps"],
+            opts["rate_ctn"],
+            opts["u_step"],
+        )
+        self.A = A
+        self.options = dict(
+            mu=mu,
+            beta=beta,
+            tol=tol,
+            tol_inner=tol_inner,
+            max_iter=max_iter,
+            tv=tv,
+            nonneg=nonneg,
+            **opts,
+        )
+        self.last_result: TVAL3Result | None = None
+
+    def solve(self, y: torch.Tensor) -> TVAL3Result:
+        """Run :func:`tval3` and keep the result in :attr:`last_result`."""
+        self.last_result = tval3(y, self.A, **self.options)
+        return self.last_result
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return self.solve(y).x
+
+    def extra_repr(self) -> str:
+        o = self.options
+        return (
+            f"mu={o['mu']!r}, beta={o['beta']}, max_iter={o['max_iter']}, tv={o['tv']!r}, "
+            f"u_step={o['u_step']!r}, adaptive={o['adaptive']}"
+        )
+
+
+_KW_OPTIONS = dict(
+    tvl2=False,
+    noise_sigma=None,
+    max_outer=10,
+    ctn_steps=0,
+    rate_ctn=2.0,
+    u_step="bb",
+    adaptive=True,
+)
