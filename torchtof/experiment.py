@@ -120,8 +120,8 @@ class ExperimentConfig:
     scattering: bool = False
     scattering_model: str = "phasor"
     alpha: float = 0.6
-    scatter_sigma_px: float = 1.5
-    backscatter_e: float = 140.0  # peak backscatter amplitude (dust map maximum)
+    scatter_sigma_px: float = 2.0
+    backscatter_e: float = 700.0  # peak backscatter amplitude (dust map maximum)
     sheet_m: float = 1.2
     depth_s_m: float = 0.4  # Eq. 15's Dˢ scale for the depth-domain model
     dust_sigma_px: float = 6.0

@@ -1,0 +1,115 @@
+"""The paper's experiment: calibration, the acceptance claims for g2/DGI, and the data API."""
+
+import pytest
+import torch
+
+from torchtof.experiment import PAPER_SRS, ExperimentConfig, PaperExperiment, stray_light
+from torchtof.methods import evaluate, raw_tof_scores
+from torchtof.operators import DMDSplit, Hadamard
+
+
+@pytest.fixture(scope="module")
+def air():
+    return PaperExperiment(sr=0.125).run(seed=0, realisations=2)
+
+
+@pytest.fixture(scope="module")
+def sheet():
+    return PaperExperiment(sr=0.125, scattering=True).run(seed=0, realisations=2)
+
+
+def test_raw_tof_calibrated_near_paper(air):
+    raw = raw_tof_scores(air)["psnr"]
+    assert 5.0 < raw < 7.5  # paper: 5.70 dB (README explains the ~0.8 dB gap)
+
+
+@pytest.mark.parametrize("gate", [False, True])
+def test_g2_and_dgi_beat_raw_tof_at_every_sr(air, gate):
+    raw = raw_tof_scores(air)["psnr"]
+    for sr in PAPER_SRS:
+        rows, _ = evaluate(air, sr, gate, methods=("CGI", "DGI"))
+        for r in rows:
+            assert r["psnr"] > raw, (sr, gate, r)
+
+
+@pytest.mark.parametrize("gate", [False, True])
+def test_g2_and_dgi_beat_raw_through_sheet(sheet, gate):
+    raw = raw_tof_scores(sheet)["psnr"]
+    for sr in PAPER_SRS:
+        rows, _ = evaluate(sheet, sr, gate, methods=("CGI", "DGI"))
+        for r in rows:
+            assert r["psnr"] > raw, (sr, gate, r)
+
+
+def test_shapes_prefixes_and_polarity(air):
+    m = air.m(0.375)
+    assert air.buckets["depth"].shape == (2, 1, 2 * m)
+    assert air.buckets["taps"].shape == (2, 4, 2 * m)
+    assert air.raw_tof.shape == (2, 1, 64, 64) and air.raw_tof_image.shape == (2, 1, 32, 32)
+    A, y = air.measurements(0.125, gate=True)
+    assert isinstance(A, Hadamard) and A.m == 128 and y.shape == (2, 1, 128)
+    torch.testing.assert_close(air.split_buckets(0.125), air.buckets["depth"][..., :256])
+    assert air.polarity(False) == "negative" and air.polarity(True) == "positive"
+    # ungated depth buckets fall as light arrives: D(φ⁺ all on) is the smallest bucket
+    assert air.buckets["depth"][0, 0, 0] < air.buckets["depth"][0, 0, 1]
+    # the camera rules hold on every raw pixel
+    assert air.raw_tof.min() >= 1.0 and air.raw_tof.max() <= 5.0
+
+
+def test_noise_free_chain_is_linear_in_expectation():
+    """Without noise, stray light and multipath, the gated depth bucket is exactly
+    2 m × (lit sensor pixels), so (y⁺ − y⁻)/n = A(2·4·x) and PINV recovers the object."""
+    exp = PaperExperiment(
+        sr=1.0, n=8, roi_px=16, srs=(1.0,), ambient_e=0.0, read_noise_e=0.0, stray_e=0.0,
+        multipath_strength=0.0, psf_sigma_px=0.0, adc_bits=None, amp_threshold_e=1.0,
+        scene="binary:horse",
+    )
+    data = exp.run(seed=0)
+    A, y = data.measurements(1.0, gate=True)
+    x = A.pinv(y)
+    torch.testing.assert_close(x / (2.0 * 4), data.x.expand_as(x), atol=0.15, rtol=0)
+
+
+def test_deterministic_given_seed():
+    exp = PaperExperiment(sr=0.125, n=16, roi_px=32, srs=(0.125,))
+    a, b = exp.run(seed=3), exp.run(seed=3)
+    assert torch.equal(a.buckets["depth"], b.buckets["depth"])
+    c = exp.run(seed=4)
+    assert not torch.equal(a.buckets["depth"], c.buckets["depth"])
+
+
+def test_stray_light_cancels_in_differential():
+    cfg = ExperimentConfig(n=16, roi_px=32).validate()
+    s = stray_light(cfg)
+    assert s.shape == (1, 1, 32, 32) and s.is_complex()
+    assert float(s.abs().max()) == pytest.approx(cfg.stray_e, rel=1e-5)
+
+
+def test_split_operator_matches_patterns(air):
+    S = air.split_operator(0.0625)
+    assert isinstance(S, DMDSplit) and S.m == 2 * air.m(0.0625)
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        (dict(sr=0.0), ValueError, "sr"),
+        (dict(alpha=0.0), ValueError, "alpha"),
+        (dict(alpha=1.5), ValueError, "alpha"),
+        (dict(signal_e=-1.0), ValueError, "signal_e"),
+        (dict(roi_px=16), ValueError, "roi_px"),
+        (dict(srs=()), ValueError, "srs"),
+        (dict(scattering_model="fog"), ValueError, "scattering_model"),
+        (dict(colour="red"), TypeError, "unknown arguments"),
+    ],
+)
+def test_bad_config(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        PaperExperiment(**kwargs)
+
+
+def test_bad_sr_request(air):
+    with pytest.raises(ValueError, match="acquired"):
+        air.operator(0.5)
+    with pytest.raises(ValueError, match="kind"):
+        air.split_buckets(0.125, kind="phase")
