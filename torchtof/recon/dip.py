@@ -378,7 +378,6 @@ def fit_dip(
                 ab = _affine_coeffs(ax.flatten(), a1, yf)
                 res = (ab[0] * ax.flatten() + ab[1] * a1 - yf).pow(2).sum()
             if float(res) <= bound:
-                best_iter = t
                 break
         if t == n_iter - 1:
             break  # the last output is evaluated, not stepped past
