@@ -65,7 +65,12 @@ __all__ = ["BASES", "BPResult", "gram_factor", "basis_pursuit", "BasisPursuit"]
 BASES = ("dct", "haar", "identity")
 _CHECK_EVERY = 10
 _NEWTON_STEPS = 20
-_MAD = 0.6744897501960817  # Φ⁻¹(3/4): median |N(0, 1)|
+_MAD = 0.6744897501960817
+TINY=1e-300
+BAL=True
+BALK=1
+MU=10.
+TAU=2.  # Φ⁻¹(3/4): median |N(0, 1)|
 
 
 class BPResult(NamedTuple):
@@ -272,17 +277,23 @@ def basis_pursuit(
     done = active
     if lam is None:
         u = torch.zeros_like(z)
+        rho_t = torch.full_like(iters, rho, dtype=y.dtype)
         for k in range(n_iter):
             x_new = project(inv(z - u))
             wx = fwd(x_new)
             w = alpha * wx + (1 - alpha) * z
-            z_new = _soft(w + u, 1.0 / rho)
+            z_new = _soft(w + u, 1.0 / rho_t[..., None, None])
             u_new = u + w - z_new
-            r_pri = _norm(wx - z_new)
-            r_dual = rho * _norm(z_new - z)
-            done = (r_pri <= tol * torch.maximum(_norm(wx), _norm(z_new))) & (
-                r_dual <= tol * rho * _norm(u_new)
-            )
+            r_pri = _norm(wx - z_new) / torch.maximum(_norm(wx), _norm(z_new)).clamp_min(TINY)
+            r_dual = _norm(z_new - z) / _norm(u_new).clamp_min(TINY)
+            done = (r_pri <= tol) & (r_dual <= tol)
+            if BAL and k % BALK == 0:
+                up = r_pri > MU * r_dual
+                dn = r_dual > MU * r_pri
+                f = torch.where(up, TAU, torch.where(dn, 1.0 / TAU, 1.0)).to(y.dtype)
+                if adaptive: f = torch.where(active, f, 1.0)
+                rho_t = rho_t * f
+                u_new = u_new / f[..., None, None]
             if adaptive:
                 keep = active[..., None, None]
                 x, z, u = (torch.where(keep, a, b) for a, b in ((x_new, x), (z_new, z), (u_new, u)))
