@@ -23,7 +23,7 @@ from .patterns import _check_n_order, hadamard_order, num_patterns
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_FWHT_MIN_N"]
 
 #: From ``torchtof bench operators`` on 2 CPU cores: matmul wins up to this size (exclusive).
-AUTO_FWHT_MIN_N = 1024
+AUTO_FWHT_MIN_N = 256
 METHODS = ("auto", "matmul", "fwht")
 
 
