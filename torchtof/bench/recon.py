@@ -52,10 +52,10 @@ def make_reconstructor(method: str, A: Hadamard, budget):
 
     if method == "PINV":
         return recon.PseudoInverse(A), False
-    if method == "BP":
+    if method == "BP":  # noise-aware BPDN (eps from the estimated noise level)
         if budget is None:
-            return recon.BasisPursuit(A), False
-        return recon.BasisPursuit(A, n_iter=budget, adaptive=False), False
+            return recon.BasisPursuit(A, eps="auto"), False
+        return recon.BasisPursuit(A, eps="auto", n_iter=budget, adaptive=False), False
     if method == "TVAL3":
         if budget is None:
             return recon.TVAL3(A), False

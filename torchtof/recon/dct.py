@@ -64,14 +64,14 @@ def dct_matrix(n: int, dtype: torch.dtype = torch.float64, device=None) -> torch
         raise TypeError(f"dct_matrix: expected n to be an int, got {type(n).__name__}")
     if n < 1:
         raise ValueError(f"dct_matrix: expected n >= 1, got {n}")
-    return _dct_matrix(n, dtype, torch.device(device) if device is not None else torch.device("cpu"))
+    return _dct_matrix(n, dtype, torch.device("cpu" if device is None else device))
 
 
 def _square(x: torch.Tensor, func: str) -> int:
     check_tensor(x, "x", func)
     if x.ndim < 2 or x.shape[-1] != x.shape[-2]:
         raise ValueError(f"{func}: expected x of shape (..., n, n), got {tuple(x.shape)}")
-    return x.shape[-1]
+    return int(x.shape[-1])
 
 
 def _matrix_for(x: torch.Tensor, matrix: torch.Tensor | None, func: str) -> torch.Tensor:
