@@ -12,14 +12,19 @@ Regenerate every shipped weight file (n = 32, 64 at the paper's six SRs) into
 Data-parallel over N processes (DDP, gloo backend on CPU; the union of the shards is the
 single-process global batch, so the result is the same model)::
 
-    torchrun --nproc_per_node 2 examples/train_unrolled.py --n 32 --sr 0.25 --out /tmp/w.pt
+    torchrun --nproc_per_node 2 -- examples/train_unrolled.py --n 32 --sr 0.25 --out /tmp/w.pt
 
-The global ``--batch`` must be divisible by the number of processes.
+(``--`` ends torchrun's own options: without it torchrun's parser rejects ``--n`` as an
+ambiguous abbreviation of its ``--nnodes``/``--nproc-per-node``; ``--size`` is an alias of
+``--n`` that needs no ``--``.) The global ``--batch`` must be divisible by the number of
+processes. Run from an environment where ``torchtof`` is importable (``pip install -e .``
+or ``PYTHONPATH=.``).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import torch
@@ -28,12 +33,12 @@ from torchtof.recon.train import PAPER_SRS, train_unrolled
 from torchtof.recon.unrolled import DEFAULT_N_ITER, WEIGHTS_DIR, sr_code
 
 #: Steps of the shipped weights per image side (≤ ~2 min each on 2 cores).
-ALL_STEPS = {32: 400, 64: 300}
+ALL_STEPS = {32: 400, 64: 600}
 
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--n", type=int, default=32, help="image side (power of two)")
+    p.add_argument("--n", "--size", dest="n", type=int, default=32, help="image side (power of 2)")
     p.add_argument("--sr", type=float, default=0.25, help="sampling rate M/n²")
     p.add_argument("--n-iter", type=int, default=DEFAULT_N_ITER, help="unrolled iterations K")
     p.add_argument("--order", default="cake_cutting", help="Hadamard order")
@@ -84,6 +89,8 @@ def main(argv: list[str] | None = None) -> None:
             log_every=a.log_every,
         )
         dt = time.perf_counter() - t0
+        if int(os.environ.get("RANK", "0")) != 0:
+            continue
         print(
             f"n={n} sr={sr} K={a.n_iter}: loss {res.losses[0]:.5f} -> {res.losses[-1]:.5f} "
             f"in {dt:.1f} s" + (f", wrote {out}" if out else ""),

@@ -2,9 +2,13 @@
 
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
+from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
+from .dip import DIP, DIPResult, dip, fit_dip
 from .pinv import PseudoInverse, pseudo_inverse
-from .tval3 import TVAL3, TVAL3Result, tval3
-from .unrolled import UnrolledTVAL3
+from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
+from .unet import UNet
+from .train import TrainResult, train_unrolled
+from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
     "CGI",
@@ -22,5 +26,20 @@ __all__ = [
     "TVAL3",
     "TVAL3Result",
     "tval3",
+    "bucket_noise_sigma",
     "UnrolledTVAL3",
+    "unrolled_tval3",
+    "train_unrolled",
+    "TrainResult",
+    "UNet",
+    "DIP",
+    "DIPResult",
+    "dip",
+    "fit_dip",
+    "DCT2",
+    "Haar2",
+    "dct2",
+    "idct2",
+    "haar2",
+    "ihaar2",
 ]

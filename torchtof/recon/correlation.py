@@ -34,7 +34,8 @@ __all__ = ["cgi", "g2", "tgi", "dgi", "CGI", "TGI", "DGI"]
 def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """``a / b`` regularised as ``a b / (b² + δ²)``, ``δ = √eps · max|b| + tiny`` (per sample)."""
     info = torch.finfo(b.dtype)
-    scale = b.abs().flatten(2).amax(dim=-1)[..., None, None] if b.ndim == 4 else b.abs().amax()
+    # .max() not .amax(): onnxscript rejects a dim-less aten.amax in the dynamo exporter
+    scale = b.abs().flatten(2).amax(dim=-1)[..., None, None] if b.ndim == 4 else b.abs().max()
     delta = scale * info.eps**0.5 + info.tiny**0.5
     return a * b / (b * b + delta * delta)
 

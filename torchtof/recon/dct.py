@@ -25,13 +25,24 @@ from functools import lru_cache
 import torch
 from torch import nn
 
-from .._checks import check_power_of_two, check_tensor
+from .._checks import check_power_of_two, check_tensor, is_tracing
 
 __all__ = ["dct_matrix", "dct2", "idct2", "haar2", "ihaar2", "DCT2", "Haar2"]
 
 
-@lru_cache(maxsize=32)
 def _dct_matrix(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    # Under torch.export/onnx tracing the tensor would be a fake one: never cache it then.
+    if is_tracing():
+        return _dct_matrix_uncached(n, dtype, device)
+    return _dct_matrix_cached(n, dtype, device)
+
+
+@lru_cache(maxsize=32)
+def _dct_matrix_cached(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    return _dct_matrix_uncached(n, dtype, device)
+
+
+def _dct_matrix_uncached(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     k = torch.arange(n, dtype=torch.float64)[:, None]
     i = torch.arange(n, dtype=torch.float64)[None, :]
     d = torch.cos(math.pi * (2 * i + 1) * k / (2 * n)) * math.sqrt(2.0 / n)

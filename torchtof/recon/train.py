@@ -162,21 +162,21 @@ def train_unrolled(
     A = Hadamard(n, sr=sr, order=order)
     model = UnrolledTVAL3(A, n_iter=n_iter, pretrained=False)
     is_dist, rank, world, created = _dist_setup(distributed)
-    if batch_size % world:
-        raise ValueError(
-            f"{func}: expected batch_size divisible by the world size {world}, got {batch_size}"
-        )
-    shard = batch_size // world
-    indices = range(rank * shard, (rank + 1) * shard)
-    net: nn.Module = model
-    if is_dist:
-        net = nn.parallel.DistributedDataParallel(model, broadcast_buffers=False)
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: 0.1 + 0.45 * (1 + math.cos(math.pi * s / steps))
-    )
-    losses: list[float] = []
     try:
+        if batch_size % world:
+            raise ValueError(
+                f"{func}: expected batch_size divisible by the world size {world}, got {batch_size}"
+            )
+        shard = batch_size // world
+        indices = range(rank * shard, (rank + 1) * shard)
+        net: nn.Module = model
+        if is_dist:
+            net = nn.parallel.DistributedDataParallel(model, broadcast_buffers=False)
+        opt = torch.optim.Adam(model.parameters(), lr=lr)
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda s: 0.1 + 0.45 * (1 + math.cos(math.pi * s / steps))
+        )
+        losses: list[float] = []
         for step in range(steps):
             x = synthetic_scenes(n, seed, step, indices)
             with torch.no_grad():
@@ -199,11 +199,12 @@ def train_unrolled(
                 out,
                 steps=steps,
                 batch_size=batch_size,
+                world_size=world,
                 lr=lr,
                 noise_level=[lo, hi],
                 seed=seed,
                 final_loss=float(np.mean(losses[-max(1, steps // 10) :])),
-                torch_version=torch.__version__,
+                torch_version=str(torch.__version__),
             )
         if is_dist:
             dist.barrier()

@@ -1,0 +1,282 @@
+"""ONNX export of every registered model and onnxruntime parity (torchtof.onnx).
+
+Each model is exported at batch 2 with a dynamic batch axis by the registry's exporter and
+compared with eager PyTorch at batch 1 and 3 on fresh inputs (rtol 1e-4, atol 1e-5 in
+units of the output's peak, float32). An export failure fails the test.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+import torchtof.onnx as tto
+from torchtof.operators import Hadamard
+from torchtof.sensor.functional import correlation_taps, phasor_from_depth
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "onnx_inference.py"
+
+#: Small sizes for the tests (the shipped unrolled weights exist for n = 32 only).
+N, SR = 16, 0.25
+SIZES = {"unrolled_tval3": 32}
+ITERS = {"bp": 5, "tval3": 3, "dip": 5}
+
+
+def _spec_args(name):
+    return SIZES.get(name, N), SR, {"n_iter": ITERS[name]} if name in ITERS else {}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """``get(name) -> (module, path)``: each model built and exported once per module."""
+    cache = {}
+    folder = tmp_path_factory.mktemp("onnx")
+
+    def get(name):
+        if name not in cache:
+            spec = tto.MODELS[name]
+            n, sr, kw = _spec_args(name)
+            module, inputs = spec(n, sr, **kw)
+            path = tto.export(
+                module,
+                inputs,
+                folder / f"{name}.onnx",
+                input_names=spec.inputs,
+                output_names=spec.outputs,
+                exporter=spec.exporter,
+            )
+            cache[name] = module, path
+        return cache[name]
+
+    return get
+
+
+def test_registry_covers_the_issue():
+    wanted = {
+        "hadamard",
+        "hadamard_adjoint",
+        "hadamard_pinv",
+        "pattern_operator",
+        "camera",
+        "depth_gate",
+        "depth_bucket",
+        "intensity_bucket",
+        "tap_buckets",
+        "g2",
+        "tgi",
+        "dgi",
+        "pinv",
+        "bp",
+        "tval3",
+        "unrolled_tval3",
+        "unet",
+        "dip",
+    }
+    assert wanted <= set(tto.MODELS)
+    for spec in tto.MODELS.values():
+        assert spec.exporter in tto.EXPORTERS
+        assert set(spec.shapes) == set(spec.inputs) | set(spec.outputs)
+
+
+@pytest.mark.parametrize("name", list(tto.MODELS))
+def test_export_and_parity(name, exported):
+    module, path = exported(name)
+    model = onnx.load(path)
+    assert {o.domain: o.version for o in model.opset_import}[""] == tto.DEFAULT_OPSET
+    spec = tto.MODELS[name]
+    assert [i.name for i in model.graph.input] == list(spec.inputs)
+    assert [o.name for o in model.graph.output] == list(spec.outputs)
+    for value in list(model.graph.input) + list(model.graph.output):
+        assert value.type.tensor_type.shape.dim[0].dim_param, f"{value.name}: static batch"
+    n, sr, kw = _spec_args(name)
+    for batch in (1, 3):
+        _, inputs = spec(n, sr, batch=batch, seed=1, **kw)
+        report = tto.check(path, module, inputs, rtol=1e-4, atol=1e-5)
+        assert report["ok"]
+        assert all(o["shape"][0] == batch for o in report["outputs"])
+
+
+def test_unrolled_uses_the_shipped_weights():
+    net, _ = tto.MODELS["unrolled_tval3"](32, 0.25)
+    assert net.weights_file is not None and Path(net.weights_file).is_file()
+
+
+def test_check_detects_a_different_model(exported, tmp_path):
+    module, path = exported("g2")
+    _, (y,) = tto.MODELS["g2"](N, SR, batch=3, seed=1)
+    other, _ = tto.MODELS["tgi"](N, SR)
+    with pytest.raises(AssertionError, match="differs from PyTorch"):
+        tto.check(path, other, (y,))
+
+
+def test_export_errors(tmp_path):
+    A = tto.OperatorMethod(Hadamard(8, sr=0.5), "adjoint")
+    y = torch.rand(2, 1, 32)
+    with pytest.raises(ValueError, match="export: expected exporter"):
+        tto.export(A, y, tmp_path / "a.onnx", exporter="jit")
+    with pytest.raises(ValueError, match="export: expected opset 17 or 18, got 13"):
+        tto.export(A, y, tmp_path / "a.onnx", opset=13)
+    with pytest.raises(ValueError, match="batch axis of size > 1"):
+        tto.export(A, y[:1], tmp_path / "a.onnx")
+    with pytest.raises(ValueError, match="expected 1 input and 1 output names"):
+        tto.export(A, y, tmp_path / "a.onnx", input_names=["a", "b"], exporter="torchscript")
+    with pytest.raises(TypeError, match="export: expected module to be an nn.Module"):
+        tto.export(lambda t: t, y, tmp_path / "a.onnx")
+    with pytest.raises(ValueError, match="OperatorMethod: expected method"):
+        tto.OperatorMethod(Hadamard(8, sr=0.5), "normal")
+    with pytest.raises(ValueError, match="export_model: expected name in"):
+        tto.export_model("nope", path=tmp_path / "a.onnx")
+    with pytest.raises(ValueError, match="n_iter given for a model without iterations"):
+        tto.MODELS["g2"](N, SR, n_iter=3)
+    assert not (tmp_path / "a.onnx").exists()
+
+
+def test_export_model_static_batch_opset17(tmp_path):
+    path = tto.export_model(
+        "hadamard_adjoint",
+        n=8,
+        sr=0.5,
+        path=tmp_path / "h.onnx",
+        opset=17,
+        exporter="torchscript",
+        dynamic_batch=False,
+    )
+    model = onnx.load(path)
+    assert {o.domain: o.version for o in model.opset_import}[""] == 17
+    assert model.graph.input[0].type.tensor_type.shape.dim[0].dim_value == 2
+    module, (y,) = tto.MODELS["hadamard_adjoint"](8, 0.5)
+    tto.check(path, module, (y,))
+
+
+def test_camera_readout_known_answer():
+    depth = torch.tensor([0.3, 2.1, 3.37, 4.6]).view(1, 1, 2, 2)  # metres
+    amp = torch.tensor([100.0, 100.0, 100.0, 0.0]).view(1, 1, 2, 2)
+    taps = correlation_taps(phasor_from_depth(amp, depth, 30e6), offset=50.0)
+    amplitude, phase, d = tto.CameraReadout()(taps)
+    # clip to 1 m, round to 0.25 m, dark pixel -> 5 m (paper §2.2); amplitude = |P|/2 (Eq. 8)
+    assert d.flatten().tolist() == [1.0, 2.0, 3.25, 5.0]
+    torch.testing.assert_close(amplitude.flatten(), torch.tensor([50.0, 50.0, 50.0, 0.0]))
+    assert phase.shape == (1, 1, 2, 2)
+    same = tto.camera_readout(taps)
+    assert all(torch.equal(a, b) for a, b in zip(same, (amplitude, phase, d), strict=True))
+    with pytest.raises(ValueError, match="expected max_m > min_m"):
+        tto.CameraReadout(min_m=5.0, max_m=1.0)
+
+
+#: Run the example with an import hook that makes every ``import torch…`` raise ImportError.
+_BLOCK_TORCH = """
+import runpy, sys
+class _NoTorch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "torch" or name.startswith("torch."):
+            raise ImportError("torch is blocked in this process")
+sys.meta_path.insert(0, _NoTorch())
+sys.argv = {argv!r}
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def _run_example(args, block_torch):
+    env = dict(os.environ, PYTHONPATH="")
+    argv = [str(EXAMPLE), *args]
+    cmd = (
+        [sys.executable, "-c", _BLOCK_TORCH.format(argv=argv)]
+        if block_torch
+        else [sys.executable, *argv]
+    )
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
+
+
+def test_torch_blocker_blocks(tmp_path):
+    script = tmp_path / "uses_torch.py"
+    script.write_text("import torch\n")
+    env = dict(os.environ, PYTHONPATH="")
+    res = subprocess.run(
+        [sys.executable, "-c", _BLOCK_TORCH.format(argv=[str(script)])],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
+    assert res.returncode != 0 and "torch is blocked" in res.stderr
+
+
+@pytest.mark.parametrize("block_torch", [False, True], ids=["plain", "torch_blocked"])
+def test_example_runs_without_torch(exported, tmp_path, block_torch):
+    module, path = exported("g2")
+    _, (y,) = tto.MODELS["g2"](N, SR, batch=3, seed=2)
+    np.save(tmp_path / "buckets.npy", y.numpy())
+    out = tmp_path / "image.npy"
+    res = _run_example([str(path), str(tmp_path / "buckets.npy"), "--out", str(out)], block_torch)
+    assert res.returncode == 0, res.stderr
+    assert "(3, 1, 16, 16) image(s)" in res.stdout
+    with torch.no_grad():
+        want = module(y).numpy()
+    np.testing.assert_allclose(np.load(out), want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+
+
+def test_example_single_bucket_vector(exported, tmp_path):
+    module, path = exported("g2")
+    _, (y,) = tto.MODELS["g2"](N, SR, batch=2, seed=3)
+    np.save(tmp_path / "b.npy", y[0, 0].numpy())  # (M,): batch and channel axes added
+    res = _run_example([str(path), str(tmp_path / "b.npy"), "--quiet"], block_torch=True)
+    assert res.returncode == 0, res.stderr
+    assert "(1, 1, 16, 16) image(s)" in res.stdout
+    np.save(tmp_path / "bad.npy", y[0, 0, :-1].numpy())
+    res = _run_example([str(path), str(tmp_path / "bad.npy")], block_torch=True)
+    assert res.returncode != 0 and "expects" in res.stderr
+
+
+def test_bench_onnx_smoke():
+    from torchtof.bench.onnx import bench_onnx, print_onnx
+
+    res = bench_onnx(
+        models=["hadamard_adjoint"], batches=(1, 3), n=8, sr=0.5, compile=False, repeat=1
+    )
+    assert [r["batch"] for r in res["rows"]] == [1, 3]
+    for r in res["rows"]:
+        assert r["eager_s"] > 0 and r["ort_s"] > 0 and r["ort_speedup"] > 0
+        assert r["compile_s"] is None
+    print_onnx(res)
+    with pytest.raises(ValueError, match="bench_onnx: unknown models"):
+        bench_onnx(models=["nope"])
+
+
+def _export_script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("export_script", ROOT / "export" / "export.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_export_script_and_readme(tmp_path):
+    script = _export_script()
+    readme = (ROOT / "export" / "README.md").read_text()
+    assert script.readme_table() in readme, "export/README.md is stale: run export.py --readme"
+    manifest = script.main(
+        [
+            "hadamard_adjoint",
+            "--n",
+            "8",
+            "--sr",
+            "0.5",
+            "--exporter",
+            "torchscript",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    (entry,) = manifest
+    assert (tmp_path / "hadamard_adjoint.onnx").is_file()
+    assert entry["inputs"] == {"y": ["batch", 1, 32]}
+    assert entry["outputs"] == {"x": ["batch", 1, 8, 8]}
+    assert entry["max_abs_err_batch3"] < 1e-4
+    assert (tmp_path / "manifest.json").is_file()
