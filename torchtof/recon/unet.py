@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import check_rank
+from .._checks import check_rank, is_tracing
 
 __all__ = ["UNet"]
 
@@ -32,14 +32,17 @@ def _conv_bn(c_in: int, c_out: int, kernel: int, stride: int = 1) -> nn.Sequenti
     )
 
 
-def _up_bn(c_in: int, c_out: int, kernel: int) -> nn.Sequential:
-    """Stride-2 transposed ``k×k`` conv (exactly doubles H and W) → BN → LeakyReLU(0.2)."""
-    return nn.Sequential(
-        nn.ConvTranspose2d(
+def _up_bn(c_in: int, c_out: int, kernel: int, mode: str) -> nn.Sequential:
+    """Double H and W, then BN → LeakyReLU(0.2): a stride-2 transposed ``k×k`` conv
+    (``"transpose"``, GIDC) or bilinear up-sampling followed by a ``k×k`` conv."""
+    if mode == "transpose":
+        conv = nn.ConvTranspose2d(
             c_in, c_out, kernel, stride=2, padding=kernel // 2, output_padding=1, bias=False
-        ),
-        nn.BatchNorm2d(c_out),
-        nn.LeakyReLU(0.2),
+        )
+        return nn.Sequential(conv, nn.BatchNorm2d(c_out), nn.LeakyReLU(0.2))
+    return nn.Sequential(
+        nn.Upsample(scale_factor=2, mode=mode, **({"align_corners": False} if mode == "bilinear" else {})),
+        _conv_bn(c_in, c_out, kernel),
     )
 
 
@@ -55,16 +58,19 @@ class UNet(nn.Module):
         out_ch: output channels.
         base: width of the first level; level ``l`` has ``base · 2^l`` channels.
         depth: number of down-sampling steps (``>= 1``); inputs need sides divisible by
-            ``2^depth``. Defaults: ``depth=3`` for 32×32 (4×4 bottleneck); GIDC uses 4.
+            ``2^depth`` and at least ``2^(depth+1)`` (a bottleneck of at least 2×2: batch
+            norm of a 1×1 map of one image is degenerate). ``depth=3`` suits 32×32 (4×4
+            bottleneck), GIDC uses 4 at 64×64.
         kernel: odd convolution size (3 or 5; GIDC uses 5).
 
     Raises:
         TypeError: if an argument is not an int.
         ValueError: if an argument is out of range, or (in ``forward``) the input is not
-            ``(B, in_ch, H, W)`` with ``H`` and ``W`` divisible by ``2^depth``.
+            ``(B, in_ch, H, W)`` with ``H`` and ``W`` multiples of ``2^depth``, ``>= 2^(depth+1)``.
 
     Shape:
-        - Input: :math:`(B, C_{in}, H, W)`, ``H, W`` multiples of ``2^depth`` (e.g. 16…128).
+        - Input: :math:`(B, C_{in}, H, W)`, ``H, W`` multiples of ``2^depth``, at least
+          ``2^(depth+1)`` (e.g. 16…128 for ``depth=3``).
         - Output: :math:`(B, C_{out}, H, W)`, values in ``[0, 1]``.
 
     Note:
@@ -81,7 +87,8 @@ class UNet(nn.Module):
     """
 
     def __init__(
-        self, in_ch: int = 1, out_ch: int = 1, base: int = 16, depth: int = 3, kernel: int = 3
+        self, in_ch: int = 1, out_ch: int = 1, base: int = 16, depth: int = 3, kernel: int = 3,
+        upsample: str = "transpose",
     ) -> None:
         super().__init__()
         for name, val, lo in (("in_ch", in_ch, 1), ("out_ch", out_ch, 1), ("base", base, 1),
@@ -106,7 +113,10 @@ class UNet(nn.Module):
             )
             for lv in range(depth)
         )
-        self.up = nn.ModuleList(_up_bn(w[lv + 1], w[lv], k) for lv in reversed(range(depth)))
+        self.upsample = upsample
+        self.up = nn.ModuleList(
+            _up_bn(w[lv + 1], w[lv], k, upsample) for lv in reversed(range(depth))
+        )
         self.merge = nn.ModuleList(
             nn.Sequential(_conv_bn(2 * w[lv], w[lv], k), _conv_bn(w[lv], w[lv], k))
             for lv in reversed(range(depth))
@@ -120,10 +130,14 @@ class UNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         check_rank(x, 4, "x", "UNet", "(B, C, H, W)")
         f = 2**self.depth
-        if x.shape[1] != self.in_ch or x.shape[-2] % f or x.shape[-1] % f:
+        h, w = x.shape[-2:]
+        # static shape facts, checked in eager mode only (traced sizes are tensors)
+        if not is_tracing() and (
+            x.shape[1] != self.in_ch or h % f or w % f or h < 2 * f or w < 2 * f
+        ):
             raise ValueError(
                 f"UNet: expected x of shape (B, {self.in_ch}, H, W) with H and W divisible by "
-                f"2^depth = {f}, got {tuple(x.shape)}"
+                f"2^depth = {f} and at least {2 * f}, got {tuple(x.shape)}"
             )
         skips = []
         h = self.inc(x)
