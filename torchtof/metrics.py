@@ -156,8 +156,9 @@ def psnr(
         a = a.clamp(0.0, peak).round()
         b = b.clamp(0.0, peak).round()
     mse = (a - b).pow(2).flatten(1).mean(1)
-    mse = mse.clamp_min(peak**2 * 10.0 ** (-max_db / 10.0))
-    return _reduce(10.0 * torch.log10(peak**2 / mse), reduction, func)
+    wide = torch.promote_types(mse.dtype, torch.float32)  # the floor underflows in float16
+    mse = mse.to(wide).clamp_min(peak**2 * 10.0 ** (-max_db / 10.0))
+    return _reduce(10.0 * torch.log10(peak**2 / mse), reduction, func).to(x.dtype)
 
 
 class PSNR(nn.Module):

@@ -91,14 +91,7 @@ def test_phase_at_the_wrap_stays_in_half_open_interval(dtype):
         assert bool((torch.minimum(d, (d - r).abs()) < 1e-3).all())
 
 
-@pytest.mark.parametrize("amp", [
-    pytest.param(1e-30, marks=pytest.mark.xfail(strict=True, reason=(
-        "BUG: sensor/functional.py _safe_iq tests q² + i² > 0, which underflows in float32: "
-        "a 1e-30 signal is read as 'no photon' (5 m)"))),
-    pytest.param(1e30, marks=pytest.mark.xfail(strict=True, reason=(
-        "BUG: sensor/functional.py tap_amplitude takes sqrt(q² + i²), which overflows in "
-        "float32: Inf amplitude"))),
-])
+@pytest.mark.parametrize("amp", [1e-30, 1e30])
 def test_amplitude_scale_does_not_change_phase_or_depth(amp):
     depth = 1.0 + 3.9 * torch.rand(1, 1, 4, 4, generator=torch.Generator().manual_seed(0))
     ref = cw_tof_sensor(phasor_from_depth(100.0, depth, 30e6), shot=None, adc_bits=None)
@@ -136,9 +129,6 @@ def test_half_precision_solvers_raise_clear_type_error(dtype):
         basis_pursuit(y, A)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: recon/dip.py accepts float16/bfloat16 and fails inside torch.linalg.pinv "
-    "(RuntimeError) in _affine_coeffs instead of a TypeError naming the dtype"))
 @pytest.mark.parametrize("dtype", HALF)
 def test_half_precision_dip_raises_clear_type_error(dtype):
     from torchtof.recon.dip import dip
@@ -149,9 +139,6 @@ def test_half_precision_dip_raises_clear_type_error(dtype):
 
 
 @pytest.mark.filterwarnings("ignore:ComplexHalf support is experimental")
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: sensor/functional.py phasor_from_depth passes float16/bfloat16 to torch.polar: "
-    "NotImplementedError / RuntimeError instead of a TypeError naming the dtype"))
 @pytest.mark.parametrize("dtype", HALF)
 def test_half_precision_phasor_raises_clear_type_error(dtype):
     with pytest.raises(TypeError, match=rf"^phasor_from_depth: .*{dtype}"):
@@ -175,9 +162,6 @@ def test_extreme_noise_stays_finite_and_in_range():
     assert bool(torch.isfinite(tval3(y, A).x).all())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: operators/base.py LinearOperator.pinv applies the explicit (A Aᵀ)⁺, which squares "
-    "κ(A): float32 relative error ≈ 10 at κ ≈ 5e4 (κ·ε with a cached A⁺ from a float64 SVD)"))
 def test_ill_conditioned_pinv_float32_matches_float64():
     A = PatternOperator(illcond_patterns())
     s = torch.linalg.svdvals(A.matrix())

@@ -52,118 +52,12 @@ from torchtof.bench.stability import (
     stability_cases,
 )
 
-#: Bugs found by the matrix in modules outside tests/stress (fix proposals in the report).
-BUGS = {
-    "finite_x": (
-        "operators/base.py LinearOperator._check_x has no check_finite(x): forward returns NaN "
-        "for NaN/Inf x (e.g. 1e30 rounded to float16) while adjoint checks y"
-    ),
-    "hadamard_half": (
-        "operators/hadamard.py: the unnormalised H X H reaches n²·max|x| before the /n, float16 "
-        "Inf at n=256, x=1 (exact result 256)"
-    ),
-    "split_half": (
-        "operators/split.py DMDSplit.forward: (total ± h)/2 overflows float16 before the halving "
-        "(n=256: 32768 + 32768)"
-    ),
-    "pinv": (
-        "operators/base.py LinearOperator.pinv applies the explicit (A Aᵀ)⁺: error κ(A)²·ε "
-        "(float32 rel. error ≈ 11 at κ ≈ 5e4); in float16 its entries overflow and the NaN is "
-        "reported as 'y contains non-finite values'"
-    ),
-    "polar_half": (
-        "sensor/functional.py phasor_from_depth hands float16/bfloat16 to torch.polar: "
-        "NotImplementedError/RuntimeError instead of a TypeError naming the dtype"
-    ),
-    "tap_iq": (
-        "sensor/functional.py _safe_iq/tap_amplitude square the tap differences: q² + i² "
-        "underflows at 1e-30 (pixel read as 'no photon': depth 5 m, phase 0) and overflows at "
-        "1e30 (Inf amplitude) in float32/bfloat16"
-    ),
-    "complex32_matmul": (
-        "sensor/mixing.py _apply: complex32 (float16 phasors) has no matmul kernel, "
-        "NotImplementedError"
-    ),
-    "psnr_half": (
-        "metrics.py psnr: the MSE floor MAX²·10^(-max_db/10) = 1e-10 underflows in float16, +Inf "
-        "dB for identical images"
-    ),
-    "safe_div": (
-        "recon/correlation.py _safe_div squares its operands (a·b, b² overflow at 1e30: NaN; "
-        "underflow at 1e-30: zero image, float32) and its Tikhonov form biases every quotient by "
-        "ε, which DGI's cancellation amplifies (5e8× with one pattern)"
-    ),
-    "corr_half": (
-        "recon/correlation.py cgi/dgi in float16: Aᵀy of depth buckets (≈ 3e5) overflows, Inf/NaN"
-        " image"
-    ),
-    "bp_norm": (
-        "recon/bp.py scales by torch.linalg.vector_norm(y), which overflows at 1e30 (NaN image) "
-        "and underflows at 1e-30 (wrong image) in float32"
-    ),
-    "dip_half": (
-        "recon/dip.py lets float16/bfloat16 reach torch.linalg.pinv in _affine_coeffs: "
-        "RuntimeError instead of a TypeError naming the dtype"
-    ),
-}
+#: Bugs found by the matrix in modules outside tests/stress and fixed (closing note lists
+#: them); a new one gets an entry here and its rows a key in :data:`KNOWN`.
+BUGS: dict[str, str] = {}
 
-#: Row id -> keys of :data:`BUGS` that make the row fail.
-KNOWN = {
-    "Hadamard[matmul].forward | constant x = 1, n=256": ("hadamard_half",),
-    "Hadamard[matmul].forward | x at 1e30": ("finite_x",),
-    "Hadamard[fwht].forward | constant x = 1, n=256": ("hadamard_half",),
-    "Hadamard[fwht].forward | x at 1e30": ("finite_x",),
-    "DMDSplit.forward | random x, n=256, SR=25%": ("split_half",),
-    "DMDSplit.forward | constant x = 1, n=256": ("hadamard_half", "split_half"),
-    "DMDSplit.adjoint/pinv | SR = 100%, n=8": ("pinv",),
-    "DMDSplit.forward | x at 1e30": ("finite_x",),
-    "PatternOperator.forward | x at 1e30": ("finite_x",),
-    "Hadamard.forward | NaN in x": ("finite_x",),
-    "DMDSplit.forward | NaN in x": ("finite_x",),
-    "PatternOperator.forward | NaN in x": ("finite_x",),
-    "PatternOperator.pinv | ill-conditioned random patterns (κ≈5e4)": ("pinv",),
-    "phasor_from_depth→cw_tof_sensor | random depth [1, 4.9] m, a = 100": ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | all pixels no photon (a = 0 → 5 m)": ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | phase exactly at the wrap (d = c/2f)": ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | amplitude 1e-30": ("polar_half", "tap_iq"),
-    "phasor_from_depth→cw_tof_sensor | amplitude 1e30": ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | partly saturated taps (12-bit ADC, a = 1e4)":
-        ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | all taps saturated (ambient 1e7 e⁻ → 5 m)": ("polar_half",),
-    "phasor_from_depth→cw_tof_sensor | extreme noise (SNR < 0 dB)": ("polar_half",),
-    "tap_phase | taps at 1e-30": ("tap_iq",),
-    "tap_amplitude | taps at 1e-30": ("tap_iq",),
-    "tap_amplitude | taps at 1e30": ("tap_iq",),
-    "DMDToSensor | 8×8 → 12×12 (mixed pixels)": ("complex32_matmul",),
-    "compare (PSNR/SSIM) | identical images (100 dB cap)": ("psnr_half",),
-    "compare (PSNR/SSIM) | negative depth image 5 − 3x (100 dB cap)": ("psnr_half",),
-    "CGI | buckets at 1e-30": ("safe_div",),
-    "CGI | buckets at 1e30": ("safe_div",),
-    "CGI | ungated depth buckets (5 m offset, α = 1)": ("corr_half",),
-    "CGI | scattered depth, α = 0.5": ("corr_half",),
-    "CGI | scattered depth, α = 1e-3": ("corr_half",),
-    "DGI | ungated depth buckets (5 m offset, α = 1)": ("corr_half",),
-    "DGI | scattered depth, α = 0.5": ("safe_div", "corr_half"),
-    "DGI | scattered depth, α = 1e-3": ("safe_div",),
-    "DGI | SR = 1/n² (one pattern)": ("safe_div",),
-    "PseudoInverse | ill-conditioned random patterns (κ≈5e4)": ("pinv",),
-    "BasisPursuit | buckets at 1e-30": ("bp_norm",),
-    "BasisPursuit | buckets at 1e30": ("bp_norm",),
-    "DIP | binary object, n=8, SR=50%": ("dip_half",),
-    "DIP | buckets at 1e-30": ("dip_half",),
-    "DIP | buckets at 1e30": ("dip_half",),
-    "DIP | ungated depth buckets (5 m offset, α = 1)": ("dip_half",),
-    "DIP | scattered depth, α = 0.5": ("dip_half",),
-    "DIP | scattered depth, α = 1e-3": ("dip_half",),
-    "DIP | n=4, SR=100%": ("dip_half",),
-    "DIP | SR = 100%": ("dip_half",),
-    "DIP | extreme noise (SNR = −6 dB)": ("dip_half",),
-    "DIP | ill-conditioned random patterns (κ≈5e4)": ("dip_half",),
-    "PaperExperiment | air, n=8, 16×16 ROI": ("polar_half",),
-    "PaperExperiment | scattering sheet α = 0.001": ("polar_half",),
-    "PaperExperiment | scattering sheet α = 0.5": ("polar_half",),
-    "PaperExperiment | scattering sheet α = 1": ("polar_half",),
-}
+#: Row id -> keys of :data:`BUGS` that make the row fail (none open).
+KNOWN: dict[str, tuple[str, ...]] = {}
 
 CASES = stability_cases()
 

@@ -177,12 +177,7 @@ def test_reconstructor_scale_law_float64(name, k):
     assert _rel(out, base) <= SCALE_LAW[name][2]
 
 
-_F32_SCALE_BUGS = {
-    "CGI": "recon/correlation.py _safe_div squares its operands: a·b and b² overflow at 1e30 "
-           "(NaN image) and underflow at 1e-30 (zero image) in float32",
-    "BasisPursuit": "recon/bp.py normalises by torch.linalg.vector_norm(y), which overflows at "
-                    "1e30 (NaN image) and underflows at 1e-30 (wrong image) in float32",
-}
+_F32_SCALE_BUGS: dict[str, str] = {}  # fixed: correlation._safe_div, bp's norm
 
 
 @pytest.mark.parametrize("c", [1e-30, 1e30], ids=["1e-30", "1e30"])

@@ -47,6 +47,7 @@ class LinearOperator(nn.Module):
     # -- checks shared by subclasses -------------------------------------------------
     def _check_x(self, x: torch.Tensor, func: str) -> None:
         check_shape(x, (None, None, self.n, self.n), "x", func, "(B, C, n, n)")
+        check_finite(x, "x", func)
 
     def _check_y(self, y: torch.Tensor, func: str) -> None:
         check_shape(y, (None, None, self.m), "y", func, "(B, C, M)")
@@ -72,22 +73,26 @@ class LinearOperator(nn.Module):
         """Minimum-norm least-squares solution ``A⁺ y = Aᵀ (A Aᵀ)⁻¹ y``.
 
         Orthonormal rows (``A Aᵀ = I``) reduce it to ``Aᵀ y`` (Gong 2015, pseudo-inverse GI).
-        Otherwise ``A Aᵀ`` is formed once and cached (pseudo-inverse through ``lstsq`` so a
-        rank-deficient pattern set still gives the minimum-norm answer).
+        Otherwise the dense ``A⁺`` is computed once from a float64 SVD and cached per dtype
+        (a rank-deficient pattern set still gets the minimum-norm answer); float16/bfloat16
+        are solved in float32 and rounded once.
         """
         self._check_y(y, f"{type(self).__name__}.pinv")
         if self.orthonormal_rows:
             return self.adjoint(y)
-        g = self._cached_gram_pinv(y.dtype, y.device)
-        z = torch.einsum("ij,bcj->bci", g, y)
-        return self.adjoint(z)
+        if y.dtype in (torch.float16, torch.bfloat16):  # A⁺ entries grow like κ(A)
+            return self.pinv(y.float()).to(y.dtype)
+        p = self._cached_pinv(y.dtype, y.device)  # (n², m)
+        return (y @ p.T).reshape(*y.shape[:-1], self.n, self.n)
 
-    def _cached_gram_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    def _cached_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        """Dense ``A⁺`` ``(n², m)`` from a float64 SVD (``torch.linalg.pinv``), cached per
+        dtype/device: error ``κ(A)·ε`` where the Gram route ``Aᵀ(AAᵀ)⁺`` loses ``κ(A)²·ε``."""
         key = (dtype, device)
-        cache = self.__dict__.setdefault("_gram_pinv_cache", {})
+        cache = self.__dict__.setdefault("_pinv_cache", {})
         if key not in cache:
-            g = self.gram(dtype=torch.float64)
-            cache[key] = torch.linalg.pinv(g, hermitian=True).to(dtype=dtype, device=device)
+            a = self.matrix(dtype=torch.float64)
+            cache[key] = torch.linalg.pinv(a).to(dtype=dtype, device=device)
         return cache[key]
 
     def matrix(self, dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:

@@ -49,17 +49,15 @@ class PatternOperator(LinearOperator):
         super().__init__(patterns.shape[1], patterns.shape[0])
         self.register_buffer("patterns", patterns.detach().clone(), persistent=False)
         g = patterns.reshape(self.m, -1).double()
-        gram = g @ g.T
         self.orthonormal_rows = bool(
-            torch.allclose(gram, torch.eye(self.m, dtype=torch.float64), atol=1e-6)
+            torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64), atol=1e-6)
         )
         if not self.orthonormal_rows:
-            # (A Aᵀ)⁺ computed once here, not lazily, so pinv traces and exports to ONNX
-            pinv = torch.linalg.pinv(gram, hermitian=True)
-            self.register_buffer("gram_pinv", pinv, persistent=False)
+            # A⁺ (float64 SVD) computed once here, not lazily, so pinv traces/exports to ONNX
+            self.register_buffer("pinv_matrix", torch.linalg.pinv(g), persistent=False)
 
-    def _cached_gram_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-        return self.gram_pinv.to(dtype=dtype, device=device)
+    def _cached_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        return self.pinv_matrix.to(dtype=dtype, device=device)
 
     def _p(self, like: torch.Tensor) -> torch.Tensor:
         return self.patterns.to(dtype=like.dtype, device=like.device)

@@ -49,6 +49,9 @@ def hadamard_forward(
         ``(B, C, M)`` coefficients ``⟨h_{ij}, x⟩ / n``.
     """
     n = x.shape[-1]
+    if x.dtype in (torch.float16, torch.bfloat16):  # H X H reaches n²·max|x| before the /n
+        h32 = None if h is None else h.float()
+        return hadamard_forward(x.float(), index, h32).to(x.dtype)
     coef = _transform(x, h).reshape(*x.shape[:-2], n * n)
     return coef.index_select(-1, index) / n
 
@@ -57,6 +60,9 @@ def hadamard_adjoint(
     y: torch.Tensor, index: torch.Tensor, n: int, h: torch.Tensor | None = None
 ) -> torch.Tensor:
     """``x = Aᵀ y = H_Nᵀ Pᵀ y / √N``: scatter into the coefficient grid, transform back."""
+    if y.dtype in (torch.float16, torch.bfloat16):  # see hadamard_forward
+        h32 = None if h is None else h.float()
+        return hadamard_adjoint(y.float(), index, n, h32).to(y.dtype)
     coef = y.new_zeros(*y.shape[:-1], n * n)
     coef = coef.index_copy(-1, index, y)  # out of place: autograd + ONNX (ScatterND)
     return _transform(coef.reshape(*y.shape[:-1], n, n), h) / n

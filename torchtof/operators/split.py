@@ -59,9 +59,9 @@ class DMDSplit(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")
-        total = x.sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩
-        h = self.hadamard(x) * self.n  # ⟨h, x⟩ with ±1 rows
-        return torch.stack(((total + h) / 2, (total - h) / 2), dim=-1).flatten(-2)
+        half_total = x.sum(dim=(-2, -1)).unsqueeze(-1) / 2  # ⟨1, x⟩/2
+        half_h = self.hadamard(x) * (self.n / 2)  # ⟨h, x⟩/2 with ±1 rows
+        return torch.stack((half_total + half_h, half_total - half_h), dim=-1).flatten(-2)
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "DMDSplit.adjoint")

@@ -340,7 +340,9 @@ def basis_pursuit(
     n = A.n
     fwd, inv = _basis(basis, n, y)
 
-    s = torch.linalg.vector_norm(y, dim=-1, keepdim=True)  # (B, C, 1)
+    peak = y.abs().amax(dim=-1, keepdim=True)  # ‖y‖₂ = peak·‖y/peak‖₂: no over/underflow
+    peak = torch.where(peak > 0, peak, torch.ones_like(peak))
+    s = peak * torch.linalg.vector_norm(y / peak, dim=-1, keepdim=True)  # (B, C, 1)
     s = torch.where(s > 0, s, torch.ones_like(s))
     yn = y / s
     eps_n = None

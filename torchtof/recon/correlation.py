@@ -13,9 +13,10 @@ Every sum over patterns is one adjoint ``Aᵀ`` (fast for Hadamard), never a Pyt
 
 **Zero denominators.** ``g2`` divides by ``⟨y⟩⟨φ⟩`` and DGI by ``⟨R⟩``; both vanish for
 legitimate inputs (all-zero buckets; ±1 Hadamard rows, whose sums are zero except the
-first). Both quotients are taken as the Tikhonov-regularised ``a·b / (b² + δ²)`` with
-``δ = √ε·max|b| + tiny`` (ε the dtype's machine epsilon): equal to ``a/b`` to relative
-``ε`` wherever ``b`` is not negligible, and tending to 0 — never NaN or Inf — where it is.
+first). Both quotients are ``a/b`` where ``|b| > √ε·max|b|`` (ε the dtype's machine
+epsilon, the maximum per sample) and 0 where ``b`` is negligible — never NaN or Inf, exact
+(no bias for DGI's cancellation to amplify), and free of ``b²``, which would overflow or
+underflow for buckets at 1e±30 in float32.
 
 **Negative images.** With raw depth buckets (no gate) ``D_i`` falls as more light arrives
 (paper §3.1), so every correlation image comes out negative; the sign is physical and kept
@@ -32,12 +33,13 @@ __all__ = ["cgi", "g2", "tgi", "dgi", "CGI", "TGI", "DGI"]
 
 
 def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """``a / b`` regularised as ``a b / (b² + δ²)``, ``δ = √eps · max|b| + tiny`` (per sample)."""
+    """``a / b`` where ``|b| > √eps · max|b|`` (per sample), 0 elsewhere (module docstring)."""
     info = torch.finfo(b.dtype)
     # .max() not .amax(): onnxscript rejects a dim-less aten.amax in the dynamo exporter
     scale = b.abs().flatten(2).amax(dim=-1)[..., None, None] if b.ndim == 4 else b.abs().max()
-    delta = scale * info.eps**0.5 + info.tiny**0.5
-    return a * b / (b * b + delta * delta)
+    keep = b.abs() > scale * info.eps**0.5  # all False when b == 0; no b², a·b: no overflow
+    q = a / torch.where(keep, b, torch.ones_like(b))
+    return torch.where(keep, q, torch.zeros_like(q))
 
 
 def _check(y: torch.Tensor, A: LinearOperator, func: str) -> None:
@@ -64,6 +66,8 @@ def tgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``(B, C, n, n)``.
     """
     _check(y, A, "tgi")
+    if y.dtype in (torch.float16, torch.bfloat16):
+        return tgi(y.float(), A).to(y.dtype)
     return A.adjoint(y - y.mean(dim=-1, keepdim=True)) / A.m
 
 
@@ -87,6 +91,8 @@ def cgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         True
     """
     _check(y, A, "cgi")
+    if y.dtype in (torch.float16, torch.bfloat16):
+        return cgi(y.float(), A).to(y.dtype)
     _, mean_phi = _pattern_stats(A, y)
     num = A.adjoint(y) / A.m
     den = y.mean(dim=-1, keepdim=True)[..., None] * mean_phi
@@ -108,6 +114,8 @@ def dgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``⟨yφ⟩`` (the regularised quotient vanishes).
     """
     _check(y, A, "dgi")
+    if y.dtype in (torch.float16, torch.bfloat16):
+        return dgi(y.float(), A).to(y.dtype)
     r, _ = _pattern_stats(A, y)
     ratio = _safe_div(y.mean(dim=-1, keepdim=True), r.mean().expand(y.shape[:-1] + (1,)))
     return A.adjoint(y - ratio * r) / A.m

@@ -151,6 +151,8 @@ def _check_a_y(A: LinearOperator, y: torch.Tensor, func: str) -> None:
         raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
     check_tensor(y, "y", func)
     check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
+    if y.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{func}: expected y of dtype float32 or float64, got {y.dtype}")
     check_finite(y, "y", func)
 
 

@@ -122,6 +122,11 @@ def phasor_from_depth(
     func = "phasor_from_depth"
     _check_real(depth_m, "depth_m", func)
     f = check_positive(freq_hz, "freq_hz", func)
+    if depth_m.dtype not in (torch.float32, torch.float64):
+        raise TypeError(
+            f"{func}: expected depth_m of dtype float32 or float64 (complex64/complex128 "
+            f"phasors), got {depth_m.dtype}"
+        )
     if isinstance(amplitude, torch.Tensor):
         _check_real(amplitude, "amplitude", func)
     else:
@@ -181,13 +186,14 @@ def correlation_taps(
 
 
 def _safe_iq(taps: torch.Tensor, func: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``q = c₄ − c₃``, ``i = c₁ − c₂`` and the mask ``q² + i² > 0`` (Eq. 7/8 operands)."""
+    """``q = c₄ − c₃``, ``i = c₁ − c₂`` and the mask ``(q, i) ≠ 0`` (Eq. 7/8 operands)."""
     _check_real(taps, "taps", func)
     check_shape(taps, (None, 4, None, None), "taps", func, "(B, 4, H, W)")
+    check_finite(taps, "taps", func)
     c1, c2, c3, c4 = taps.unbind(dim=1)
     q = (c4 - c3).unsqueeze(1)
     i = (c1 - c2).unsqueeze(1)
-    nonzero = (q * q + i * i) > 0
+    nonzero = (q != 0) | (i != 0)  # not q² + i² > 0: it underflows at 1e-30 (float32)
     return q, i, nonzero
 
 
@@ -257,9 +263,9 @@ def tap_amplitude(taps: torch.Tensor) -> torch.Tensor:
         2.5
     """
     q, i, nonzero = _safe_iq(taps, "tap_amplitude")
-    s = q * q + i * i
-    s_safe = torch.where(nonzero, s, torch.ones_like(s))
-    return torch.where(nonzero, 0.5 * torch.sqrt(s_safe), torch.zeros_like(s))
+    q_safe = torch.where(nonzero, q, torch.ones_like(q))  # hypot(0, 0) has no gradient
+    amp = 0.5 * torch.hypot(q_safe, torch.where(nonzero, i, torch.ones_like(i)))  # no q², i²
+    return torch.where(nonzero, amp, torch.zeros_like(amp))
 
 
 def phase_to_depth(phase: torch.Tensor, freq_hz: float) -> torch.Tensor:

@@ -105,6 +105,8 @@ def area_overlap_matrix(
 
 
 def _apply(x: torch.Tensor, k_rows: torch.Tensor, k_cols: torch.Tensor) -> torch.Tensor:
+    if x.is_complex():  # real matrices: map Re and Im (complex32 has no matmul kernel)
+        return torch.complex(_apply(x.real, k_rows, k_cols), _apply(x.imag, k_rows, k_cols))
     k_rows = k_rows.to(dtype=x.dtype, device=x.device)
     k_cols = k_cols.to(dtype=x.dtype, device=x.device)
     return k_rows @ x @ k_cols.transpose(0, 1)

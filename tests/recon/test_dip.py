@@ -1,0 +1,301 @@
+import copy
+import io
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from torchtof.operators import Hadamard, PatternOperator
+from torchtof.recon.dip import (
+    DIP,
+    _affine_coeffs,
+    _WindowedVariance,
+    default_unet,
+    dip,
+    dip_input,
+    fit_dip,
+)
+from torchtof.recon.unet import UNet
+
+N = 16
+FAST = {"n_iter": 20}
+
+
+def _scene(b=1, c=1, dtype=torch.float32):
+    x = torch.zeros(b, c, N, N, dtype=dtype)
+    x[..., 3:13, 7:9] = 1
+    x[..., 5:7, 3:13] = 1
+    for i in range(b):
+        x[i] = torch.roll(x[i], shifts=i, dims=-1)
+    return x
+
+
+@pytest.fixture
+def A():
+    return Hadamard(N, sr=0.25)
+
+
+def test_fit_dip_smoke(A):
+    res = fit_dip(A, A(_scene()), **FAST)
+    assert res.x.shape == res.x_cal.shape == (1, 1, N, N)
+    assert res.x0.shape == (1, 1, N, N)
+    assert float(res.x.min()) == 0.0 and float(res.x.max()) == 1.0
+    assert res.n_iter == 20 and res.best_iter == 19
+    assert res.loss_history.shape == (20,)
+    assert isinstance(res.unet, UNet) and not res.unet.training
+
+
+def test_fit_dip_dtype(A, dtype):
+    y = A(_scene(dtype=dtype))
+    res = fit_dip(A, y, n_iter=5)
+    assert res.x.dtype == res.x_cal.dtype == dtype
+    assert next(res.unet.parameters()).dtype == dtype
+
+
+def test_deterministic_bitwise(A):
+    y = A(_scene())
+    r1 = fit_dip(A, y, **FAST, seed=3)
+    r2 = fit_dip(A, y, **FAST, seed=3)
+    r3 = fit_dip(A, y, **FAST, seed=4)
+    assert torch.equal(r1.x, r2.x) and torch.equal(r1.loss_history, r2.loss_history)
+    assert not torch.equal(r1.x, r3.x)
+
+
+def test_global_rng_untouched(A):
+    torch.manual_seed(123)
+    want = torch.rand(3)
+    torch.manual_seed(123)
+    fit_dip(A, A(_scene()), n_iter=2)
+    assert torch.equal(torch.rand(3), want)
+
+
+def test_loss_decreases_and_fits(A):
+    x = _scene()
+    res = fit_dip(A, A(x), n_iter=60)
+    assert res.loss_history[-1] < 0.2 * res.loss_history[0]
+    # the fitted image is closer to the scene than the pseudo-inverse image
+    pinv = A.pinv(A(x))
+    pinv = (pinv - pinv.min()) / (pinv.max() - pinv.min())
+    assert ((res.x - x) ** 2).mean() < ((pinv - x) ** 2).mean()
+
+
+def test_eval_unet_reproduces_image(A):
+    res = fit_dip(A, A(_scene()), **FAST)
+    with torch.no_grad():
+        out = res.unet(res.x0)
+        train_out = copy.deepcopy(res.unet).train()(res.x0)
+    lo, hi = out.min(), out.max()
+    torch.testing.assert_close((out - lo) / (hi - lo), res.x, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(out, train_out, rtol=1e-5, atol=1e-6)
+
+
+def test_exported_unet_reproduces_image(A):
+    res = fit_dip(A, A(_scene()), **FAST)
+    buf = io.BytesIO()
+    torch.onnx.export(
+        res.unet,
+        (res.x0.repeat(2, 1, 1, 1),),
+        buf,
+        dynamo=False,
+        input_names=["x0"],
+        output_names=["image"],
+        dynamic_axes={"x0": {0: "batch"}, "image": {0: "batch"}},
+        opset_version=17,
+    )
+    sess = ort.InferenceSession(buf.getvalue(), providers=["CPUExecutionProvider"])
+    x0 = torch.cat([res.x0, torch.randn(2, 1, N, N, generator=torch.Generator().manual_seed(0))])
+    (got,) = sess.run(None, {"x0": x0.numpy()})
+    with torch.no_grad():
+        want = res.unet(x0).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+    got0 = torch.from_numpy(got[:1])
+    torch.testing.assert_close((got0 - got0.min()) / (got0.max() - got0.min()), res.x,
+                               rtol=1e-4, atol=1e-4)
+
+
+def test_scale_invariance_and_calibration(A):
+    """Known answer: the loss and the input are invariant to the scale of ``y``; a power-of-two
+    scale is exact in floating point, so ``x`` is bitwise equal and ``x_cal`` scales."""
+    y = A(_scene())
+    r1 = fit_dip(A, y, **FAST)
+    r2 = fit_dip(A, 4 * y, **FAST)
+    assert torch.equal(r1.x, r2.x)
+    torch.testing.assert_close(r2.x_cal, 4 * r1.x_cal, rtol=1e-4, atol=1e-5)
+
+
+def test_calibrated_image_units(A):
+    """``x_cal`` lives in the units of the scene: its measurements match ``y`` in least squares,
+    and a negative image (3 − 2·x) is recovered with its sign."""
+    x = _scene()
+    for scene in (x, 3 - 2 * x):
+        y = A(scene)
+        res = fit_dip(A, y, n_iter=80)
+        assert torch.linalg.vector_norm(A(res.x_cal) - y) < 0.25 * torch.linalg.vector_norm(y)
+        assert torch.corrcoef(torch.stack([res.x_cal.flatten(), scene.flatten()]))[0, 1] > 0.9
+
+
+def test_affine_coeffs_known_answer():
+    g = torch.Generator().manual_seed(0)
+    ax, a1 = torch.randn(10, generator=g, dtype=torch.float64), torch.zeros(10, dtype=torch.float64)
+    a1[0] = 4.0
+    ab = _affine_coeffs(ax, a1, 3 * ax + 2 * a1)
+    torch.testing.assert_close(ab, torch.tensor([3.0, 2.0], dtype=torch.float64))
+    # A·1 = 0 (no DC pattern): minimum-norm answer, b = 0
+    ab = _affine_coeffs(ax, torch.zeros_like(ax), -2 * ax)
+    torch.testing.assert_close(ab, torch.tensor([-2.0, 0.0], dtype=torch.float64))
+
+
+def test_windowed_variance_rule():
+    """ES-WMV on a constructed sequence: the window variance falls, then rises; the rule
+    flags the minimum and stops ``patience`` checks later."""
+    steps = [1.0, 0.5, 0.25, 0.2, 0.19, 0.5, 1.0, 2.0, 4.0, 8.0]
+    xs, v = [], 0.0
+    for s in steps:
+        v += s
+        xs.append(torch.full((1, 1, 2, 2), v))
+    rule = _WindowedVariance(window=2, patience=3)
+    flags = [rule.update(x) for x in xs]
+    improved = [i for i, (imp, _) in enumerate(flags) if imp]
+    stops = [i for i, (_, stop) in enumerate(flags) if stop]
+    assert improved == [1, 2, 3, 4] and stops[0] == 7
+
+
+def test_wmv_early_stop_triggers(A):
+    # the learning rate collapses after the first step, so the outputs freeze: the window
+    # variance reaches 0 at t = 3 and never improves again
+    res = fit_dip(A, A(_scene()), n_iter=100, early_stop="wmv", window=3, patience=4,
+                  lr_step=1, lr_gamma=1e-30)
+    assert res.n_iter == 8 and res.best_iter == 3
+
+
+def test_wmv_returns_best_network(A):
+    res = fit_dip(A, A(_scene()), n_iter=40, early_stop="wmv", window=5, patience=100)
+    with torch.no_grad():
+        out = res.unet(res.x0)
+    torch.testing.assert_close((out - out.min()) / (out.max() - out.min()), res.x,
+                               rtol=1e-5, atol=1e-5)
+    assert 4 <= res.best_iter < 40
+
+
+def test_discrepancy_stop(A):
+    y = A(_scene())
+    loose = fit_dip(A, y, n_iter=50, early_stop="discrepancy", noise_sigma=10.0)
+    assert loose.n_iter == 1 and loose.best_iter == 0
+    tight = fit_dip(A, y, n_iter=50, early_stop="discrepancy", noise_sigma=0.05)
+    res = A(tight.x_cal) - y
+    assert tight.n_iter < 50 and float((res**2).sum()) <= A.m * 0.05**2 * 1.001
+
+
+def test_explicit_x0_and_unet_not_modified(A):
+    y = A(_scene())
+    x0 = torch.randn(1, 2, N, N, generator=torch.Generator().manual_seed(1))
+    torch.manual_seed(0)
+    net = UNet(in_ch=2, base=4, depth=2)
+    state = copy.deepcopy(net.state_dict())
+    y_copy, x0_copy = y.clone(), x0.clone()
+    res = fit_dip(A, y, x0=x0, unet=net, n_iter=5)
+    assert res.unet is not net and res.unet.in_ch == 2
+    assert all(torch.equal(v, state[k]) for k, v in net.state_dict().items())
+    assert torch.equal(y, y_copy) and torch.equal(x0, x0_copy) and torch.equal(res.x0, x0)
+
+
+def test_dip_input(A):
+    x0 = dip_input(A, A(_scene(b=2)))
+    assert x0.shape == (2, 1, N, N)
+    torch.testing.assert_close(x0.mean(dim=(-2, -1)), torch.zeros(2, 1), atol=1e-5, rtol=0)
+    torch.testing.assert_close(x0.std(dim=(-2, -1), unbiased=False), torch.ones(2, 1))
+
+
+def test_default_unet_depth():
+    assert default_unet(32).depth == 3 and default_unet(64).depth == 4
+    assert default_unet(8).depth == 2 and default_unet(16).depth == 3
+
+
+def test_general_operator():
+    g = torch.Generator().manual_seed(0)
+    P = PatternOperator((torch.rand(64, N, N, generator=g) > 0.5).float())
+    res = fit_dip(P, P(_scene()), n_iter=5)
+    assert res.x.shape == (1, 1, N, N)
+
+
+@pytest.mark.parametrize(("b", "c"), [(1, 1), (3, 1), (1, 2)])
+def test_dip_shapes_module_and_stacked(A, b, c):
+    y = A(_scene(b, c))
+    y_copy = y.clone()
+    out = dip(A, y, n_iter=5)
+    assert out.shape == (b, c, N, N)
+    torch.testing.assert_close(DIP(A, n_iter=5)(y), out, rtol=0, atol=0)
+    singles = torch.cat([dip(A, y[i : i + 1], n_iter=5) for i in range(b)])
+    torch.testing.assert_close(out, singles, rtol=0, atol=0)
+    assert torch.equal(y, y_copy)
+
+
+def test_dip_outputs(A):
+    y = A(_scene())
+    res = fit_dip(A, y, n_iter=5)
+    torch.testing.assert_close(dip(A, y, n_iter=5, output="unit"), res.x, rtol=0, atol=0)
+    torch.testing.assert_close(dip(A, y, n_iter=5), res.x_cal, rtol=0, atol=0)
+    x0 = dip_input(A, y)
+    torch.testing.assert_close(dip(A, y, x0=x0, n_iter=5), res.x_cal, rtol=0, atol=0)
+
+
+def test_dip_dtype(A, dtype):
+    y = A(_scene(dtype=dtype))
+    assert DIP(A, n_iter=3)(y).dtype == dtype
+
+
+@pytest.mark.parametrize(
+    ("kw", "exc", "match"),
+    [
+        ({"n_iter": 0}, ValueError, "fit_dip: expected n_iter >= 1, got 0"),
+        ({"n_iter": 2.0}, TypeError, "fit_dip: expected n_iter to be an int"),
+        ({"lr": -1.0}, ValueError, "fit_dip: expected lr > 0"),
+        ({"zeta": -1.0}, ValueError, "fit_dip: expected zeta >= 0"),
+        ({"window": 1}, ValueError, "fit_dip: expected window >= 2"),
+        ({"lr_gamma": 2.0}, ValueError, r"fit_dip: expected lr_gamma in \(0, 1\]"),
+        ({"betas": (0.5, 1.0)}, ValueError, "fit_dip: expected betas"),
+        ({"early_stop": "foo"}, ValueError, "fit_dip: expected early_stop in"),
+        ({"early_stop": "discrepancy"}, ValueError, "needs noise_sigma"),
+        ({"unet": torch.nn.Conv2d(1, 1, 3)}, TypeError, "fit_dip: expected unet to be a UNet"),
+        ({"x0": torch.zeros(1, 1, 8, 8)}, ValueError, r"fit_dip: expected x0 of shape"),
+    ],
+)
+def test_fit_dip_bad_options(A, kw, exc, match):
+    with pytest.raises(exc, match=match):
+        fit_dip(A, A(_scene()), **kw)
+
+
+def test_fit_dip_bad_data(A):
+    y = A(_scene())
+    with pytest.raises(ValueError, match=r"fit_dip: expected y of shape \(\*, \*, 64\), got"):
+        fit_dip(A, y[..., :-1])
+    bad = y.clone()
+    bad[..., 3] = float("nan")
+    with pytest.raises(ValueError, match="fit_dip: y contains non-finite values"):
+        fit_dip(A, bad)
+    with pytest.raises(ValueError, match=r"fit_dip: expected y of shape \(1, 1, 64\) \(one image"):
+        fit_dip(A, y.repeat(2, 1, 1))
+    with pytest.raises(ValueError, match="fit_dip: y is constant"):
+        fit_dip(A, torch.ones_like(y))
+    with pytest.raises(TypeError, match="fit_dip: expected A to be a LinearOperator"):
+        fit_dip(torch.nn.Identity(), y)
+    with pytest.raises(ValueError, match=r"dip: expected y of rank 3 \(B, C, M\), got shape \(1, 64\)"):
+        DIP(A)(y[0])
+
+
+def test_fit_dip_bad_depth(A):
+    y = A(_scene())
+    with pytest.raises(ValueError, match="fit_dip: expected n divisible by 2\\^depth = 16 with a "
+                       "bottleneck of at least 2x2"):
+        fit_dip(A, y, unet=UNet(depth=4), n_iter=2)
+    P = PatternOperator(torch.rand(30, 12, 12, generator=torch.Generator().manual_seed(0)))
+    with pytest.raises(ValueError, match="fit_dip: expected n divisible by 2\\^depth = 8"):
+        fit_dip(P, P(torch.rand(1, 1, 12, 12)), unet=UNet(depth=3), n_iter=2)
+
+
+def test_bad_module_config(A):
+    with pytest.raises(ValueError, match="DIP: expected output in"):
+        DIP(A, output="raw")
+    with pytest.raises(TypeError, match="DIP: expected A to be a LinearOperator"):
+        DIP(torch.nn.Identity())
