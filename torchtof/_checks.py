@@ -67,9 +67,16 @@ def check_shape(
 
 def check_finite(x: torch.Tensor, name: str, func: str) -> None:
     """Raise ``ValueError`` if ``x`` holds NaN or Inf (eager mode only)."""
-    if is_tracing():
+    if is_tracing() or x.numel() == 0:
         return
-    if not bool(torch.isfinite(x).all()):
+    # NaN and ±Inf propagate through min/max: one pass, no bool temporary (this check sits on
+    # every operator call, where isfinite(x).all() cost a quarter of a 64x64 forward)
+    lo, hi = torch.aminmax(x.real if x.is_complex() else x)
+    ok = bool(torch.isfinite(lo) & torch.isfinite(hi))
+    if ok and x.is_complex():
+        lo, hi = torch.aminmax(x.imag)
+        ok = bool(torch.isfinite(lo) & torch.isfinite(hi))
+    if not ok:
         n_nan = int(torch.isnan(x).sum())
         n_inf = int(torch.isinf(x).sum())
         raise ValueError(f"{func}: {name} contains non-finite values ({n_nan} NaN, {n_inf} Inf)")

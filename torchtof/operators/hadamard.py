@@ -64,8 +64,8 @@ def hadamard_adjoint(
         h32 = None if h is None else h.float()
         return hadamard_adjoint(y.float(), index, n, h32).to(y.dtype)
     coef = y.new_zeros(*y.shape[:-1], n * n)
-    coef = coef.index_copy(-1, index, y)  # out of place: autograd + ONNX (ScatterND)
-    return _transform(coef.reshape(*y.shape[:-1], n, n), h) / n
+    coef = coef.index_copy(-1, index, y / n)  # out of place: autograd + ONNX (ScatterND)
+    return _transform(coef.reshape(*y.shape[:-1], n, n), h)
 
 
 class Hadamard(LinearOperator):
