@@ -13,6 +13,8 @@ noise level estimated on the high-sequency tail of ``y``) and TVAL3 with its noi
 default ``mu="auto"``; the equality-constrained forms over-fit the noise (and BP then needs
 thousands of iterations).
 
+DIP fits ``−y`` for negative-polarity buckets and negates the result (:class:`_SignedDIP`).
+
 Every image is scored by :func:`torchtof.metrics.compare` with the physics polarity of its
 buckets (ungated depth → negative, paper §3.1).
 """
@@ -88,11 +90,25 @@ def _unrolled(data, sr, gate, kind):
     return Method("Unrolled", UnrolledTVAL3(A), y)
 
 
-def _dip(data, sr, gate, kind):
-    from .recon.dip import DIP
+class _SignedDIP(torch.nn.Module):
+    """DIP on ``sign·y``, result times ``sign``: the U-Net's sigmoid output is a bright object
+    on a dark background, so negative images (ungated depth buckets, a polarity known from the
+    physics, paper §3.1) are fitted as ``A(−x) = −y`` and negated back (A is linear)."""
 
+    def __init__(self, A, sign: float) -> None:
+        super().__init__()
+        from .recon.dip import DIP
+
+        self.dip, self.sign = DIP(A), sign
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return self.sign * self.dip(self.sign * y)
+
+
+def _dip(data, sr, gate, kind):
     A, y = data.measurements(sr, kind, gate)
-    return Method("DIP", DIP(A), y, per_sample=True)
+    sign = -1.0 if data.polarity(gate, kind) == "negative" else 1.0
+    return Method("DIP", _SignedDIP(A, sign), y, per_sample=True)
 
 
 #: name -> builder(data, sr, gate, kind) -> Method, in the demo's column order.
