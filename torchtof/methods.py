@@ -156,6 +156,9 @@ def evaluate(
         if progress is not None:
             progress(name)
         method = build_method(name, data, sr, gate, kind)
+        if not method.per_sample:  # one-off initialisation is not the method's run time
+            with torch.no_grad():
+                method.module(method.y[:1])
         with torch.no_grad() if name != "DIP" else torch.enable_grad():
             t0 = time.perf_counter()
             img = method()
