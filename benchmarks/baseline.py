@@ -7,8 +7,11 @@ w-step (A^T A + rho I) w = A^T y + rho (x + v) in closed form for orthonormal ro
 ((A^T A + rho I)^-1 = (I - A^T A / (1 + rho)) / rho), z-step isotropic shrinkage.
 Stops when the primal and dual residuals (Boyd §3.3) fall below tol (relative)."""
 import math
+
 import torch
+
 from torchtof.recon._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
+
 
 def admm_tv(y, A, lam, rho=None, iters=20000, tol=1e-6):
     assert A.orthonormal_rows

@@ -1,10 +1,14 @@
 """TVAL3 benchmark: horse 64x64, Hadamard SR 25 %, 1 % Gaussian noise; TVAL3 defaults vs a plain
 ADMM-TV baseline with its weight tuned (oracle grid), run to convergence.
 Usage: .venv/bin/python benchmarks/bench_tval3.py [threads] [--no-baseline]"""
-import sys, time, statistics
+import statistics
+import sys
+import time
+
 import numpy as np
 import torch
 from skimage import data, transform
+
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
 from torchtof.operators import Hadamard
 from torchtof.recon.tval3 import tval3

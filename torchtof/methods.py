@@ -54,40 +54,49 @@ def _split(data: ExperimentData, sr: float, gate: bool, kind: str):
     return data.split_operator(sr), data.split_buckets(sr, kind, gate)
 
 
-def _cgi(data, sr, gate, kind):
+def _no_options(name: str, kwargs: dict) -> None:
+    if kwargs:
+        raise TypeError(f"build_method: {name} takes no options, got {sorted(kwargs)}")
+
+
+def _cgi(data, sr, gate, kind, **kwargs):
+    _no_options("CGI", kwargs)
     s, y = _split(data, sr, gate, kind)
     return Method("CGI", CGI(s), y)
 
 
-def _dgi(data, sr, gate, kind):
+def _dgi(data, sr, gate, kind, **kwargs):
+    _no_options("DGI", kwargs)
     s, y = _split(data, sr, gate, kind)
     return Method("DGI", DGI(s), y)
 
 
-def _pinv(data, sr, gate, kind):
+def _pinv(data, sr, gate, kind, **kwargs):
+    _no_options("PINV", kwargs)
     A, y = data.measurements(sr, kind, gate)
     return Method("PINV", PseudoInverse(A), y)
 
 
-def _bp(data, sr, gate, kind):
+def _bp(data, sr, gate, kind, **kwargs):
     from .recon.bp import BasisPursuit
 
     A, y = data.measurements(sr, kind, gate)
-    return Method("BP", BasisPursuit(A, eps="auto"), y)  # noise-aware (BPDN), see docstring
+    # noise-aware BPDN by default (module docstring)
+    return Method("BP", BasisPursuit(A, **{"eps": "auto", **kwargs}), y)
 
 
-def _tval3(data, sr, gate, kind):
+def _tval3(data, sr, gate, kind, **kwargs):
     from .recon.tval3 import TVAL3
 
     A, y = data.measurements(sr, kind, gate)
-    return Method("TVAL3", TVAL3(A), y)
+    return Method("TVAL3", TVAL3(A, **kwargs), y)
 
 
-def _unrolled(data, sr, gate, kind):
+def _unrolled(data, sr, gate, kind, **kwargs):
     from .recon.unrolled import UnrolledTVAL3
 
     A, y = data.measurements(sr, kind, gate)
-    return Method("Unrolled", UnrolledTVAL3(A), y)
+    return Method("Unrolled", UnrolledTVAL3(A, **kwargs), y)
 
 
 class _SignedDIP(torch.nn.Module):
@@ -95,20 +104,20 @@ class _SignedDIP(torch.nn.Module):
     on a dark background, so negative images (ungated depth buckets, a polarity known from the
     physics, paper §3.1) are fitted as ``A(−x) = −y`` and negated back (A is linear)."""
 
-    def __init__(self, A, sign: float) -> None:
+    def __init__(self, A, sign: float, **kwargs) -> None:
         super().__init__()
         from .recon.dip import DIP
 
-        self.dip, self.sign = DIP(A), sign
+        self.dip, self.sign = DIP(A, **kwargs), sign
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.sign * self.dip(self.sign * y)
 
 
-def _dip(data, sr, gate, kind):
+def _dip(data, sr, gate, kind, **kwargs):
     A, y = data.measurements(sr, kind, gate)
     sign = -1.0 if data.polarity(gate, kind) == "negative" else 1.0
-    return Method("DIP", _SignedDIP(A, sign), y, per_sample=True)
+    return Method("DIP", _SignedDIP(A, sign, **kwargs), y, per_sample=True)
 
 
 #: name -> builder(data, sr, gate, kind) -> Method, in the demo's column order.
@@ -124,10 +133,12 @@ METHODS: dict[str, Callable[..., Method]] = {
 DEFAULT_METHODS: tuple[str, ...] = tuple(METHODS)
 
 
-def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: str = "depth"):
+def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: str = "depth",
+                 **options):
+    """Bind method ``name`` to the run; ``options`` go to its constructor (DIP only)."""
     if name not in METHODS:
         raise ValueError(f"build_method: expected name in {tuple(METHODS)}, got {name!r}")
-    return METHODS[name](data, sr, gate, kind)
+    return METHODS[name](data, sr, gate, kind, **options)
 
 
 def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
@@ -146,16 +157,17 @@ def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
 
 def evaluate(
     data: ExperimentData, sr: float, gate: bool, methods=DEFAULT_METHODS, kind: str = "depth",
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], None] | None = None, options: dict[str, dict] | None = None,
 ) -> tuple[list[dict], dict[str, torch.Tensor]]:
     """Run and score ``methods`` at ``sr``; returns (rows, images) — rows hold mean ± std over
-    the realisations and the wall time of the whole batch."""
+    the realisations and the wall time of the whole batch. ``options[name]`` are constructor
+    keyword arguments of that method (e.g. ``{"DIP": {"n_iter": 100}}``)."""
     rows, images = [], {}
     polarity = data.polarity(gate, kind)
     for name in methods:
         if progress is not None:
             progress(name)
-        method = build_method(name, data, sr, gate, kind)
+        method = build_method(name, data, sr, gate, kind, **(options or {}).get(name, {}))
         if not method.per_sample:  # one-off initialisation is not the method's run time
             with torch.no_grad():
                 method.module(method.y[:1])

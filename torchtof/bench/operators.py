@@ -27,7 +27,7 @@ def bench_operators(
         row = {"n": n, "N": big, "M": int(round(sr * big)), "batch": batch}
         for method in ("matmul", "fwht"):
             A = Hadamard(n, sr=sr, method=method)
-            row[f"hadamard_{method}_s"] = time_call(lambda A=A: A.adjoint(A(x)), repeat=repeat)
+            row[f"hadamard_{method}_s"] = time_call(lambda A=A, x=x: A.adjoint(A(x)), repeat=repeat)
         row["hadamard_auto"] = Hadamard(n, sr=sr).method
         m = row["M"]
         nbytes = 4.0 * m * big
@@ -36,9 +36,9 @@ def bench_operators(
             pats = A.patterns() / n
             dense = pats.reshape(m, big).contiguous()
             xf = x.reshape(batch, big)
-            row["dense_s"] = time_call(lambda: (xf @ dense.T) @ dense, repeat=repeat)
+            row["dense_s"] = time_call(lambda xf=xf, d=dense: (xf @ d.T) @ d, repeat=repeat)
             P = PatternOperator(pats)
-            row["pattern_operator_s"] = time_call(lambda: P.adjoint(P(x)), repeat=repeat)
+            row["pattern_operator_s"] = time_call(lambda P=P, x=x: P.adjoint(P(x)), repeat=repeat)
             del dense, pats, P
         else:
             row["dense_s"] = None

@@ -1,0 +1,73 @@
+"""Unrolled TVAL3 (shipped weights) vs converged TVAL3 on held-out scenes.
+
+usage: python benchmarks/compare_unrolled.py [--n 32 64] [--sr ...] [--noise 0.01] [--train STEPS]
+"""
+import argparse
+import statistics
+import time
+
+import torch
+
+from torchtof.operators import Hadamard
+from torchtof.recon.synthetic import synthetic_scenes
+from torchtof.recon.train import PAPER_SRS, noisy_measurements, train_unrolled
+from torchtof.recon.tval3 import TVAL3
+from torchtof.recon.unrolled import DEFAULT_N_ITER, UnrolledTVAL3
+from torchtof.scenes import binary_scene, depth_steps, motorcycle_depth, sky_character
+
+HELD_OUT_SEED = 10**6  # training uses seed 0
+def held_out(n, n_syn=16):
+    fixed = [sky_character(n)] + [binary_scene(k, n) for k in ("horse", "camera", "coins", "rocket")]
+    fixed += [depth_steps(n, seed=3).depth_m / 3.0, motorcycle_depth(n) / 4.0]
+    return torch.cat([synthetic_scenes(n, HELD_OUT_SEED, 0, range(n_syn))] + fixed)
+
+def psnr(a, b):
+    return 10 * torch.log10(1.0 / ((a - b) ** 2).mean(dim=(1, 2, 3)))
+
+def per_scene(rec, y, repeats=1):
+    """Each scene alone (batch 1): outputs and the median over scenes of the best-of-repeats time."""
+    outs, ts = [], []
+    with torch.no_grad():
+        rec(y[:1])  # warm-up
+        for i in range(len(y)):
+            best = float("inf")
+            for _ in range(repeats):
+                t = time.perf_counter(); o = rec(y[i:i+1]); best = min(best, time.perf_counter() - t)
+            outs.append(o); ts.append(best)
+    return torch.cat(outs), statistics.median(ts)
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--n", type=int, nargs="+", default=[32, 64])
+    p.add_argument("--sr", type=float, nargs="+", default=list(PAPER_SRS))
+    p.add_argument("--noise", type=float, nargs="+", default=[0.01])
+    p.add_argument("--K", type=int, default=DEFAULT_N_ITER)
+    p.add_argument("--train", type=int, default=0, help="train in-process with this many steps instead of shipped weights")
+    a = p.parse_args()
+    torch.set_num_threads(1)
+    print("| n | SR % | noise % | unrolled dB | TVAL3 auto dB | TVAL3 mu=2^8 dB | diff vs best | unrolled ms | TVAL3 auto ms | TVAL3 2^8 ms | time ratio (vs best) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for n in a.n:
+        x = held_out(n)
+        for sr in a.sr:
+            A = Hadamard(n, sr=sr)
+            if a.train:
+                net = train_unrolled(n=n, sr=sr, n_iter=a.K, steps=a.train).model.eval()
+            else:
+                net = UnrolledTVAL3(A, n_iter=a.K).eval()
+            recs = {"auto": TVAL3(A), "mu256": TVAL3(A, mu=2**8)}
+            for lvl in a.noise:
+                y = noisy_measurements(A, x, 777, 0, range(len(x)), (lvl, lvl))
+                xu, tu = per_scene(net, y, repeats=5)
+                pu = psnr(xu, x).mean().item()
+                res = {}
+                for k, r in recs.items():
+                    xt, tt_ = per_scene(r, y)
+                    res[k] = (psnr(xt, x).mean().item(), tt_)
+                best = max(res, key=lambda k: res[k][0])
+                print(f"| {n} | {sr*100:g} | {lvl*100:g} | {pu:.2f} | {res['auto'][0]:.2f} | {res['mu256'][0]:.2f} | "
+                      f"{pu - res[best][0]:+.2f} | {tu*1e3:.2f} | {res['auto'][1]*1e3:.1f} | {res['mu256'][1]*1e3:.1f} | "
+                      f"{res[best][1]/tu:.0f}x |", flush=True)
+
+if __name__ == "__main__":
+    main()
