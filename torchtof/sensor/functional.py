@@ -263,8 +263,13 @@ def tap_amplitude(taps: torch.Tensor) -> torch.Tensor:
         2.5
     """
     q, i, nonzero = _safe_iq(taps, "tap_amplitude")
-    q_safe = torch.where(nonzero, q, torch.ones_like(q))  # hypot(0, 0) has no gradient
-    amp = 0.5 * torch.hypot(q_safe, torch.where(nonzero, i, torch.ones_like(i)))  # no q², i²
+    # ½·hypot(q, i) as m·sqrt((q/m)² + (i/m)²), m = max(|q|, |i|): no q², i² to over- or
+    # underflow at 1e±30 (float32), exports to ONNX (aten.hypot does not), and the guarded
+    # operands keep the gradient finite at q = i = 0.
+    q_safe = torch.where(nonzero, q, torch.ones_like(q))
+    i_safe = torch.where(nonzero, i, torch.ones_like(i))
+    m = torch.maximum(q_safe.abs(), i_safe.abs())
+    amp = 0.5 * m * torch.sqrt((q_safe / m) ** 2 + (i_safe / m) ** 2)
     return torch.where(nonzero, amp, torch.zeros_like(amp))
 
 
