@@ -7,10 +7,15 @@ import pytest
 import torch
 
 from torchtof.operators import Hadamard, PatternOperator
+from torchtof.recon._tv import tv_norm
 from torchtof.recon.dip import (
     DIP,
+    ZETA_KAPPA,
+    ZETA_MAX,
+    ZETA_MIN,
     _affine_coeffs,
     _WindowedVariance,
+    auto_zeta,
     default_unet,
     dip,
     dip_input,
@@ -62,6 +67,21 @@ def test_deterministic_bitwise(A):
     assert not torch.equal(r1.x, r3.x)
 
 
+def test_fit_under_no_grad_and_inference_mode(A):
+    y = A(_scene())
+    want = fit_dip(A, y, n_iter=5).x
+    with torch.no_grad():
+        assert torch.equal(fit_dip(A, y, n_iter=5).x, want)
+    with torch.inference_mode():
+        y_inf = A(_scene())
+        assert torch.equal(DIP(A, n_iter=5, output="unit")(y_inf), want)
+
+
+def test_progress_bar(A, capsys):
+    res = fit_dip(A, A(_scene()), n_iter=3, progress=True)
+    assert res.n_iter == 3 and "fit_dip" in capsys.readouterr().err
+
+
 def test_global_rng_untouched(A):
     torch.manual_seed(123)
     want = torch.rand(3)
@@ -110,8 +130,9 @@ def test_exported_unet_reproduces_image(A):
         want = res.unet(x0).numpy()
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
     got0 = torch.from_numpy(got[:1])
-    torch.testing.assert_close((got0 - got0.min()) / (got0.max() - got0.min()), res.x,
-                               rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(
+        (got0 - got0.min()) / (got0.max() - got0.min()), res.x, rtol=1e-4, atol=1e-4
+    )
 
 
 def test_scale_invariance_and_calibration(A):
@@ -164,8 +185,16 @@ def test_windowed_variance_rule():
 def test_wmv_early_stop_triggers(A):
     # the learning rate collapses after the first step, so the outputs freeze: the window
     # variance reaches 0 at t = 3 and never improves again
-    res = fit_dip(A, A(_scene()), n_iter=100, early_stop="wmv", window=3, patience=4,
-                  lr_step=1, lr_gamma=1e-30)
+    res = fit_dip(
+        A,
+        A(_scene()),
+        n_iter=100,
+        early_stop="wmv",
+        window=3,
+        patience=4,
+        lr_step=1,
+        lr_gamma=1e-30,
+    )
     assert res.n_iter == 8 and res.best_iter == 3
 
 
@@ -173,8 +202,9 @@ def test_wmv_returns_best_network(A):
     res = fit_dip(A, A(_scene()), n_iter=40, early_stop="wmv", window=5, patience=100)
     with torch.no_grad():
         out = res.unet(res.x0)
-    torch.testing.assert_close((out - out.min()) / (out.max() - out.min()), res.x,
-                               rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(
+        (out - out.min()) / (out.max() - out.min()), res.x, rtol=1e-5, atol=1e-5
+    )
     assert 4 <= res.best_iter < 40
 
 
@@ -205,6 +235,28 @@ def test_dip_input(A):
     assert x0.shape == (2, 1, N, N)
     torch.testing.assert_close(x0.mean(dim=(-2, -1)), torch.zeros(2, 1), atol=1e-5, rtol=0)
     torch.testing.assert_close(x0.std(dim=(-2, -1), unbiased=False), torch.ones(2, 1))
+
+
+def test_auto_zeta_known_answers(A):
+    y = A(_scene())
+    assert auto_zeta(y) == ZETA_MIN  # noise-free piecewise-constant scene: empty tail
+    sy = float(y.std(unbiased=False))
+    assert auto_zeta(y, noise_sigma=0.1 * sy) == pytest.approx(ZETA_KAPPA * 0.1)
+    assert auto_zeta(y, noise_sigma=100 * sy) == ZETA_MAX
+    assert auto_zeta(4 * y, noise_sigma=0.4 * sy) == auto_zeta(y, noise_sigma=0.1 * sy)
+
+
+def test_tv_weight_is_effective(A):
+    """The TV term is scale invariant, so a larger weight gives a flatter image (relative to its
+    contrast) instead of a dimmer one."""
+    y = A(_scene())
+    rel_tv = []
+    for zeta in (0.0, 3.0):
+        res = fit_dip(A, y, n_iter=40, zeta=zeta, early_stop=None)
+        with torch.no_grad():
+            out = res.unet(res.x0)
+        rel_tv.append(float(tv_norm(out).sum() / out.std(unbiased=False)))
+    assert rel_tv[1] < 0.65 * rel_tv[0]  # about 0.5; a plain TV(x̂) term gives about 0.8
 
 
 def test_default_unet_depth():
@@ -252,6 +304,8 @@ def test_dip_dtype(A, dtype):
         ({"n_iter": 2.0}, TypeError, "fit_dip: expected n_iter to be an int"),
         ({"lr": -1.0}, ValueError, "fit_dip: expected lr > 0"),
         ({"zeta": -1.0}, ValueError, "fit_dip: expected zeta >= 0"),
+        ({"zeta": "high"}, ValueError, "fit_dip: expected zeta >= 0 or 'auto', got 'high'"),
+        ({"noise_sigma": 0.0}, ValueError, "fit_dip: expected noise_sigma > 0"),
         ({"window": 1}, ValueError, "fit_dip: expected window >= 2"),
         ({"lr_gamma": 2.0}, ValueError, r"fit_dip: expected lr_gamma in \(0, 1\]"),
         ({"betas": (0.5, 1.0)}, ValueError, "fit_dip: expected betas"),
@@ -280,14 +334,20 @@ def test_fit_dip_bad_data(A):
         fit_dip(A, torch.ones_like(y))
     with pytest.raises(TypeError, match="fit_dip: expected A to be a LinearOperator"):
         fit_dip(torch.nn.Identity(), y)
-    with pytest.raises(ValueError, match=r"dip: expected y of rank 3 \(B, C, M\), got shape \(1, 64\)"):
+    with pytest.raises(TypeError, match="fit_dip: expected y of dtype float32 or float64"):
+        fit_dip(A, y.half())
+    with pytest.raises(
+        ValueError, match=r"dip: expected y of rank 3 \(B, C, M\), got shape \(1, 64"
+    ):
         DIP(A)(y[0])
 
 
 def test_fit_dip_bad_depth(A):
     y = A(_scene())
-    with pytest.raises(ValueError, match="fit_dip: expected n divisible by 2\\^depth = 16 with a "
-                       "bottleneck of at least 2x2"):
+    with pytest.raises(
+        ValueError,
+        match="fit_dip: expected n divisible by 2\\^depth = 16 with a bottleneck of at least 2x2",
+    ):
         fit_dip(A, y, unet=UNet(depth=4), n_iter=2)
     P = PatternOperator(torch.rand(30, 12, 12, generator=torch.Generator().manual_seed(0)))
     with pytest.raises(ValueError, match="fit_dip: expected n divisible by 2\\^depth = 8"):

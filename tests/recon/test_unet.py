@@ -110,8 +110,11 @@ def test_bad_config(kw, exc, match):
 
 def test_bad_input(gen):
     net = _net(base=4, depth=3)
-    with pytest.raises(ValueError, match=r"UNet: expected x of shape \(B, 1, H, W\) with H and W "
-                       r"divisible by 2\^depth = 8 and at least 16, got \(1, 1, 12, 12\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"UNet: expected x of shape \(B, 1, H, W\) with H and W "
+        r"divisible by 2\^depth = 8 and at least 16, got \(1, 1, 12, 12\)",
+    ):
         net(torch.randn(1, 1, 12, 12, generator=gen))
     with pytest.raises(ValueError, match=r"at least 16, got \(1, 1, 8, 8\)"):
         net(torch.randn(1, 1, 8, 8, generator=gen))

@@ -3,11 +3,11 @@
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
 from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
-from .dip import DIP, DIPResult, dip, fit_dip
+from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_dip
 from .pinv import PseudoInverse, pseudo_inverse
+from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
 from .unet import UNet
-from .train import TrainResult, train_unrolled
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
@@ -36,6 +36,9 @@ __all__ = [
     "DIPResult",
     "dip",
     "fit_dip",
+    "dip_input",
+    "default_unet",
+    "auto_zeta",
     "DCT2",
     "Haar2",
     "dct2",

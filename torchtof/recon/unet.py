@@ -32,17 +32,14 @@ def _conv_bn(c_in: int, c_out: int, kernel: int, stride: int = 1) -> nn.Sequenti
     )
 
 
-def _up_bn(c_in: int, c_out: int, kernel: int, mode: str) -> nn.Sequential:
-    """Double H and W, then BN → LeakyReLU(0.2): a stride-2 transposed ``k×k`` conv
-    (``"transpose"``, GIDC) or bilinear up-sampling followed by a ``k×k`` conv."""
-    if mode == "transpose":
-        conv = nn.ConvTranspose2d(
-            c_in, c_out, kernel, stride=2, padding=kernel // 2, output_padding=1, bias=False
-        )
-        return nn.Sequential(conv, nn.BatchNorm2d(c_out), nn.LeakyReLU(0.2))
+def _up_bn(c_in: int, c_out: int, kernel: int) -> nn.Sequential:
+    """Stride-2 transposed ``k×k`` conv (exactly doubles H and W) → BN → LeakyReLU(0.2)."""
     return nn.Sequential(
-        nn.Upsample(scale_factor=2, mode=mode, **({"align_corners": False} if mode == "bilinear" else {})),
-        _conv_bn(c_in, c_out, kernel),
+        nn.ConvTranspose2d(
+            c_in, c_out, kernel, stride=2, padding=kernel // 2, output_padding=1, bias=False
+        ),
+        nn.BatchNorm2d(c_out),
+        nn.LeakyReLU(0.2),
     )
 
 
@@ -87,12 +84,16 @@ class UNet(nn.Module):
     """
 
     def __init__(
-        self, in_ch: int = 1, out_ch: int = 1, base: int = 16, depth: int = 3, kernel: int = 3,
-        upsample: str = "transpose",
+        self, in_ch: int = 1, out_ch: int = 1, base: int = 16, depth: int = 3, kernel: int = 3
     ) -> None:
         super().__init__()
-        for name, val, lo in (("in_ch", in_ch, 1), ("out_ch", out_ch, 1), ("base", base, 1),
-                              ("depth", depth, 1), ("kernel", kernel, 1)):
+        for name, val, lo in (
+            ("in_ch", in_ch, 1),
+            ("out_ch", out_ch, 1),
+            ("base", base, 1),
+            ("depth", depth, 1),
+            ("kernel", kernel, 1),
+        ):
             if isinstance(val, bool) or not isinstance(val, int):
                 raise TypeError(f"UNet: expected {name} to be an int, got {type(val).__name__}")
             if val < lo:
@@ -100,7 +101,11 @@ class UNet(nn.Module):
         if kernel % 2 == 0:
             raise ValueError(f"UNet: expected an odd kernel, got {kernel}")
         self.in_ch, self.out_ch, self.base, self.depth, self.kernel = (
-            in_ch, out_ch, base, depth, kernel
+            in_ch,
+            out_ch,
+            base,
+            depth,
+            kernel,
         )
         w = [base * 2**level for level in range(depth + 1)]
         k = kernel
@@ -113,10 +118,7 @@ class UNet(nn.Module):
             )
             for lv in range(depth)
         )
-        self.upsample = upsample
-        self.up = nn.ModuleList(
-            _up_bn(w[lv + 1], w[lv], k, upsample) for lv in reversed(range(depth))
-        )
+        self.up = nn.ModuleList(_up_bn(w[lv + 1], w[lv], k) for lv in reversed(range(depth)))
         self.merge = nn.ModuleList(
             nn.Sequential(_conv_bn(2 * w[lv], w[lv], k), _conv_bn(w[lv], w[lv], k))
             for lv in reversed(range(depth))
