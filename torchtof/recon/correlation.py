@@ -18,6 +18,10 @@ epsilon, the maximum per sample) and 0 where ``b`` is negligible — never NaN o
 (no bias for DGI's cancellation to amplify), and free of ``b²``, which would overflow or
 underflow for buckets at 1e±30 in float32.
 
+**Precision.** The images are small differences of large bucket sums (depth buckets carry an
+offset of ~10³–10⁵), so float32 loses about five digits; below float64 the estimators compute
+in float64 and round the result once (output dtype = input dtype).
+
 **Negative images.** With raw depth buckets (no gate) ``D_i`` falls as more light arrives
 (paper §3.1), so every correlation image comes out negative; the sign is physical and kept
 (resolve it with :func:`torchtof.metrics.resolve_sign`).
@@ -66,8 +70,8 @@ def tgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``(B, C, n, n)``.
     """
     _check(y, A, "tgi")
-    if y.dtype in (torch.float16, torch.bfloat16):
-        return tgi(y.float(), A).to(y.dtype)
+    if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
+        return tgi(y.double(), A).to(y.dtype)
     return A.adjoint(y - y.mean(dim=-1, keepdim=True)) / A.m
 
 
@@ -91,8 +95,8 @@ def cgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         True
     """
     _check(y, A, "cgi")
-    if y.dtype in (torch.float16, torch.bfloat16):
-        return cgi(y.float(), A).to(y.dtype)
+    if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
+        return cgi(y.double(), A).to(y.dtype)
     _, mean_phi = _pattern_stats(A, y)
     num = A.adjoint(y) / A.m
     den = y.mean(dim=-1, keepdim=True)[..., None] * mean_phi
@@ -114,8 +118,8 @@ def dgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``⟨yφ⟩`` (the regularised quotient vanishes).
     """
     _check(y, A, "dgi")
-    if y.dtype in (torch.float16, torch.bfloat16):
-        return dgi(y.float(), A).to(y.dtype)
+    if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
+        return dgi(y.double(), A).to(y.dtype)
     r, _ = _pattern_stats(A, y)
     ratio = _safe_div(y.mean(dim=-1, keepdim=True), r.mean().expand(y.shape[:-1] + (1,)))
     return A.adjoint(y - ratio * r) / A.m
