@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+import onnxruntime as ort
 import pytest
 import torch
 
@@ -100,6 +101,14 @@ def test_export_and_parity(name, exported):
         report = tto.check(path, module, inputs, rtol=1e-4, atol=1e-5)
         assert report["ok"]
         assert all(o["shape"][0] == batch for o in report["outputs"])
+        # the floor, literally: numpy.allclose(rtol=1e-4, atol=1e-5) on every output
+        sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+        feeds = {i.name: t.detach().numpy() for i, t in zip(sess.get_inputs(), inputs)}
+        with torch.no_grad():
+            ref = module(*inputs)
+        ref = ref if isinstance(ref, (tuple, list)) else (ref,)
+        for got, want in zip(sess.run(None, feeds), ref):
+            np.testing.assert_allclose(got, want.detach().numpy(), rtol=1e-4, atol=1e-5)
 
 
 def test_unrolled_uses_the_shipped_weights():
