@@ -17,14 +17,6 @@ from torchtof.bucket import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: avoid OpenMP oversubscription on a shared 2-core runner (results unchanged)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _rand(*shape, seed=0, dtype=torch.float32, lo=1.0, hi=5.0):
     g = torch.Generator().manual_seed(seed)

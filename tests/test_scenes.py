@@ -17,14 +17,6 @@ from torchtof.scenes import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: avoid OpenMP oversubscription on a shared 2-core runner (results unchanged)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _runs(row: torch.Tensor) -> list[tuple[int, int]]:
     """(start, length) of the runs of ones in a 1-D 0/1 tensor."""
