@@ -40,7 +40,7 @@ reproduce: $(STAMP)
 	$(BIN)/torchtof reproduce --quick --out reproduce_out
 
 lint: $(STAMP)
-	$(BIN)/ruff check torchtof tests examples export
+	$(BIN)/ruff check torchtof tests examples export benchmarks
 
 clean:
 	rm -rf $(VENV) demo_out reproduce_out bench_out .pytest_cache

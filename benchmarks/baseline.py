@@ -6,6 +6,7 @@ split as z = D x, w = x:  x-step (D^T D + I) x = D^T(z - u) + (w - v) by FFT (pe
 w-step (A^T A + rho I) w = A^T y + rho (x + v) in closed form for orthonormal rows
 ((A^T A + rho I)^-1 = (I - A^T A / (1 + rho)) / rho), z-step isotropic shrinkage.
 Stops when the primal and dual residuals (Boyd §3.3) fall below tol (relative)."""
+
 import math
 
 import torch
@@ -20,8 +21,11 @@ def admm_tv(y, A, lam, rho=None, iters=20000, tol=1e-6):
     rho = 1.0 if rho is None else rho
     eig = laplacian_eigs(n, n, dtype=torch.float64)[:, : n // 2 + 1] + 1.0
     aty = A.adjoint(y)
-    x = aty.clone(); w = x.clone(); v = torch.zeros_like(x)
-    z = grad2(x); u = torch.zeros_like(z)
+    x = aty.clone()
+    w = x.clone()
+    v = torch.zeros_like(x)
+    z = grad2(x)
+    u = torch.zeros_like(z)
     for k in range(iters):
         rhs = grad2_adjoint(z - u) + (w - v)
         x = torch.fft.irfft2(torch.fft.rfft2(rhs) / eig, s=(n, n))

@@ -2,6 +2,7 @@
 
 usage: python benchmarks/compare_unrolled.py [--n 32 64] [--sr ...] [--noise 0.01] [--train STEPS]
 """
+
 import argparse
 import statistics
 import time
@@ -16,13 +17,19 @@ from torchtof.recon.unrolled import DEFAULT_N_ITER, UnrolledTVAL3
 from torchtof.scenes import binary_scene, depth_steps, motorcycle_depth, sky_character
 
 HELD_OUT_SEED = 10**6  # training uses seed 0
+
+
 def held_out(n, n_syn=16):
-    fixed = [sky_character(n)] + [binary_scene(k, n) for k in ("horse", "camera", "coins", "rocket")]
+    fixed = [sky_character(n)] + [
+        binary_scene(k, n) for k in ("horse", "camera", "coins", "rocket")
+    ]
     fixed += [depth_steps(n, seed=3).depth_m / 3.0, motorcycle_depth(n) / 4.0]
     return torch.cat([synthetic_scenes(n, HELD_OUT_SEED, 0, range(n_syn))] + fixed)
 
+
 def psnr(a, b):
     return 10 * torch.log10(1.0 / ((a - b) ** 2).mean(dim=(1, 2, 3)))
+
 
 def per_scene(rec, y, repeats=1):
     """Each scene alone (batch 1): outputs and the median over scenes of the best-of-repeats time."""
@@ -32,9 +39,13 @@ def per_scene(rec, y, repeats=1):
         for i in range(len(y)):
             best = float("inf")
             for _ in range(repeats):
-                t = time.perf_counter(); o = rec(y[i:i+1]); best = min(best, time.perf_counter() - t)
-            outs.append(o); ts.append(best)
+                t = time.perf_counter()
+                o = rec(y[i : i + 1])
+                best = min(best, time.perf_counter() - t)
+            outs.append(o)
+            ts.append(best)
     return torch.cat(outs), statistics.median(ts)
+
 
 def main():
     p = argparse.ArgumentParser()
@@ -42,10 +53,17 @@ def main():
     p.add_argument("--sr", type=float, nargs="+", default=list(PAPER_SRS))
     p.add_argument("--noise", type=float, nargs="+", default=[0.01])
     p.add_argument("--K", type=int, default=DEFAULT_N_ITER)
-    p.add_argument("--train", type=int, default=0, help="train in-process with this many steps instead of shipped weights")
+    p.add_argument(
+        "--train",
+        type=int,
+        default=0,
+        help="train in-process with this many steps instead of shipped weights",
+    )
     a = p.parse_args()
     torch.set_num_threads(1)
-    print("| n | SR % | noise % | unrolled dB | TVAL3 auto dB | TVAL3 mu=2^8 dB | diff vs best | unrolled ms | TVAL3 auto ms | TVAL3 2^8 ms | time ratio (vs best) |")
+    print(
+        "| n | SR % | noise % | unrolled dB | TVAL3 auto dB | TVAL3 mu=2^8 dB | diff vs best | unrolled ms | TVAL3 auto ms | TVAL3 2^8 ms | time ratio (vs best) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for n in a.n:
         x = held_out(n)
@@ -65,9 +83,13 @@ def main():
                     xt, tt_ = per_scene(r, y)
                     res[k] = (psnr(xt, x).mean().item(), tt_)
                 best = max(res, key=lambda k: res[k][0])
-                print(f"| {n} | {sr*100:g} | {lvl*100:g} | {pu:.2f} | {res['auto'][0]:.2f} | {res['mu256'][0]:.2f} | "
-                      f"{pu - res[best][0]:+.2f} | {tu*1e3:.2f} | {res['auto'][1]*1e3:.1f} | {res['mu256'][1]*1e3:.1f} | "
-                      f"{res[best][1]/tu:.0f}x |", flush=True)
+                print(
+                    f"| {n} | {sr * 100:g} | {lvl * 100:g} | {pu:.2f} | {res['auto'][0]:.2f} | {res['mu256'][0]:.2f} | "
+                    f"{pu - res[best][0]:+.2f} | {tu * 1e3:.2f} | {res['auto'][1] * 1e3:.1f} | {res['mu256'][1] * 1e3:.1f} | "
+                    f"{res[best][1] / tu:.0f}x |",
+                    flush=True,
+                )
+
 
 if __name__ == "__main__":
     main()

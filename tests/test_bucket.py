@@ -17,7 +17,6 @@ from torchtof.bucket import (
 )
 
 
-
 def _rand(*shape, seed=0, dtype=torch.float32, lo=1.0, hi=5.0):
     g = torch.Generator().manual_seed(seed)
     return lo + (hi - lo) * torch.rand(*shape, generator=g, dtype=dtype)

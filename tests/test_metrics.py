@@ -22,7 +22,6 @@ from torchtof.metrics import (
 from torchtof.scenes import sky_character
 
 
-
 def _rand(*shape, seed=0, dtype=torch.float32):
     return torch.rand(*shape, generator=torch.Generator().manual_seed(seed), dtype=dtype)
 

@@ -17,7 +17,6 @@ from torchtof.scenes import (
 )
 
 
-
 def _runs(row: torch.Tensor) -> list[tuple[int, int]]:
     """(start, length) of the runs of ones in a 1-D 0/1 tensor."""
     out, start = [], None

@@ -42,7 +42,9 @@ def check_tensor(x: object, name: str, func: str) -> torch.Tensor:
     if not isinstance(x, torch.Tensor):
         raise TypeError(f"{func}: expected {name} to be a torch.Tensor, got {type(x).__name__}")
     if not (x.is_floating_point() or x.is_complex()):
-        raise TypeError(f"{func}: expected {name} to be a floating-point tensor, got dtype {x.dtype}")
+        raise TypeError(
+            f"{func}: expected {name} to be a floating-point tensor, got dtype {x.dtype}"
+        )
     return x
 
 

@@ -21,7 +21,8 @@ def _print_rows(rows: list[dict]) -> None:
         table.append({
             "method": r["method"],
             "gate": "3 m" if r.get("gate") else "none",
-            "PSNR dB": f"{r['psnr']:.2f}" + (f" ± {r['psnr_std']:.2f}" if r.get("psnr_std") else ""),
+            "PSNR dB": f"{r['psnr']:.2f}"
+            + (f" ± {r['psnr_std']:.2f}" if r.get("psnr_std") else ""),
             "SSIM": f"{r['ssim']:.3f}",
             "time s": f"{r['time_s']:.3f}" if r.get("time_s") is not None else "-",
         })
@@ -55,8 +56,8 @@ def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[st
         )
         imsave(str(path), (grid * 255).astype("uint8"), check_contrast=False)
         return path
-    fig, axes = plt.subplots(len(rows), len(columns), figsize=(1.6 * len(columns), 1.75 * len(rows)),
-                             squeeze=False)
+    fig, axes = plt.subplots(len(rows), len(columns),
+                             figsize=(1.6 * len(columns), 1.75 * len(rows)), squeeze=False)
     for c, (label, _) in enumerate(columns):
         for r in range(len(rows)):
             ax = axes[r][c]

@@ -144,8 +144,9 @@ class ExperimentConfig:
         func = "ExperimentConfig"
         for name in ("signal_e", "freq_hz", "object_m", "gate_m"):
             check_positive(getattr(self, name), name, func)
-        for name in ("ambient_e", "stray_e", "read_noise_e", "amp_threshold_e", "multipath_strength",
-                     "backscatter_e", "depth_s_m", "psf_sigma_px", "scatter_sigma_px"):
+        for name in ("ambient_e", "stray_e", "read_noise_e", "amp_threshold_e",
+                     "multipath_strength", "backscatter_e", "depth_s_m", "psf_sigma_px",
+                     "scatter_sigma_px"):
             check_positive(getattr(self, name), name, func, strict=False)
         check_in_range(self.alpha, 0.0, 1.0, "alpha", func, lo_open=True)
         if self.scattering_model not in ("phasor", "depth"):

@@ -121,7 +121,8 @@ def check_claims(
     for gate in ("", "+gate"):
         diffs = [psnr("air" + gate, m, sr) - psnr("scatter" + gate, m, sr)
                  for m in methods for sr in PAPER_SRS
-                 if psnr("air" + gate, m, sr) is not None and psnr("scatter" + gate, m, sr) is not None]
+                 if psnr("air" + gate, m, sr) is not None
+                 and psnr("scatter" + gate, m, sr) is not None]
         if diffs:
             mean = sum(diffs) / len(diffs)
             out.append((f"scattering lowers PSNR ({'with' if gate else 'without'} gate)", mean > 0,

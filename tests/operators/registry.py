@@ -12,7 +12,8 @@ from torchtof.operators import (
 
 
 def _binary():
-    return PatternOperator(random_binary_patterns(20, 8, generator=torch.Generator().manual_seed(1)))
+    g = torch.Generator().manual_seed(1)
+    return PatternOperator(random_binary_patterns(20, 8, generator=g))
 
 
 def _speckle():
@@ -23,6 +24,8 @@ def _speckle():
 OPERATORS = {
     "hadamard_cc_matmul": lambda: Hadamard(8, sr=0.25, method="matmul"),
     "hadamard_cc_fwht": lambda: Hadamard(8, sr=0.25, method="fwht"),
+    "hadamard_cc_kron": lambda: Hadamard(8, sr=0.25, method="kron"),
+    "hadamard_kron_64": lambda: Hadamard(64, sr=0.05, method="kron"),
     "hadamard_natural": lambda: Hadamard(4, m=5, order="natural"),
     "hadamard_sequency": lambda: Hadamard(16, sr=0.1, order="sequency"),
     "hadamard_russian_doll": lambda: Hadamard(8, sr=0.5, order="russian_doll"),

@@ -32,8 +32,8 @@ def recommend(points: list[dict], budgets_s=(1e-3, 1e-2, 1e-1, 1.0, 10.0)) -> li
         avg = []
         for lab in labels:
             ps = [p for p in points if p["n"] == n and p["label"] == lab]
-            avg.append((sum(p["time_s"] for p in ps) / len(ps), sum(p["psnr"] for p in ps) / len(ps),
-                        lab))
+            avg.append((sum(p["time_s"] for p in ps) / len(ps),
+                        sum(p["psnr"] for p in ps) / len(ps), lab))
         for b in budgets_s:
             ok = [a for a in avg if a[0] <= b]
             best = max(ok, key=lambda a: a[1]) if ok else None

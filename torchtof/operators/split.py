@@ -52,7 +52,8 @@ class DMDSplit(LinearOperator):
     def __init__(self, hadamard: Hadamard) -> None:
         if not isinstance(hadamard, Hadamard):
             raise TypeError(
-                f"DMDSplit: expected hadamard to be a Hadamard operator, got {type(hadamard).__name__}"
+                "DMDSplit: expected hadamard to be a Hadamard operator, "
+                f"got {type(hadamard).__name__}"
             )
         super().__init__(hadamard.n, 2 * hadamard.m)
         self.hadamard = hadamard

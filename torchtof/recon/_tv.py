@@ -42,7 +42,9 @@ def tv_norm(u: torch.Tensor, isotropic: bool = True, eps: float = 0.0) -> torch.
     return mag.flatten(1).sum(dim=1)
 
 
-def shrink(v: torch.Tensor, threshold: torch.Tensor | float, isotropic: bool = True) -> torch.Tensor:
+def shrink(
+    v: torch.Tensor, threshold: torch.Tensor | float, isotropic: bool = True
+) -> torch.Tensor:
     """Proximal map of ``threshold·‖·‖`` on the gradient field ``v (…, 2, H, W)``.
 
     Isotropic (TVAL3 ``TVnorm=2``): ``max(‖v‖₂ − t, 0) · v / ‖v‖₂`` per pixel over the

@@ -25,7 +25,9 @@ def pseudo_inverse(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``(B, C, n, n)``. With the full Hadamard set and no noise it is exact.
     """
     if not isinstance(A, LinearOperator):
-        raise TypeError(f"pseudo_inverse: expected A to be a LinearOperator, got {type(A).__name__}")
+        raise TypeError(
+            f"pseudo_inverse: expected A to be a LinearOperator, got {type(A).__name__}"
+        )
     return A.pinv(y)
 
 
@@ -35,7 +37,9 @@ class PseudoInverse(torch.nn.Module):
     def __init__(self, A: LinearOperator) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
-            raise TypeError(f"PseudoInverse: expected A to be a LinearOperator, got {type(A).__name__}")
+            raise TypeError(
+                f"PseudoInverse: expected A to be a LinearOperator, got {type(A).__name__}"
+            )
         self.A = A
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
