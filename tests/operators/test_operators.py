@@ -81,7 +81,7 @@ def test_rows_are_scipy_hadamard_rows(n, order):
     assert torch.equal(torch.sort(A.index).values, torch.arange(big))
 
 
-@pytest.mark.parametrize("method", ["matmul", "fwht"])
+@pytest.mark.parametrize("method", ["matmul", "kron", "fwht"])
 def test_orthonormal_rows(method):
     A = Hadamard(16, sr=0.3, method=method)
     a = A.matrix()
@@ -168,3 +168,37 @@ def test_bad_inputs():
         DMDSplit(PatternOperator(torch.ones(2, 4, 4)))
     with pytest.raises(ValueError, match="even"):
         combine_split(torch.zeros(1, 1, 3), 4)
+
+
+@pytest.mark.parametrize("n", [4, 8, 32, 64, 128])
+def test_kron_equals_matmul_every_size(n):
+    """The radix-16 Kronecker stages equal H_n X H_n (Sylvester: H_N = ⊗ H_r), float64."""
+    x = torch.randn(3, 2, n, n, dtype=torch.float64)
+    a, b = Hadamard(n, sr=0.3, method="kron"), Hadamard(n, sr=0.3, method="matmul")
+    torch.testing.assert_close(a(x), b(x), rtol=1e-12, atol=1e-10)
+    y = a(x)
+    torch.testing.assert_close(a.adjoint(y), b.adjoint(y), rtol=1e-12, atol=1e-10)
+
+
+def test_kron_factors_and_bad_factors():
+    from torchtof.operators.fwht import fwht_kron, kron_factors, sylvester
+
+    assert kron_factors(4096) == (16, 16, 16)
+    assert kron_factors(2048) == (8, 16, 16)
+    assert kron_factors(16) == (16,)
+    assert kron_factors(2, radix=16) == (2,)
+    x = torch.randn(5, 64, dtype=torch.float64)
+    ref = x @ sylvester(64, torch.float64)
+    for fac in ((64,), (4, 16), (16, 4), (2, 2, 2, 8)):
+        hs = tuple(sylvester(r, torch.float64) for r in fac)
+        torch.testing.assert_close(fwht_kron(x, hs), ref, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="factors multiply to 32"):
+        fwht_kron(x, (sylvester(2), sylvester(16)))
+    with pytest.raises(ValueError, match="big"):
+        kron_factors(48)
+
+
+def test_auto_method_by_size():
+    assert Hadamard(32, sr=0.25).method == "matmul"
+    assert Hadamard(64, sr=0.25).method == "kron"
+    assert Hadamard(256, m=10).method == "kron"

@@ -66,7 +66,7 @@ coef = st.floats(-100, 100, allow_nan=False)
 
 @FAST
 @given(k=st.integers(2, 6), order=st.sampled_from(ORDERS),
-       method=st.sampled_from(("matmul", "fwht")), frac=st.floats(0, 1),
+       method=st.sampled_from(("matmul", "kron", "fwht")), frac=st.floats(0, 1),
        seed=st.integers(0, 10_000), a=coef, b=coef)
 def test_hadamard_linear_adjoint_orthonormal(k, order, method, frac, seed, a, b):
     n = 2**k

@@ -25,7 +25,7 @@ def bench_operators(
         big = n * n
         x = torch.randn(batch, 1, n, n)
         row = {"n": n, "N": big, "M": int(round(sr * big)), "batch": batch}
-        for method in ("matmul", "fwht"):
+        for method in ("matmul", "kron", "fwht"):
             A = Hadamard(n, sr=sr, method=method)
             row[f"hadamard_{method}_s"] = time_call(lambda A=A, x=x: A.adjoint(A(x)), repeat=repeat)
         row["hadamard_auto"] = Hadamard(n, sr=sr).method
@@ -44,7 +44,7 @@ def bench_operators(
             row["dense_s"] = None
             row["pattern_operator_s"] = None
             row["dense_skipped"] = f"dense matrix would need {nbytes / 1e9:.1f} GB"
-        best = min(row["hadamard_matmul_s"], row["hadamard_fwht_s"])
+        best = min(row[f"hadamard_{k}_s"] for k in ("matmul", "kron", "fwht"))
         row["best_hadamard_s"] = best
         if row["dense_s"]:
             row["speedup_vs_dense"] = row["dense_s"] / best
@@ -54,6 +54,7 @@ def bench_operators(
     # growth: time ratio between consecutive sizes vs the N log N ratio
     for a, b in zip(rows, rows[1:]):
         nlogn = (b["N"] * math.log2(b["N"])) / (a["N"] * math.log2(a["N"]))
+        b["kron_growth"] = b["hadamard_kron_s"] / a["hadamard_kron_s"]
         b["fwht_growth"] = b["hadamard_fwht_s"] / a["hadamard_fwht_s"]
         b["NlogN_growth"] = nlogn
     return {
@@ -68,9 +69,10 @@ def bench_operators(
 
 def print_operators(result: dict) -> None:
     cols = [
-        "n", "M", "hadamard_matmul_s", "hadamard_fwht_s", "hadamard_auto", "dense_s",
+        "n", "M", "hadamard_matmul_s", "hadamard_kron_s", "hadamard_fwht_s", "hadamard_auto",
+        "dense_s",
         "pattern_operator_s", "speedup_vs_dense", "speedup_vs_pattern_operator",
-        "fwht_growth", "NlogN_growth",
+        "kron_growth", "fwht_growth", "NlogN_growth",
     ]
     print(f"forward+adjoint, batch {result['batch']}, SR {result['sr']:.0%}, "
           f"{result['threads']} threads, torch {result['torch']}")

@@ -445,6 +445,7 @@ def _operator_cases() -> list[Case]:
     }
     cases = []
     for label, maker in (("Hadamard[matmul]", partial(had, "matmul")),
+                         ("Hadamard[kron]", partial(had, "kron")),
                          ("Hadamard[fwht]", partial(had, "fwht")), ("DMDSplit", split)):
         for edge, (n, kw, x64) in edges.items():
             cases.append(Case(f"{label}.forward", edge, _forward(maker(n, **kw), x64), "operator"))

@@ -2,14 +2,17 @@
 
 ``A = P H_N / √N`` (DESIGN.md §2): ``H_N = H_n ⊗ H_n`` the 2-D Sylvester basis,
 ``P`` selects the first ``M`` rows of an order (:mod:`.patterns`). Then
-``A Aᵀ = I`` and ``A⁺ = Aᵀ``. Two exact implementations of ``H_N`` on an
+``A Aᵀ = I`` and ``A⁺ = Aᵀ``. Three exact implementations of ``H_N`` on an
 ``n × n`` image, never an ``N × N`` matrix:
 
 - ``"matmul"``: separable ``H_n X H_n`` (two ``n × n`` matmuls, O(n³) = O(N^1.5), BLAS);
+- ``"kron"``: mixed-radix Kronecker factorisation ``H_N = H_16 ⊗ … ⊗ H_16`` (small batched
+  GEMMs on contiguous views, ``N Σ r_i`` multiply-adds, :func:`.fwht.fwht_kron`);
 - ``"fwht"``: butterfly Walsh–Hadamard transform, O(N log N).
 
-``method="auto"`` takes the one that ``torchtof bench operators`` measured faster on
-CPU at that size (:data:`AUTO_FWHT_MIN_N`).
+``method="auto"`` takes the one that ``torchtof bench operators`` measured fastest on
+CPU at that size: ``"matmul"`` below :data:`AUTO_KRON_MIN_N`, ``"kron"`` from there on
+(the butterflies lose to both at every size: one allocation per stage).
 """
 
 from __future__ import annotations
@@ -17,32 +20,48 @@ from __future__ import annotations
 import torch
 
 from .base import LinearOperator
-from .fwht import fwht2, sylvester
+from .fwht import fwht2, fwht_kron, kron_factors, sylvester
 from .patterns import _check_n_order, hadamard_order, num_patterns
 
-__all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_FWHT_MIN_N"]
+__all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
 
-#: From ``torchtof bench operators`` on 2 CPU cores: matmul wins up to this size (exclusive).
-AUTO_FWHT_MIN_N = 256
-METHODS = ("auto", "matmul", "fwht")
+#: From ``torchtof bench operators`` (one thread): the separable matmul is as fast as the
+#: Kronecker stages up to n = 32; from n = 64 on the radix-16 stages win (1.7× at 64,
+#: 3× at 128, 5× at 256 over the separable matmul).
+AUTO_KRON_MIN_N = 64
+METHODS = ("auto", "matmul", "kron", "fwht")
+
+#: What the functional forms take as ``h``: ``H_n`` (matmul), the Kronecker factors
+#: (kron) or ``None`` (butterflies).
+Transform = torch.Tensor | tuple[torch.Tensor, ...] | None
 
 
-def _transform(x: torch.Tensor, h: torch.Tensor | None) -> torch.Tensor:
-    """Unnormalised ``H_n X H_n`` on the last two axes (``h=None`` → butterflies)."""
+def _transform(x: torch.Tensor, h: Transform) -> torch.Tensor:
+    """Unnormalised ``H_n X H_n`` on the last two axes (``h``: see :data:`Transform`)."""
     if h is None:
         return fwht2(x)
+    if isinstance(h, tuple):
+        n1, n2 = x.shape[-2], x.shape[-1]
+        return fwht_kron(x.reshape(*x.shape[:-2], n1 * n2), h).reshape(x.shape)
     return h @ x @ h
 
 
-def hadamard_forward(
-    x: torch.Tensor, index: torch.Tensor, h: torch.Tensor | None = None
-) -> torch.Tensor:
+def _to_float(h: Transform) -> Transform:
+    if h is None:
+        return None
+    if isinstance(h, tuple):
+        return tuple(f.float() for f in h)
+    return h.float()
+
+
+def hadamard_forward(x: torch.Tensor, index: torch.Tensor, h: Transform = None) -> torch.Tensor:
     """``y = P H_N x / √N`` for images ``x``.
 
     Args:
         x: images ``(B, C, n, n)``.
         index: natural indices ``(M,)`` of the selected rows (:func:`hadamard_order`).
-        h: Sylvester ``H_n`` (``(n, n)``, dtype of ``x``) for the matmul path, or ``None``
+        h: Sylvester ``H_n`` (``(n, n)``, dtype of ``x``) for the matmul path, a tuple of
+            Kronecker factors ``H_{r_i}`` (``∏ r_i = n²``) for the kron path, or ``None``
             for the butterfly path.
 
     Returns:
@@ -50,19 +69,17 @@ def hadamard_forward(
     """
     n = x.shape[-1]
     if x.dtype in (torch.float16, torch.bfloat16):  # H X H reaches n²·max|x| before the /n
-        h32 = None if h is None else h.float()
-        return hadamard_forward(x.float(), index, h32).to(x.dtype)
+        return hadamard_forward(x.float(), index, _to_float(h)).to(x.dtype)
     coef = _transform(x, h).reshape(*x.shape[:-2], n * n)
     return coef.index_select(-1, index) / n
 
 
 def hadamard_adjoint(
-    y: torch.Tensor, index: torch.Tensor, n: int, h: torch.Tensor | None = None
+    y: torch.Tensor, index: torch.Tensor, n: int, h: Transform = None
 ) -> torch.Tensor:
     """``x = Aᵀ y = H_Nᵀ Pᵀ y / √N``: scatter into the coefficient grid, transform back."""
     if y.dtype in (torch.float16, torch.bfloat16):  # see hadamard_forward
-        h32 = None if h is None else h.float()
-        return hadamard_adjoint(y.float(), index, n, h32).to(y.dtype)
+        return hadamard_adjoint(y.float(), index, n, _to_float(h)).to(y.dtype)
     coef = y.new_zeros(*y.shape[:-1], n * n)
     coef = coef.index_copy(-1, index, y / n)  # out of place: autograd + ONNX (ScatterND)
     return _transform(coef.reshape(*y.shape[:-1], n, n), h)
@@ -76,7 +93,7 @@ class Hadamard(LinearOperator):
         sr: sampling rate ``M / n²`` in (0, 1] (give ``sr`` or ``m``).
         m: number of patterns in [1, n²].
         order: ``"cake_cutting"`` (default), ``"natural"``, ``"sequency"``, ``"russian_doll"``.
-        method: ``"auto"``, ``"matmul"`` or ``"fwht"`` (see module docstring).
+        method: ``"auto"``, ``"matmul"``, ``"kron"`` or ``"fwht"`` (see module docstring).
 
     Shape:
         ``(B, C, n, n) -> (B, C, M)``; ``adjoint``/``pinv``: ``(B, C, M) -> (B, C, n, n)``.
@@ -105,18 +122,32 @@ class Hadamard(LinearOperator):
             raise ValueError(f"Hadamard: expected method in {METHODS}, got {method!r}")
         super().__init__(n, m)
         self.order = order
-        self.method = ("fwht" if n >= AUTO_FWHT_MIN_N else "matmul") if method == "auto" else method
+        self.method = ("kron" if n >= AUTO_KRON_MIN_N else "matmul") if method == "auto" else method
         self.register_buffer("index", hadamard_order(n, order)[:m], persistent=False)
         self.register_buffer("h", sylvester(n, torch.float32), persistent=False)
+        self.kron_radices = kron_factors(n * n)
+        self._kron_cache: dict = {}
 
     @property
     def sr(self) -> float:
         return self.m / (self.n * self.n)
 
-    def _h(self, like: torch.Tensor) -> torch.Tensor | None:
+    def transform_spec(self, like: torch.Tensor) -> Transform:
+        """The ``h`` argument of :func:`hadamard_forward`/:func:`hadamard_adjoint` for this
+        operator's method, in the dtype and on the device of ``like`` (±1: exact in any
+        dtype)."""
         if self.method == "fwht":
             return None
-        return self.h.to(dtype=like.dtype, device=like.device)  # ±1: exact in any dtype
+        if self.method == "kron":
+            key = (like.dtype, like.device)
+            hs = self._kron_cache.get(key)
+            if hs is None:
+                hs = tuple(sylvester(r, like.dtype, like.device) for r in self.kron_radices)
+                self._kron_cache[key] = hs
+            return hs
+        return self.h.to(dtype=like.dtype, device=like.device)
+
+    _h = transform_spec
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "Hadamard.forward")
@@ -138,5 +169,6 @@ class Hadamard(LinearOperator):
         return h[i][:, :, None] * h[j][:, None, :]
 
     def extra_repr(self) -> str:
-        return f"n={self.n}, m={self.m}, sr={self.sr:.4g}, order={self.order!r}, method={self.method!r}"
+        return (f"n={self.n}, m={self.m}, sr={self.sr:.4g}, order={self.order!r}, "
+                f"method={self.method!r}")
 

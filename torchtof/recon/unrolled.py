@@ -201,7 +201,7 @@ def _operator_pair(op: LinearOperator, like: torch.Tensor):
     input checks and with ``H_n`` cast once (the loop calls them ``2K`` times)."""
     if not isinstance(op, Hadamard):
         return op.forward, op.adjoint
-    h = None if op.method == "fwht" else op.h.to(dtype=like.dtype, device=like.device)
+    h = op.transform_spec(like)
     index, n = op.index, op.n
     return (
         lambda u: hadamard_forward(u, index, h),
