@@ -65,7 +65,8 @@ class Faults:
         nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
             (occurrence counts from 0 per command).
         reply_timeout: ``{command: {occurrence}}``: the LightCrafter does not answer.
-        vanish_after_frames: both devices disappear (ENODEV) once this many frames rendered.
+        vanish_after_frames: both devices disappear (ENODEV) once the camera has delivered
+            this many frames (the next bulk read fails).
         hang_at_frame: on rendering this frame the camera touches ``hang_file`` and stalls
             for ``hang_s`` (a test kills the process meanwhile).
     """
@@ -324,6 +325,7 @@ class FakeOPT8241(_Gone):
         self._fifo: deque[bytes] = deque()
         self._late: set[int] = set()
         self.rendered = 0
+        self.delivered = 0
 
     def ctrl_transfer(self, bmRequestType: int, bRequest: int, wValue: int = 0, wIndex: int = 0,
                       data_or_wLength=None, timeout: int | None = None):
@@ -356,6 +358,10 @@ class FakeOPT8241(_Gone):
             raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
         if not self._fifo:
             raise _usb_timeout()
+        f = self.bench.faults
+        if f.vanish_after_frames is not None and self.delivered >= f.vanish_after_frames:
+            self.bench.vanished = True
+            self._alive()
         ordinal, packet = self._fifo[0]
         if ordinal in self._late:
             self._late.discard(ordinal)
@@ -363,6 +369,7 @@ class FakeOPT8241(_Gone):
         self._fifo.popleft()
         if len(packet) > size:
             raise _usb_error("Overflow", 75)
+        self.delivered += 1
         return bytearray(packet)
 
     @property
@@ -400,8 +407,6 @@ class FakeOPT8241(_Gone):
             self._fifo.append((ordinal, packet))
             if ordinal in f.duplicate:
                 self._fifo.append((-1, packet))
-        if f.vanish_after_frames is not None and self.rendered >= f.vanish_after_frames:
-            self.bench.vanished = True
 
 
 class _SimVideo(VideoPort):
