@@ -204,3 +204,11 @@ def test_load_rejects_foreign_and_empty_stores(tmp_path):
         run(tmp_path / "e.zarr", faults={"vanish_after_frames": 1})
     with pytest.raises(ValueError, match="no complete pattern pair"):
         load_buckets(tmp_path / "e.zarr")
+
+
+def test_scattering_sheet_run_equals_pure_simulation(tmp_path):
+    cfg = replace(CLEAN, scattering=True)
+    run(tmp_path / "s.zarr", cfg)
+    got, ref = load_buckets(tmp_path / "s.zarr")[0], pure(cfg)
+    for kind in got:
+        assert torch.equal(got[kind], ref.buckets[kind]), kind
