@@ -212,3 +212,20 @@ def test_scattering_sheet_run_equals_pure_simulation(tmp_path):
     got, ref = load_buckets(tmp_path / "s.zarr")[0], pure(cfg)
     for kind in got:
         assert torch.equal(got[kind], ref.buckets[kind]), kind
+
+
+def test_ctrl_c_marks_the_store_interrupted_and_resume_completes_it(reference, tmp_path):
+    path = tmp_path / "c.zarr"
+
+    def on_frame(k):
+        if k == 6:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(path, on_frame=on_frame)
+    g = zarr.open_group(str(path), mode="r")
+    assert g.attrs["status"] == "interrupted" and g["frames_ok"][:].sum() == 7
+    res, bench = run(path, resume=True)
+    assert bench.camera_usb.rendered == 26  # from pair boundary 6
+    for kind, ref in reference[2].items():
+        assert torch.equal(load_buckets(path)[0][kind], ref), kind

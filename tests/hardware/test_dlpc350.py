@@ -234,3 +234,20 @@ def test_video_source_needs_a_video_port():
     lcr = dlp.LightCrafter4500(bench.lightcrafter_usb)
     with pytest.raises(ValueError, match="video port"):
         lcr.show_sequence(np.ones((2, 8, 8)), exposure_us=1000)
+
+
+def test_external_trigger_waits_for_trig_in():
+    bench = _bench()
+    cam = bench.camera()
+    cam.start()
+    lcr = bench.lightcrafter()
+    pats = np.stack([np.eye(8, dtype=np.uint8), 1 - np.eye(8, dtype=np.uint8)])
+    lcr.show_sequence(pats, exposure_us=1000, trigger="external")
+    fake = bench.lightcrafter_usb
+    assert [dlp.unpack_lut_entry(e)["trig"] for e in fake.pattern_lut] == [1, 1]
+    assert fake.shown == [] and cam.frame_counter() == 0  # nothing until a TRIG_IN edge
+    fake.trigger_in()
+    fake.trigger_in()
+    fake.trigger_in()  # past the end of the sequence: ignored
+    np.testing.assert_array_equal(np.stack(fake.shown), pats)
+    assert cam.frame_counter() == 2

@@ -165,10 +165,10 @@ def acquire(
         lightcrafter: a :class:`~torchtof.hardware.dlpc350.LightCrafter4500` (with a video port).
         camera: an :class:`~torchtof.hardware.opt8241.OPT8241` (any object with its methods).
         n: DMD pattern size ``n × n`` (a power of two).
-        sr, m: sampling rate ``m / n²`` or the number of ±1 patterns ``m`` (give one).
+        sr, m: sampling rate ``m / n²`` or the number of ±1 patterns ``m`` (``m`` wins).
         order: Hadamard order (:mod:`torchtof.operators.patterns`).
         exposure_us, period_us: DMD exposure and period per pattern (µs).
-        block: ±1 patterns (pairs) per block; ``stop`` is asked after each block.
+        block: ±1 patterns (pairs) per block; ``stop`` is asked after each block but the last.
         stop: optional ``stop(y) -> bool`` called after each block with the signed buckets
             measured so far, ``{"depth", "gated", "intensity"}`` each ``y⁺ − y⁻`` of shape
             ``(1, 1, m_so_far)`` in pattern order (not divided by ``n``); ``True`` ends the
@@ -269,7 +269,7 @@ def acquire(
                 stopped = True
                 break
         camera.stop()
-    except HardwareError:
+    except (HardwareError, KeyboardInterrupt):  # the recorded frames stay valid: resume
         group.attrs.update({"status": "interrupted", **stats})
         raise
     finally:
