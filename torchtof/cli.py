@@ -1,4 +1,5 @@
-"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``."""
+"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``acquire``,
+``reconstruct``."""
 
 from __future__ import annotations
 
@@ -219,6 +220,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--opset", type=int, default=None)
     e.add_argument("-o", "--output", required=True)
     e.set_defaults(func=cmd_export)
+
+    from .hardware.cli import add_parsers as add_hardware_parsers  # acquire, reconstruct
+
+    add_hardware_parsers(sub)
     return p
 
 

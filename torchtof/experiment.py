@@ -101,6 +101,7 @@ class ExperimentConfig:
     signal_e: float = 400.0  # modulated amplitude |P| of a fully lit sensor pixel
     ambient_e: float = 2600.0  # ambient-light offset per tap
     read_noise_e: float = 12.0
+    shot: str | None = "poisson"  # shot noise: "poisson", "gaussian" or None (noise-free)
     adc_bits: int | None = 12
     gain_e_per_dn: float | None = None  # None: auto exposure (see gain())
     amp_threshold_e: float = 120.0  # Eq. 8 amplitude below this -> "no photon" -> 5 m
@@ -149,6 +150,9 @@ class ExperimentConfig:
                      "scatter_sigma_px"):
             check_positive(getattr(self, name), name, func, strict=False)
         check_in_range(self.alpha, 0.0, 1.0, "alpha", func, lo_open=True)
+        if self.shot not in (None, "poisson", "gaussian"):
+            raise ValueError(f"{func}: expected shot in (None, 'poisson', 'gaussian'), "
+                             f"got {self.shot!r}")
         if self.scattering_model not in ("phasor", "depth"):
             raise ValueError(
                 f"{func}: expected scattering_model in ('phasor', 'depth'), "
@@ -229,7 +233,7 @@ def simulate_frames(
         mag = cfg.alpha * _smooth(mag, cfg.scatter_sigma_px) + b
     g = cfg.gain() if cfg.adc_bits is not None else 1.0
     frame = cw_tof_sensor(
-        phasor, 0.5 * mag, freq_hz=cfg.freq_hz, ambient_e=cfg.ambient_e, shot="poisson",
+        phasor, 0.5 * mag, freq_hz=cfg.freq_hz, ambient_e=cfg.ambient_e, shot=cfg.shot,
         read_noise_e=cfg.read_noise_e, adc_bits=cfg.adc_bits, gain_e_per_dn=g,
         min_m=cfg.min_m, max_m=cfg.max_m, amp_threshold=cfg.amp_threshold_e / g,
         no_photon_m=cfg.max_m, step_m=cfg.step_m, generator=generator,

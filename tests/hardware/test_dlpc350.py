@@ -1,0 +1,253 @@
+"""DLPC350 codec and driver: byte-exact encoders (hand-written from the TI command tables in
+domain-notes §7), reply/NACK/multi-report decoding, LUT packing, show_sequence on the fake."""
+
+import numpy as np
+import pytest
+
+from torchtof.experiment import ExperimentConfig
+from torchtof.hardware import dlpc350 as dlp
+from torchtof.hardware.errors import NackError, ProtocolError
+from torchtof.hardware.simulated import Faults, SimulatedBench
+
+
+def hexs(b: bytes, n: int | None = None) -> str:
+    return bytes(b[:n] if n else b).hex(" ")
+
+
+# (command, payload, read, expected bytes with SS = 0x2a), written from the command table
+GOLDEN = [
+    ("PAT_START_STOP", dlp.payload_start_stop("start"), False, "40 2a 03 00 24 1a 02"),
+    ("PAT_START_STOP", dlp.payload_start_stop("pause"), False, "40 2a 03 00 24 1a 01"),
+    ("PAT_START_STOP", dlp.payload_start_stop("stop"), False, "40 2a 03 00 24 1a 00"),
+    ("POWER_CONTROL", dlp.payload_power(True), False, "40 2a 03 00 00 02 01"),
+    ("POWER_CONTROL", dlp.payload_power(False), False, "40 2a 03 00 00 02 00"),
+    ("DISP_MODE", dlp.payload_display_mode(True), False, "40 2a 03 00 1b 1a 01"),
+    ("DISP_MODE", dlp.payload_display_mode(False), False, "40 2a 03 00 1b 1a 00"),
+    ("PAT_DISP_MODE", dlp.payload_pattern_source("video"), False, "40 2a 03 00 22 1a 00"),
+    ("PAT_DISP_MODE", dlp.payload_pattern_source("flash"), False, "40 2a 03 00 22 1a 03"),
+    ("PAT_TRIG_MODE", dlp.payload_trigger_mode("internal"), False, "40 2a 03 00 23 1a 01"),
+    ("PAT_TRIG_MODE", dlp.payload_trigger_mode("vsync"), False, "40 2a 03 00 23 1a 00"),
+    ("PAT_TRIG_MODE", dlp.payload_trigger_mode("trig_in_pairs"), False, "40 2a 03 00 23 1a 02"),
+    ("PAT_EXPO_PRD", dlp.payload_exposure_period(10000, 10000), False,
+     "40 2a 0a 00 29 1a 10 27 00 00 10 27 00 00"),
+    ("PAT_EXPO_PRD", dlp.payload_exposure_period(8000, 8500), False,
+     "40 2a 0a 00 29 1a 40 1f 00 00 34 21 00 00"),
+    ("PAT_CONFIG", dlp.payload_pattern_config(24, False, 24, 1), False,
+     "40 2a 06 00 31 1a 17 00 17 00"),
+    ("PAT_CONFIG", dlp.payload_pattern_config(2, True, 2, 3), False,
+     "40 2a 06 00 31 1a 01 01 01 02"),
+    ("MBOX_CONTROL", dlp.payload_mailbox_control("pattern"), False, "40 2a 03 00 33 1a 02"),
+    ("MBOX_CONTROL", dlp.payload_mailbox_control("image"), False, "40 2a 03 00 33 1a 01"),
+    ("MBOX_CONTROL", dlp.payload_mailbox_control("close"), False, "40 2a 03 00 33 1a 00"),
+    ("MBOX_ADDRESS", b"\x00", False, "40 2a 03 00 32 1a 00"),
+    ("MBOX_DATA", bytes([0x14, 0x71, 0x00]), False, "40 2a 05 00 34 1a 14 71 00"),
+    ("LUT_VALID", b"\x00", False, "40 2a 03 00 1a 1a 00"),
+    ("LUT_VALID", b"", True, "c0 2a 02 00 1a 1a"),
+    ("STATUS_HW", b"", True, "c0 2a 02 00 0a 1a"),
+    ("STATUS_SYS", b"", True, "c0 2a 02 00 0b 1a"),
+    ("STATUS_MAIN", b"", True, "c0 2a 02 00 0c 1a"),
+    ("GET_VERSION", b"", True, "c0 2a 02 00 05 02"),
+]
+
+
+@pytest.mark.parametrize("name,payload,read,expected", GOLDEN,
+                         ids=[f"{g[0]}-{i}" for i, g in enumerate(GOLDEN)])
+def test_encoder_golden_bytes(name, payload, read, expected):
+    reports = dlp.encode(name, payload, seq=0x2A, read=read)
+    assert len(reports) == 1 and len(reports[0]) == 64
+    n = len(expected.split())
+    assert hexs(reports[0], n) == expected
+    assert reports[0][n:] == bytes(64 - n)  # zero padded
+
+
+def test_every_command_has_a_golden_test():
+    assert {g[0] for g in GOLDEN} == set(dlp.COMMANDS)
+
+
+def test_lut_entries_golden():
+    assert dlp.lut_entry(5, 1, "RGB", "internal") == 0x007114
+    assert dlp.lut_entry(5, 1, "RGB", "external+") == 0x007115
+    assert dlp.lut_entry(0, 1, "G", "internal", buffer_swap=True) == 0x042100
+    assert dlp.lut_entry(23, 1, "B", "none", invert=True) == 0x01415F
+    assert dlp.pack_pattern_lut([0x007114, 0x042100]).hex(" ") == "14 71 00 00 21 04"
+    assert dlp.unpack_lut_entry(0x01415F) == {
+        "trig": 3, "pattern": 23, "bit_depth": 1, "leds": 4, "invert": True,
+        "insert_black": False, "buffer_swap": False, "trig_out_prev": False}
+
+
+def test_image_lut_two_entries_swapped():
+    assert dlp.pack_image_lut([3, 7]).hex(" ") == "07 03"
+    assert dlp.pack_image_lut([3, 7, 9]).hex(" ") == "03 07 09"
+
+
+def test_multi_report_split_and_reassembly():
+    payload = bytes(range(72))  # 24 LUT entries: 6 + 72 = 78 bytes -> 2 reports
+    reports = dlp.encode("MBOX_DATA", payload, seq=7)
+    assert len(reports) == 2 and all(len(r) == 64 for r in reports)
+    assert hexs(reports[0], 6) == "40 07 4a 00 34 1a"  # length 74 = 72 + 2
+    assert reports[0][6:] == payload[:58]
+    assert reports[1][:14] == payload[58:] and reports[1][14:] == bytes(50)
+    msg = dlp.decode(reports)
+    assert (msg.command, msg.seq, msg.payload, msg.reply_wanted) == ("MBOX_DATA", 7, payload, True)
+    asm = dlp.Assembler()
+    assert asm.feed(reports[0]) is None and asm.pending
+    assert asm.feed(reports[1]).payload == payload and not asm.pending
+
+
+def test_decode_incomplete_and_extra_reports():
+    reports = dlp.encode("MBOX_DATA", bytes(100), seq=1)
+    with pytest.raises(ProtocolError, match="incomplete"):
+        dlp.decode(reports[:1])
+    with pytest.raises(ProtocolError, match="extra report"):
+        dlp.decode(dlp.encode("LUT_VALID", b"\x00") + dlp.encode("LUT_VALID", b"\x00"))
+    with pytest.raises(ProtocolError, match="64-byte report"):
+        dlp.Assembler().feed(b"\x40\x01\x03\x00")
+
+
+def test_decode_reply_ack_read_and_nack():
+    req = dlp.decode(dlp.encode("LUT_VALID", b"", seq=9, read=True))
+    reply = dlp.encode_reply(req, b"\x81")
+    assert hexs(reply, 5) == "c0 09 01 00 81"
+    assert dlp.decode_reply(reply, "LUT_VALID", seq=9).payload == b"\x81"
+    ack = dlp.encode_reply(dlp.decode(dlp.encode("DISP_MODE", b"\x01", seq=3)))
+    assert hexs(ack, 4) == "40 03 00 00"
+    nack = bytes.fromhex("60 03 00 00").ljust(64, b"\0")  # bit 5 set by the device
+    with pytest.raises(NackError, match="DISP_MODE: device answered NACK"):
+        dlp.decode_reply(nack, "DISP_MODE", seq=3)
+    with pytest.raises(ProtocolError, match="sequence number 3, expected 4"):
+        dlp.decode_reply(ack, "DISP_MODE", seq=4)
+    with pytest.raises(ProtocolError, match="exceeds"):
+        dlp.decode_reply(bytes.fromhex("c0 03 ff 00").ljust(64, b"\0"), "STATUS_HW")
+
+
+@pytest.mark.parametrize("call,match", [
+    (lambda: dlp.encode("NOPE"), "unknown command"),
+    (lambda: dlp.encode("PAT_START_STOP", b"\x01\x02"), "1-byte payload"),
+    (lambda: dlp.encode("MBOX_DATA", b""), "non-empty"),
+    (lambda: dlp.encode("DISP_MODE", b"\x01", seq=256), "seq"),
+    (lambda: dlp.encode("STATUS_HW", b"\x01", read=True), "no payload"),
+    (lambda: dlp.payload_exposure_period(8000, 8100), "period_us - 230"),
+    (lambda: dlp.payload_exposure_period(0, 100), "exposure_us"),
+    (lambda: dlp.payload_start_stop("go"), "action"),
+    (lambda: dlp.payload_pattern_source("hdmi"), "source"),
+    (lambda: dlp.payload_pattern_config(0, False, 1, 1), "n_lut - 1"),
+    (lambda: dlp.lut_entry(26), "pattern"),
+    (lambda: dlp.lut_entry(1, leds="X"), "leds"),
+    (lambda: dlp.pack_pattern_lut([]), "1 to 128"),
+    (lambda: dlp.pack_bitplanes(np.zeros((25, 2, 2))), "K<=24"),
+    (lambda: dlp.pack_bitplanes(np.full((1, 2, 2), 2)), "binary"),
+])
+def test_bad_inputs(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_bitplanes_round_trip_and_order():
+    rng = np.random.default_rng(0)
+    pats = rng.integers(0, 2, size=(24, 5, 6)).astype(np.uint8)
+    frame = dlp.pack_bitplanes(pats)
+    assert frame.shape == (5, 6, 3) and frame.dtype == np.uint8
+    for k in range(24):
+        np.testing.assert_array_equal(dlp.unpack_bitplane(frame, k), pats[k])
+    one = dlp.pack_bitplanes(np.ones((9, 1, 1)))  # planes 0-7 = G, plane 8 = R bit 0
+    assert one[0, 0].tolist() == [1, 255, 0]
+
+
+def test_lut_valid_error_bits():
+    assert dlp.lut_valid_errors(0x80) == []
+    assert dlp.lut_valid_errors(0x13) == ["exposure or period out of range",
+                                          "pattern numbers out of range",
+                                          "period - exposure < 230 us"]
+
+
+def _bench(**faults):
+    return SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,), multipath_strength=0.0,
+                                           stray_e=0.0), faults=Faults(**faults))
+
+
+def test_show_sequence_canonical_order_and_state():
+    bench = _bench()
+    lcr = bench.lightcrafter()
+    pats = np.random.default_rng(1).integers(0, 2, size=(6, 8, 8)).astype(np.uint8)
+    lcr.show_sequence(pats, exposure_us=5000)
+    names = [m.command for m in bench.lightcrafter_usb.log]
+    assert names == ["PAT_START_STOP", "DISP_MODE", "PAT_DISP_MODE", "PAT_CONFIG",
+                     "PAT_TRIG_MODE", "PAT_EXPO_PRD", "MBOX_CONTROL", "MBOX_ADDRESS", "MBOX_DATA",
+                     "MBOX_CONTROL", "LUT_VALID", "LUT_VALID", "LUT_VALID", "PAT_START_STOP"]
+    # the validation is polled: the fake reads busy (bit 7) once
+    assert [m.read for m in bench.lightcrafter_usb.log[10:13]] == [False, True, True]
+    fake = bench.lightcrafter_usb
+    assert fake.state["config"] == (5, 0, 5, 0) and fake.state["exposure_us"] == 5000
+    assert [dlp.unpack_lut_entry(e)["pattern"] for e in fake.pattern_lut] == list(range(6))
+    # the DMD showed exactly the patterns, in order
+    np.testing.assert_array_equal(np.stack(fake.shown), pats)
+
+
+def test_status_version_and_commands():
+    lcr = _bench().lightcrafter()
+    assert lcr.status() == {"hw": 1, "sys": 1, "main": 1}
+    assert lcr.version()["app"] == 0x03000000
+    lcr.standby(True)
+    lcr.standby(False)
+    assert not lcr.dev.state["standby"]
+
+
+def test_validation_error_is_decoded():
+    bench = _bench()
+    lcr = bench.lightcrafter()
+    lcr.write("DISP_MODE", b"\x01")
+    lcr.write("PAT_DISP_MODE", b"\x00")
+    lcr.write("PAT_CONFIG", dlp.payload_pattern_config(2, False, 2, 1))  # 2 entries announced
+    lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+    lcr.load_pattern_lut([dlp.lut_entry(0)])  # ... but only 1 sent, and no video frame
+    with pytest.raises(ProtocolError, match="LUT_VALID: .*pattern numbers out of range"):
+        lcr.validate()
+    with pytest.raises(NackError, match="PAT_START_STOP"):  # start refused: not validated
+        lcr.start()
+
+
+def test_nack_and_timeout_name_the_command():
+    lcr = _bench(nack={"PAT_EXPO_PRD": {0}}, reply_timeout={"DISP_MODE": {0}}).lightcrafter()
+    with pytest.raises(ProtocolError, match="DISP_MODE: no reply in time"):
+        lcr.write("DISP_MODE", b"\x01")
+    lcr.write("DISP_MODE", b"\x01")  # the next one is answered
+    with pytest.raises(NackError, match="PAT_EXPO_PRD"):
+        lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+
+
+def test_flash_source_uses_image_lut_and_buffer_swaps():
+    bench = _bench()
+    rng = np.random.default_rng(2)
+    a, b = (rng.integers(0, 2, size=(3, 8, 8)).astype(np.uint8) for _ in range(2))
+    bench.lightcrafter_usb.flash = {4: dlp.pack_bitplanes(a), 9: dlp.pack_bitplanes(b)}
+    lcr = bench.lightcrafter()
+    lcr.show_sequence([(4, 0), (4, 2), (9, 1)], exposure_us=2000, source="flash")
+    fake = bench.lightcrafter_usb
+    assert fake.image_lut == [4, 9]
+    assert [dlp.unpack_lut_entry(e)["buffer_swap"] for e in fake.pattern_lut] == [False, False,
+                                                                                   True]
+    np.testing.assert_array_equal(np.stack(fake.shown), np.stack([a[0], a[2], b[1]]))
+
+
+def test_video_source_needs_a_video_port():
+    bench = _bench()
+    lcr = dlp.LightCrafter4500(bench.lightcrafter_usb)
+    with pytest.raises(ValueError, match="video port"):
+        lcr.show_sequence(np.ones((2, 8, 8)), exposure_us=1000)
+
+
+def test_external_trigger_waits_for_trig_in():
+    bench = _bench()
+    cam = bench.camera()
+    cam.start()
+    lcr = bench.lightcrafter()
+    pats = np.stack([np.eye(8, dtype=np.uint8), 1 - np.eye(8, dtype=np.uint8)])
+    lcr.show_sequence(pats, exposure_us=1000, trigger="external")
+    fake = bench.lightcrafter_usb
+    assert [dlp.unpack_lut_entry(e)["trig"] for e in fake.pattern_lut] == [1, 1]
+    assert fake.shown == [] and cam.frame_counter() == 0  # nothing until a TRIG_IN edge
+    fake.trigger_in()
+    fake.trigger_in()
+    fake.trigger_in()  # past the end of the sequence: ignored
+    np.testing.assert_array_equal(np.stack(fake.shown), pats)
+    assert cam.frame_counter() == 2

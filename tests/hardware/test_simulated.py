@@ -1,0 +1,92 @@
+"""The simulated devices parse the real bytes: malformed messages are NACKed, state is kept,
+and a frame of the fake camera is the sensor model's frame of the displayed pattern."""
+
+import struct
+
+import numpy as np
+import pytest
+import torch
+
+from torchtof.experiment import ExperimentConfig, simulate_frames
+from torchtof.hardware import dlpc350 as dlp
+from torchtof.hardware.frames import FrameSource
+from torchtof.hardware.simulated import Faults, SimulatedBench
+
+CFG = ExperimentConfig(n=8, roi_px=8, srs=(0.25,), shot=None, read_noise_e=0.0)
+
+
+def _exchange(dev, reports):
+    for r in reports:
+        dev.write(dlp.EP_OUT, r)
+    return bytes(dev.read(dlp.EP_IN, 64))
+
+
+@pytest.mark.parametrize("raw", [
+    struct.pack("<BBHBB", 0x40, 1, 4, 0x24, 0x1A) + b"\x02\x00",  # start with a 2-byte payload
+    struct.pack("<BBHBB", 0x40, 1, 3, 0x99, 0x1A) + b"\x00",  # unknown command word 1A 99
+    struct.pack("<BBHBB", 0x40, 1, 3, 0x1B, 0x1A) + b"\x05",  # DISP_MODE 5: out of range
+    struct.pack("<BBHBB", 0x40, 1, 5, 0x34, 0x1A) + b"\x01\x02\x03",  # MBOX_DATA, mailbox closed
+    struct.pack("<BBH", 0x40, 1, 1) + b"\x24",  # length 1: no room for a command word
+])
+def test_malformed_messages_are_nacked(raw):
+    dev = SimulatedBench(CFG).lightcrafter_usb
+    reply = _exchange(dev, [raw.ljust(64, b"\x00")])
+    assert reply[0] & dlp.FLAG_NACK
+    # the device keeps working afterwards
+    ok = _exchange(dev, dlp.encode("DISP_MODE", b"\x01", seq=2))
+    assert not ok[0] & dlp.FLAG_NACK and dev.state["pattern_mode"]
+
+
+def test_short_report_is_nacked_and_wrong_endpoint_fails():
+    import usb.core
+
+    dev = SimulatedBench(CFG).lightcrafter_usb
+    assert _exchange(dev, [b"\x40\x01\x03\x00"])[0] & dlp.FLAG_NACK
+    with pytest.raises(usb.core.USBError):
+        dev.write(0x02, bytes(64))
+    with pytest.raises(usb.core.USBTimeoutError):
+        dev.read(dlp.EP_IN, 64)  # nothing to answer
+
+
+def test_multi_report_lut_is_reassembled_into_state():
+    bench = SimulatedBench(CFG)
+    lcr = bench.lightcrafter()
+    entries = [dlp.lut_entry(k % 24, trig="internal") for k in range(40)]  # 2 reports
+    assert len(dlp.encode("MBOX_DATA", dlp.pack_pattern_lut(entries))) == 2
+    lcr.load_pattern_lut(entries)
+    assert bench.lightcrafter_usb.pattern_lut == entries
+
+
+def test_camera_frame_is_the_sensor_model_of_the_displayed_pattern():
+    bench = SimulatedBench(CFG)
+    lcr, cam = bench.lightcrafter(), bench.camera()
+    assert isinstance(cam, FrameSource)
+    cam.start()
+    pat = (np.arange(64).reshape(8, 8) % 3 == 0).astype(np.uint8)
+    lcr.show_sequence(pat[None], exposure_us=1000)
+    frame = cam.grab(0.1)
+    ref = simulate_frames(bench.scene, torch.from_numpy(pat.astype(np.float32))[None], CFG,
+                          torch.Generator().manual_seed(0), None, bench.stray)
+    assert torch.equal(frame.taps, ref.taps[0]) and torch.equal(frame.depth, ref.depth[0, 0])
+
+
+def test_fault_plan_from_json_dict():
+    f = Faults.from_dict({"drop": [1, 2], "nack": {"PAT_CONFIG": [0]}, "hang_s": 1.0})
+    assert f.drop == {1, 2} and f.nack == {"PAT_CONFIG": {0}} and f.hang_s == 1.0
+    with pytest.raises(ValueError, match="unknown fault 'explode'"):
+        Faults.from_dict({"explode": 1})
+
+
+def test_bench_rejects_a_camera_without_adc():
+    with pytest.raises(ValueError, match="adc_bits"):
+        SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,), adc_bits=None))
+
+
+def test_vanished_devices_raise_enodev():
+    import usb.core
+
+    bench = SimulatedBench(CFG)
+    bench.vanished = True
+    with pytest.raises(usb.core.USBError) as err:
+        bench.lightcrafter_usb.write(dlp.EP_OUT, bytes(64))
+    assert err.value.errno == 19

@@ -1,0 +1,373 @@
+"""Acquisition: show each DMD pattern, grab its ToF frame, form the buckets, record safely.
+
+For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2`` (DESIGN
+§2, :class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns
+are loaded in sequences of at most 24 (one 24-bit video frame of bit planes); the DMD paces
+the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern. Each frame's id
+must follow the camera's frame counter: a gap (dropped frame) or a timeout, NACK or corrupt
+frame re-acquires from the failing pattern (``retries`` times, then a clear error); a
+duplicate (id already seen) is discarded. Buckets per frame (paper Eq. 10, §3.1, DESIGN §2):
+depth ``Σ d``, gated depth ``Σ gate(d)``, intensity ``Σ a`` and the four tap sums.
+
+**Recording** (zarr v3, :func:`acquire`): every frame and its buckets are written as they
+arrive (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``, ``frames_taps``,
+``frames_id``, ``frames_timestamp``, ``buckets_depth``, ``buckets_gated``,
+``buckets_intensity``, ``buckets_taps`` — frame axis last for buckets ``(1, C, 2M)``, first
+for frames, chunked per pattern sequence) and then marked done in ``frames_ok``. zarr's
+local store replaces each chunk file atomically, so a killed run loses at most the frame in
+flight; ``resume=True`` continues after the last complete pattern pair. Patterns, order,
+timing, camera settings and package versions are store attributes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..bucket import PAPER_GATE_M, depth_bucket, intensity_bucket, tap_buckets
+from ..operators import DMDSplit, Hadamard
+from .errors import DeviceLostError, FrameSequenceError, HardwareError, TransientError
+
+__all__ = ["AcquisitionResult", "acquire", "load_buckets", "load_run", "MAX_SEQUENCE"]
+
+MAX_SEQUENCE = 24  # 1-bit patterns per 24-bit video frame (DLPC350 video-port bit planes)
+_KINDS = ("depth", "gated", "intensity", "taps")
+_FORMAT = "torchtof.acquisition/1"
+
+
+@dataclass
+class AcquisitionResult:
+    """Summary of :func:`acquire`: the store, how many ±1 patterns (pairs) were acquired,
+    whether ``stop`` ended the run early, and the faults that were handled."""
+
+    path: str
+    m_acquired: int
+    m_planned: int
+    stopped_early: bool
+    retries: int
+    duplicates: int
+    resumed_from: int
+
+
+def _versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    out = {}
+    for pkg in ("torchtof", "torch", "numpy", "zarr", "pyusb"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            out[pkg] = "not installed"
+    import torchtof
+
+    out["torchtof"] = torchtof.__version__
+    return out
+
+
+def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
+    """Signed Hadamard buckets ``y = y⁺ − y⁻`` ``(1, C, m)`` of the first ``frames`` frames."""
+    out = {}
+    for k in ("depth", "gated", "intensity"):
+        y = buf[k][..., :frames].reshape(1, 1, -1, 2)
+        out[k] = y[..., 0] - y[..., 1]
+    return out
+
+
+def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
+    d = frame.depth[None, None]  # (1, 1, H, W): one frame on the frame axis
+    taps = frame.taps
+    if taps is None:  # a camera without raw taps: NaN tap buckets, never made-up numbers
+        taps = torch.full((4, *frame.depth.shape), float("nan"))
+    return {
+        "depth": depth_bucket(d),  # Eq. 10
+        "gated": depth_bucket(d, gate_m=gate_m),  # §3.1 "low-pass filter"
+        "intensity": intensity_bucket(frame.amplitude[None, None]),  # S_i of Eq. 9
+        "taps": tap_buckets(taps[None, None]),  # DESIGN §2 per-tap buckets
+    }
+
+
+def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, int], chunk: int,
+                resume: bool):
+    import zarr
+
+    path = Path(path)
+    f = patterns.shape[0]
+    h, w = shape_hw
+    if (path / "zarr.json").exists():
+        group = zarr.open_group(str(path), mode="a")
+        if group.attrs.get("format") != _FORMAT:
+            raise FileExistsError(f"acquire: {path} exists and is not a torchtof acquisition")
+        if not resume:
+            raise FileExistsError(f"acquire: {path} exists; pass resume=True (--resume) to "
+                                  "continue it or choose a new path")
+        old = group.attrs
+        for key in ("n", "m", "order", "frames"):
+            if old.get(key) != attrs[key]:
+                raise ValueError(f"acquire: cannot resume {path}: it was recorded with "
+                                 f"{key}={old.get(key)!r}, this run has {key}={attrs[key]!r}")
+        if not np.array_equal(group["patterns"][:], patterns):
+            raise ValueError(f"acquire: cannot resume {path}: its patterns differ")
+        if tuple(group["frames_depth"].shape[1:]) != (h, w):
+            old_hw = tuple(group["frames_depth"].shape[1:])
+            raise ValueError(f"acquire: cannot resume {path}: frames of {old_hw} px, the camera "
+                             f"gives {(h, w)}")
+        return group, True
+    group = zarr.open_group(str(path), mode="w")
+    group.create_array("patterns", data=patterns, chunks=(min(f, 256), *patterns.shape[1:]))
+
+    def arr(name, shape, dtype, chunks, fill):
+        group.create_array(name, shape=shape, dtype=dtype, chunks=chunks, fill_value=fill)
+
+    nan = float("nan")
+    arr("frames_ok", (f,), "uint8", (chunk,), 0)
+    arr("frames_id", (f,), "int64", (chunk,), -1)
+    arr("frames_timestamp", (f,), "float64", (chunk,), nan)
+    for name in ("frames_depth", "frames_amplitude", "frames_phase"):
+        arr(name, (f, h, w), "float32", (chunk, h, w), nan)
+    arr("frames_taps", (f, 4, h, w), "float32", (chunk, 4, h, w), nan)
+    for k in ("depth", "gated", "intensity"):
+        arr(f"buckets_{k}", (1, 1, f), "float32", (1, 1, chunk), nan)
+    arr("buckets_taps", (1, 4, f), "float32", (1, 4, chunk), nan)
+    group.attrs.update({**attrs, "status": "running", "m_acquired": 0})
+    return group, False
+
+
+def acquire(
+    store: str | Path,
+    lightcrafter,
+    camera,
+    *,
+    n: int = 32,
+    sr: float | None = 0.25,
+    m: int | None = None,
+    order: str = "cake_cutting",
+    exposure_us: int = 10_000,
+    period_us: int | None = None,
+    block: int = 12,
+    stop: Callable[[dict[str, torch.Tensor]], bool] | None = None,
+    resume: bool = False,
+    retries: int = 3,
+    gate_m: float = PAPER_GATE_M,
+    frame_timeout_s: float = 2.0,
+    progress: bool = True,
+    metadata: dict | None = None,
+    on_frame: Callable[[int], None] | None = None,
+) -> AcquisitionResult:
+    """Acquire the DMD-split Hadamard buckets of a scene into a zarr store (module docstring).
+
+    Args:
+        store: path of the zarr v3 store (a directory).
+        lightcrafter: a :class:`~torchtof.hardware.dlpc350.LightCrafter4500` (with a video port).
+        camera: an :class:`~torchtof.hardware.opt8241.OPT8241` (any object with its methods).
+        n: DMD pattern size ``n × n`` (a power of two).
+        sr, m: sampling rate ``m / n²`` or the number of ±1 patterns ``m`` (``m`` wins).
+        order: Hadamard order (:mod:`torchtof.operators.patterns`).
+        exposure_us, period_us: DMD exposure and period per pattern (µs).
+        block: ±1 patterns (pairs) per block; ``stop`` is asked after each block but the last.
+        stop: optional ``stop(y) -> bool`` called after each block with the signed buckets
+            measured so far, ``{"depth", "gated", "intensity"}`` each ``y⁺ − y⁻`` of shape
+            ``(1, 1, m_so_far)`` in pattern order (not divided by ``n``); ``True`` ends the
+            acquisition, the store records ``m_acquired`` and ``stopped_early``.
+        resume: continue an interrupted store (same patterns and settings).
+        retries: re-acquisitions allowed per pattern sequence for transient faults.
+        gate_m: depth gate of the gated buckets (paper §3.1: 3 m).
+        frame_timeout_s: frame timeout.
+        progress: show a tqdm progress bar.
+        metadata: extra JSON-able store attributes (e.g. the simulated set-up).
+        on_frame: called with the frame index after each frame is recorded.
+
+    Returns:
+        :class:`AcquisitionResult`.
+
+    Raises:
+        FileExistsError: the store exists and ``resume`` is false.
+        ValueError: bad arguments or a store that does not match this run.
+        FrameTimeoutError, FrameError, FrameSequenceError, ProtocolError: a transient fault
+            that persisted after ``retries`` attempts (names the pattern index / command).
+        DeviceLostError: a device disappeared (resume later with ``resume=True``).
+    """
+    if isinstance(block, bool) or not isinstance(block, int) or block < 1:
+        raise ValueError(f"acquire: expected block a positive int, got {block!r}")
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValueError(f"acquire: expected retries a non-negative int, got {retries!r}")
+    if stop is not None and not callable(stop):
+        raise TypeError(f"acquire: expected stop to be callable or None, got {type(stop).__name__}")
+    if sr is not None and m is not None:
+        sr = None
+    hadamard = Hadamard(n, sr=sr, m=m, order=order)
+    pats = DMDSplit(hadamard).patterns(torch.float32).to(torch.uint8).numpy()  # (2M, n, n)
+    n_frames, m_total = pats.shape[0], hadamard.m
+    seq = min(MAX_SEQUENCE, 2 * block)
+    h, w = camera.height, camera.width
+    period_us = exposure_us if period_us is None else period_us
+    attrs = {
+        "format": _FORMAT, "n": n, "m": m_total, "sr": m_total / (n * n), "order": order,
+        "frames": n_frames, "frame_order": "interleaved phi+, phi- (DMDSplit)", "block": block,
+        "sequence": seq, "gate_m": gate_m,
+        "dmd": {"exposure_us": exposure_us, "period_us": period_us, "trigger": "internal",
+                "source": "video", "bitplanes_per_frame": MAX_SEQUENCE},
+        "camera": {"freq_hz": camera.freq_hz, "integration_time_us": camera.integration_time_us,
+                   "width": w, "height": h, "rules": vars(camera.rules).copy(),
+                   "use_taps": camera.use_taps},
+        "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        **(metadata or {}),
+    }
+    group, resumed = _open_store(store, pats, attrs, (h, w), seq, resume)
+    ok = group["frames_ok"][:]
+    done = int(np.argmin(ok)) if not ok.all() else n_frames
+    done -= done % 2  # restart at a pair boundary: y⁺ and y⁻ taken back to back
+    buf = {k: torch.from_numpy(group[f"buckets_{k}"][:]) for k in _KINDS}
+    if group.attrs.get("status") == "complete":
+        return AcquisitionResult(str(store), int(group.attrs["m_acquired"]), m_total,
+                                 bool(group.attrs.get("stopped_early", False)), 0, 0, done)
+    stats = {"retries": int(group.attrs.get("retries", 0)),
+             "duplicates": int(group.attrs.get("duplicates", 0))}
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_frames, initial=done, desc="acquiring ToF frames", unit="frame")
+
+    arrays = {name: group[name] for name in (
+        "frames_depth", "frames_amplitude", "frames_phase", "frames_taps", "frames_id",
+        "frames_timestamp", "frames_ok", *(f"buckets_{k}" for k in _KINDS))}
+
+    def commit(k: int, frame) -> None:
+        b = _frame_buckets(frame, gate_m)
+        arrays["frames_depth"][k] = frame.depth.numpy()
+        arrays["frames_amplitude"][k] = frame.amplitude.numpy()
+        arrays["frames_phase"][k] = frame.phase.numpy()
+        if frame.taps is not None:
+            arrays["frames_taps"][k] = frame.taps.numpy()
+        arrays["frames_id"][k] = frame.frame_id
+        arrays["frames_timestamp"][k] = frame.timestamp
+        for kind in _KINDS:
+            arrays[f"buckets_{kind}"][..., k] = b[kind][..., 0].numpy()
+            buf[kind][..., k] = b[kind][..., 0]
+        arrays["frames_ok"][k] = 1  # last: the frame counts only once everything is written
+        if bar is not None:
+            bar.update(1)
+        if on_frame is not None:
+            on_frame(k)
+
+    stopped = False
+    start_block = done // (2 * block)
+    try:
+        camera.start()
+        for b0 in range(start_block * 2 * block, n_frames, 2 * block):
+            b1 = min(b0 + 2 * block, n_frames)
+            for s0 in range(max(b0, done), b1, seq):
+                _acquire_sequence(lightcrafter, camera, pats, s0, min(s0 + seq, b1), exposure_us,
+                                  period_us, retries, frame_timeout_s, commit, stats)
+            done = b1
+            if stop is not None and b1 < n_frames and stop(_signed(buf, b1)):
+                stopped = True
+                break
+        camera.stop()
+    except (HardwareError, KeyboardInterrupt):  # the recorded frames stay valid: resume
+        group.attrs.update({"status": "interrupted", **stats})
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    group.attrs.update({"status": "complete", "m_acquired": done // 2, "stopped_early": stopped,
+                        **stats})
+    return AcquisitionResult(str(store), done // 2, m_total, stopped, stats["retries"],
+                             stats["duplicates"], 0)
+
+
+def _acquire_sequence(lcr, camera, pats, s0, s1, exposure_us, period_us, retries, timeout_s,
+                      commit, stats) -> None:
+    """Frames ``s0 … s1−1``: load, start, grab and commit; re-acquire from the failing
+    pattern on a transient fault."""
+    pos, attempt = s0, 0
+    while pos < s1:
+        try:
+            expected = camera.frame_counter()
+            camera.pattern_index = pos
+            lcr.show_sequence(pats[pos:s1], exposure_us, period_us, trigger="internal")
+            while pos < s1:
+                camera.pattern_index = pos
+                frame = camera.grab(timeout_s)
+                delta = (frame.frame_id - expected) % (1 << 24)
+                if delta >= 1 << 23:  # an id already seen: a duplicated frame
+                    stats["duplicates"] += 1
+                    continue
+                if delta:
+                    raise FrameSequenceError(expected, frame.frame_id, pos)
+                commit(pos, frame)
+                expected += 1
+                pos += 1
+        except DeviceLostError:
+            raise
+        except TransientError:
+            attempt += 1
+            stats["retries"] += 1
+            if attempt > retries:
+                raise
+            try:
+                lcr.stop()
+            except TransientError:
+                pass
+            camera.flush()
+
+
+def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
+    """Recorded interleaved buckets ``{"depth", "depth_gated", "intensity", "taps"}`` (each
+    ``(1, C, 2·m_acquired)``) and the store attributes.
+
+    Raises:
+        ValueError: not a torchtof acquisition, or no complete pattern pair recorded.
+    """
+    import zarr
+
+    group = zarr.open_group(str(path), mode="r")
+    attrs = dict(group.attrs)
+    if attrs.get("format") != _FORMAT:
+        raise ValueError(f"load_buckets: {path} is not a torchtof acquisition store")
+    ok = group["frames_ok"][:]
+    f = int(np.argmin(ok)) if not ok.all() else ok.shape[0]
+    if attrs.get("status") == "complete":
+        f = 2 * int(attrs["m_acquired"])
+    f -= f % 2
+    if f == 0:
+        raise ValueError(f"load_buckets: {path} holds no complete pattern pair")
+    names = {"depth": "depth", "depth_gated": "gated", "intensity": "intensity", "taps": "taps"}
+    out = {k: torch.from_numpy(group[f"buckets_{v}"][..., :f]) for k, v in names.items()}
+    attrs["frames_recorded"] = f
+    return out, attrs
+
+
+def load_run(path: str | Path):
+    """A recorded run as :class:`~torchtof.experiment.ExperimentData` (one realisation), ready
+    for :func:`torchtof.methods.build_method`; ``x`` is the simulated object when the run
+    was simulated, zeros otherwise."""
+    from ..experiment import ExperimentConfig, ExperimentData
+    from ..scenes import get_scene
+
+    buckets, attrs = load_buckets(path)
+    n, m = int(attrs["n"]), attrs["frames_recorded"] // 2
+    sim = attrs.get("simulation")
+    fields = ExperimentConfig.__dataclass_fields__
+    if sim is not None:
+        kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in sim["config"].items()
+              if k in fields}
+    else:
+        cam = attrs["camera"]
+        kw = {"n": n, "freq_hz": cam["freq_hz"], "roi_px": max(n, cam["width"], cam["height"]),
+              "gate_m": attrs["gate_m"]}
+    kw.update(n=n, order=attrs["order"], srs=(m / (n * n),))
+    cfg = ExperimentConfig(**kw)
+    if sim is not None:
+        scene = get_scene(cfg.scene, n, cfg.object_m, dtype=torch.float32)
+        x, depth_m = scene.reflectance, scene.depth_m
+    else:
+        x = depth_m = torch.zeros(1, 1, n, n)
+    empty = torch.zeros(0, 1, n, n)
+    return ExperimentData(config=cfg, x=x, depth_m=depth_m, raw_tof=empty, raw_tof_image=empty,
+                          buckets=buckets, hadamard=Hadamard(n, m=m, order=attrs["order"]))

@@ -1,0 +1,674 @@
+"""DLP LightCrafter 4500 (DLPC350 controller) over USB HID: message codec and driver.
+
+Implemented from TI's command tables (DLPU010, DLPC350 programmer's guide; DLPU011,
+LightCrafter 4500 user's guide) as summarised in ``domain-notes.md`` §7; no GPL code.
+
+**Message** (one or more 64-byte HID reports, OUT endpoint 0x01, IN endpoint 0x81)::
+
+    byte 0   flags: bit7 read, bit6 reply wanted (ack), bit5 NACK (set by the device), bits2:0 dest
+    byte 1   sequence number (u8)
+    byte 2-3 length (u16 LE) = 2 + payload length  (reply: length of the reply data)
+    byte 4-5 command word (u16 LE) = CMD2 << 8 | CMD3, i.e. CMD3 first, then CMD2
+    byte 6.. payload
+
+A message longer than 64 bytes is cut into 64-byte reports: the first carries the header,
+the command and 58 payload bytes, each continuation report carries the next 64 raw bytes;
+the device acknowledges the last one. A read request has flags ``0xC0`` and length 2; its
+reply carries the data from byte 4. Example (start the pattern sequence, sequence number
+``SS``): ``40 SS 03 00 24 1A 02``.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import (
+    DeviceBusyError,
+    DeviceLostError,
+    DeviceNotFoundError,
+    HardwareError,
+    NackError,
+    ProtocolError,
+    TransientError,
+)
+
+__all__ = [
+    "VID",
+    "PID",
+    "EP_OUT",
+    "EP_IN",
+    "REPORT_SIZE",
+    "COMMANDS",
+    "TRIGGER_MODES",
+    "Message",
+    "encode",
+    "decode",
+    "decode_reply",
+    "Assembler",
+    "lut_entry",
+    "pack_pattern_lut",
+    "pack_image_lut",
+    "pack_bitplanes",
+    "lut_valid_errors",
+    "LightCrafter4500",
+    "VideoPort",
+]
+
+VID, PID = 0x0451, 0x6401
+EP_OUT, EP_IN = 0x01, 0x81
+REPORT_SIZE = 64
+_HEADER = 4  # flags, seq, length (u16)
+
+FLAG_READ, FLAG_REPLY, FLAG_NACK = 0x80, 0x40, 0x20
+
+#: name -> (CMD2, CMD3, payload length or None for variable), domain-notes §7.
+COMMANDS: dict[str, tuple[int, int, int | None]] = {
+    "POWER_CONTROL": (0x02, 0x00, 1),
+    "GET_VERSION": (0x02, 0x05, 0),
+    "DISP_MODE": (0x1A, 0x1B, 1),
+    "PAT_DISP_MODE": (0x1A, 0x22, 1),
+    "PAT_TRIG_MODE": (0x1A, 0x23, 1),
+    "PAT_START_STOP": (0x1A, 0x24, 1),
+    "PAT_EXPO_PRD": (0x1A, 0x29, 8),
+    "PAT_CONFIG": (0x1A, 0x31, 4),
+    "MBOX_ADDRESS": (0x1A, 0x32, 1),
+    "MBOX_CONTROL": (0x1A, 0x33, 1),
+    "MBOX_DATA": (0x1A, 0x34, None),
+    "LUT_VALID": (0x1A, 0x1A, 1),
+    "STATUS_HW": (0x1A, 0x0A, 0),
+    "STATUS_SYS": (0x1A, 0x0B, 0),
+    "STATUS_MAIN": (0x1A, 0x0C, 0),
+}
+_BY_WORD = {(c2 << 8) | c3: name for name, (c2, c3, _) in COMMANDS.items()}
+
+#: PAT_TRIG_MODE values.
+TRIGGER_MODES = {"vsync": 0, "internal": 1, "external": 1, "trig_in_pairs": 2}
+_START_STOP = {"stop": 0, "pause": 1, "start": 2}
+_SOURCE = {"video": 0, "flash": 3}
+_MBOX = {"close": 0, "image": 1, "pattern": 2, "var_exposure": 3}
+_LUT_ERRORS = {
+    0: "exposure or period out of range",
+    1: "pattern numbers out of range",
+    2: "TrigOut1 overlaps the next pattern (warning)",
+    3: "post-vector sequence warning",
+    4: "period - exposure < 230 us",
+}
+MIN_DARK_US = 230  # PAT_EXPO_PRD: exposure == period or exposure <= period - 230 us
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded DLPC350 message (request or reply)."""
+
+    flags: int
+    seq: int
+    command: str | None  # None for replies (they carry no command word)
+    payload: bytes
+
+    @property
+    def read(self) -> bool:
+        return bool(self.flags & FLAG_READ)
+
+    @property
+    def reply_wanted(self) -> bool:
+        return bool(self.flags & FLAG_REPLY)
+
+    @property
+    def nack(self) -> bool:
+        return bool(self.flags & FLAG_NACK)
+
+
+def _command(name: str) -> tuple[int, int, int | None]:
+    if name not in COMMANDS:
+        raise ValueError(f"dlpc350: unknown command {name!r}; expected one of {sorted(COMMANDS)}")
+    return COMMANDS[name]
+
+
+def encode(name: str, payload: bytes = b"", seq: int = 0, read: bool = False,
+           reply: bool = True) -> list[bytes]:
+    """Encode one command as 64-byte HID reports (module docstring for the layout).
+
+    Args:
+        name: a key of :data:`COMMANDS`.
+        payload: the command's data (a read request sends none).
+        seq: sequence number, ``0..255``.
+        read: build a read request (flags ``0xC0``, no payload).
+        reply: ask the device for an acknowledgement (write only; reads always reply).
+
+    Returns:
+        The reports, each exactly 64 bytes, zero padded.
+
+    Raises:
+        ValueError: on an unknown command, a payload of the wrong length or a bad ``seq``.
+
+    Example:
+        >>> encode("PAT_START_STOP", b"\\x02", seq=5)[0][:7].hex(" ")
+        '40 05 03 00 24 1a 02'
+    """
+    cmd2, cmd3, size = _command(name)
+    payload = bytes(payload)
+    if not 0 <= int(seq) <= 255:
+        raise ValueError(f"dlpc350.encode: expected seq in [0, 255], got {seq}")
+    if read:
+        if payload:
+            raise ValueError(f"dlpc350.encode: a read of {name} takes no payload, got {payload!r}")
+        flags = FLAG_READ | FLAG_REPLY
+    else:
+        if size is not None and len(payload) != size:
+            raise ValueError(f"dlpc350.encode: {name} expects a {size}-byte payload, "
+                             f"got {len(payload)}")
+        if size is None and not payload:
+            raise ValueError(f"dlpc350.encode: {name} expects a non-empty payload")
+        flags = FLAG_REPLY if reply else 0
+    if len(payload) + 2 > 0xFFFF:
+        raise ValueError(f"dlpc350.encode: payload of {len(payload)} bytes is too long")
+    msg = struct.pack("<BBHBB", flags, seq, len(payload) + 2, cmd3, cmd2) + payload
+    reports = [msg[i : i + REPORT_SIZE] for i in range(0, len(msg), REPORT_SIZE)]
+    return [r.ljust(REPORT_SIZE, b"\x00") for r in reports]
+
+
+def _header(report: bytes) -> tuple[int, int, int]:
+    if len(report) < _HEADER:
+        raise ProtocolError("dlpc350", f"report of {len(report)} bytes is shorter than the header")
+    flags, seq, length = struct.unpack_from("<BBH", report)
+    return flags, seq, length
+
+
+class Assembler:
+    """Reassemble a request from 64-byte reports (the device side; used by the simulator).
+
+    ``feed(report)`` returns ``None`` until the message is complete, then the
+    :class:`Message`. Raises :class:`ProtocolError` on a report that is not 64 bytes or a
+    length field below 2.
+    """
+
+    def __init__(self) -> None:
+        self._buf = b""
+        self._need = 0
+
+    @property
+    def pending(self) -> bool:
+        return bool(self._buf)
+
+    def feed(self, report: bytes) -> Message | None:
+        report = bytes(report)
+        if len(report) != REPORT_SIZE:
+            self._buf = b""
+            raise ProtocolError("dlpc350",
+                                f"expected a {REPORT_SIZE}-byte report, got {len(report)}")
+        if not self._buf:
+            flags, seq, length = _header(report)
+            if length < 2:
+                raise ProtocolError("dlpc350", f"length field {length} < 2 (no command word)")
+            self._need = _HEADER + length
+        self._buf += report
+        if len(self._buf) < self._need:
+            return None
+        msg, self._buf = self._buf[: self._need], b""
+        flags, seq, length = _header(msg)
+        word = msg[4] | (msg[5] << 8)
+        return Message(flags, seq, _BY_WORD.get(word, f"0x{word:04x}"), msg[6:])
+
+
+def decode(reports: Sequence[bytes]) -> Message:
+    """Decode a complete request (one or more reports) into a :class:`Message`.
+
+    Raises:
+        ProtocolError: if the reports end before the message does or carry extra reports.
+
+    Example:
+        >>> decode(encode("PAT_START_STOP", b"\\x02", seq=1)).payload
+        b'\\x02'
+    """
+    asm = Assembler()
+    for i, r in enumerate(reports):
+        msg = asm.feed(r)
+        if msg is not None:
+            if i != len(reports) - 1:
+                raise ProtocolError(msg.command or "dlpc350",
+                                    f"{len(reports) - 1 - i} extra report(s) after the message")
+            return msg
+    raise ProtocolError("dlpc350", f"message incomplete after {len(reports)} report(s)")
+
+
+def decode_reply(report: bytes, command: str, seq: int | None = None) -> Message:
+    """Decode a device reply (one IN report): flags, sequence, length and the data from byte 4.
+
+    Raises:
+        NackError: if the device set the NACK flag.
+        ProtocolError: on a wrong sequence number or a length beyond the report.
+    """
+    report = bytes(report)
+    flags, rseq, length = _header(report)
+    if flags & FLAG_NACK:
+        raise NackError(command)
+    if seq is not None and rseq != seq:
+        raise ProtocolError(command, f"reply has sequence number {rseq}, expected {seq}")
+    if _HEADER + length > len(report):
+        raise ProtocolError(command, f"reply length {length} exceeds the {len(report)}-byte report")
+    return Message(flags, rseq, None, report[_HEADER : _HEADER + length])
+
+
+def encode_reply(request: Message, data: bytes = b"", nack: bool = False) -> bytes:
+    """The device's reply to ``request`` (one report): used by the simulator and the tests."""
+    flags = (request.flags & (FLAG_READ | FLAG_REPLY)) | (FLAG_NACK if nack else 0)
+    body = struct.pack("<BBH", flags, request.seq, len(data)) + bytes(data)
+    return body.ljust(REPORT_SIZE, b"\x00")[:REPORT_SIZE]
+
+
+# ---------------------------------------------------------------------------------------------
+# payload encoders (one per command)
+
+
+def _u8(value: int, name: str, lo: int, hi: int) -> bytes:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+        raise ValueError(f"dlpc350: expected {name} in [{lo}, {hi}], got {value!r}")
+    return bytes([int(value)])
+
+
+def payload_power(standby: bool) -> bytes:
+    return b"\x01" if standby else b"\x00"
+
+
+def payload_display_mode(pattern: bool = True) -> bytes:
+    return b"\x01" if pattern else b"\x00"
+
+
+def payload_pattern_source(source: str) -> bytes:
+    if source not in _SOURCE:
+        raise ValueError(f"dlpc350: expected source in {tuple(_SOURCE)}, got {source!r}")
+    return bytes([_SOURCE[source]])
+
+
+def payload_trigger_mode(trigger: str | int) -> bytes:
+    if isinstance(trigger, str):
+        if trigger not in TRIGGER_MODES:
+            raise ValueError(f"dlpc350: expected trigger in {tuple(TRIGGER_MODES)}, "
+                             f"got {trigger!r}")
+        return bytes([TRIGGER_MODES[trigger]])
+    return _u8(trigger, "trigger mode", 0, 4)
+
+
+def payload_start_stop(action: str) -> bytes:
+    if action not in _START_STOP:
+        raise ValueError(f"dlpc350: expected action in {tuple(_START_STOP)}, got {action!r}")
+    return bytes([_START_STOP[action]])
+
+
+def payload_exposure_period(exposure_us: int, period_us: int) -> bytes:
+    """``PAT_EXPO_PRD``: u32 exposure and u32 period in µs (LE); the DLPC350 needs
+    ``exposure == period`` or ``exposure <= period - 230 µs``."""
+    for name, v in (("exposure_us", exposure_us), ("period_us", period_us)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 0 < v < 2**32:
+            raise ValueError(f"dlpc350: expected {name} a positive 32-bit integer, got {v!r}")
+    if not (exposure_us == period_us or exposure_us <= period_us - MIN_DARK_US):
+        raise ValueError(f"dlpc350: expected exposure_us == period_us or exposure_us <= period_us"
+                         f" - {MIN_DARK_US}, got exposure_us={exposure_us}, period_us={period_us}")
+    return struct.pack("<II", int(exposure_us), int(period_us))
+
+
+def payload_pattern_config(n_lut: int, repeat: bool, n_trig_out2: int, n_images: int) -> bytes:
+    """``PAT_CONFIG``: ``[nLUT − 1, repeat, nTrigOut2 − 1, nImages − 1]``."""
+    return (_u8(n_lut - 1, "n_lut - 1", 0, 127) + (b"\x01" if repeat else b"\x00")
+            + _u8(n_trig_out2 - 1, "n_trig_out2 - 1", 0, 127)
+            + _u8(n_images - 1, "n_images - 1", 0, 63))
+
+
+def payload_mailbox_control(mode: str) -> bytes:
+    if mode not in _MBOX:
+        raise ValueError(f"dlpc350: expected mailbox mode in {tuple(_MBOX)}, got {mode!r}")
+    return bytes([_MBOX[mode]])
+
+
+def lut_entry(pattern: int, bit_depth: int = 1, leds: str = "RGB", trig: str = "internal",
+              invert: bool = False, insert_black: bool = False, buffer_swap: bool = False,
+              trig_out_prev: bool = False) -> int:
+    """One 24-bit pattern LUT entry (domain-notes §7).
+
+    bits 1:0 trigger type (0 internal, 1 external +, 2 external −, 3 none/continue),
+    bits 7:2 pattern number (bit plane, 0–24; 25 = fill), bits 11:8 bit depth (1–8),
+    bits 14:12 LEDs (b0 R, b1 G, b2 B), bit 16 invert, bit 17 insert black, bit 18 buffer
+    swap, bit 19 trigger-out with the previous pattern.
+    """
+    trigs = {"internal": 0, "external+": 1, "external-": 2, "none": 3}
+    if trig not in trigs:
+        raise ValueError(f"lut_entry: expected trig in {tuple(trigs)}, got {trig!r}")
+    _u8(pattern, "pattern", 0, 25)
+    _u8(bit_depth, "bit_depth", 1, 8)
+    if not leds or set(leds) - set("RGB"):
+        raise ValueError(f"lut_entry: expected leds a non-empty subset of 'RGB', got {leds!r}")
+    led = ("R" in leds) | ("G" in leds) << 1 | ("B" in leds) << 2
+    return (trigs[trig] | pattern << 2 | (bit_depth & 0xF) << 8 | led << 12 | int(invert) << 16
+            | int(insert_black) << 17 | int(buffer_swap) << 18 | int(trig_out_prev) << 19)
+
+
+def pack_pattern_lut(entries: Sequence[int]) -> bytes:
+    """Pattern LUT entries as the ``MBOX_DATA`` payload: 3 bytes each, little endian."""
+    if not 1 <= len(entries) <= 128:
+        raise ValueError(f"pack_pattern_lut: expected 1 to 128 entries, got {len(entries)}")
+    return b"".join(int(e).to_bytes(3, "little") for e in entries)
+
+
+def pack_image_lut(indices: Sequence[int]) -> bytes:
+    """Flash image indices as the image-LUT ``MBOX_DATA`` payload (one byte each); TI's API
+    sends a 2-entry table swapped (domain-notes §7)."""
+    idx = [int(_u8(i, "image index", 0, 255)[0]) for i in indices]
+    if not 1 <= len(idx) <= 64:
+        raise ValueError(f"pack_image_lut: expected 1 to 64 images, got {len(idx)}")
+    if len(idx) == 2:
+        idx = idx[::-1]
+    return bytes(idx)
+
+
+def unpack_lut_entry(value: int) -> dict:
+    """Inverse of :func:`lut_entry` (the simulator reads the LUT back with it)."""
+    return {"trig": value & 3, "pattern": (value >> 2) & 0x3F, "bit_depth": (value >> 8) & 0xF,
+            "leds": (value >> 12) & 7, "invert": bool(value >> 16 & 1),
+            "insert_black": bool(value >> 17 & 1), "buffer_swap": bool(value >> 18 & 1),
+            "trig_out_prev": bool(value >> 19 & 1)}
+
+
+#: Bit plane ``k`` (the pattern number of a 1-bit LUT entry) of a 24-bit video frame: the
+#: DLPC350 numbers bit planes G0–G7, R0–R7, B0–B7 (check on a device: TI's GUI lists them so).
+BITPLANE_CHANNELS = (1, 0, 2)  # G, R, B as indices into an RGB frame
+
+
+def pack_bitplanes(patterns: np.ndarray) -> np.ndarray:
+    """Pack up to 24 binary patterns ``(K, H, W)`` into one 24-bit RGB frame ``(H, W, 3)``
+    uint8: pattern ``k`` is bit ``k % 8`` of channel ``BITPLANE_CHANNELS[k // 8]``."""
+    pats = np.asarray(patterns)
+    if pats.ndim != 3 or not 1 <= pats.shape[0] <= 24:
+        raise ValueError(f"pack_bitplanes: expected patterns of shape (K<=24, H, W), "
+                         f"got {pats.shape}")
+    if not np.isin(pats, (0, 1)).all():
+        raise ValueError("pack_bitplanes: expected binary (0/1) patterns")
+    frame = np.zeros((*pats.shape[1:], 3), dtype=np.uint8)
+    for k in range(pats.shape[0]):  # at most 24 bit planes, not a pixel loop
+        ch = BITPLANE_CHANNELS[k // 8]
+        frame[..., ch] |= (pats[k].astype(np.uint8) << (k % 8))
+    return frame
+
+
+def unpack_bitplane(frame: np.ndarray, k: int) -> np.ndarray:
+    """Bit plane ``k`` of a 24-bit RGB frame ``(H, W, 3)`` as a 0/1 uint8 ``(H, W)``."""
+    return (frame[..., BITPLANE_CHANNELS[k // 8]] >> (k % 8)) & 1
+
+
+def lut_valid_errors(status: int) -> list[str]:
+    """Decode the ``LUT_VALID`` read byte into messages (bit 7 busy is not an error)."""
+    return [msg for bit, msg in _LUT_ERRORS.items() if status >> bit & 1]
+
+
+class VideoPort:
+    """Protocol of the HDMI/DisplayPort output that feeds the LightCrafter's video port:
+    ``show(frame)`` displays a 24-bit frame ``(H, W, 3)`` uint8 and returns once it is on the
+    DMD. torchtof ships none for real hardware (any full-screen image viewer will do); the
+    simulator provides one."""
+
+    def show(self, frame: np.ndarray) -> None:  # pragma: no cover - protocol
+        raise NotImplementedError
+
+
+def _usb_errno(exc: BaseException) -> int | None:
+    return getattr(exc, "errno", None) or getattr(exc, "backend_error_code", None)
+
+
+def translate_usb_error(exc: BaseException, what: str, command: str) -> HardwareError:
+    """Map a pyusb exception to the hardware errors (timeout → transient, ENODEV → lost)."""
+    import usb.core
+
+    if isinstance(exc, usb.core.USBTimeoutError):
+        return _Timeout(command, str(exc))
+    code = _usb_errno(exc)
+    if code in (19, -4):  # ENODEV / LIBUSB_ERROR_NO_DEVICE
+        return DeviceLostError(what, f"{command}: {exc}")
+    if code in (16, -6):  # EBUSY / LIBUSB_ERROR_BUSY
+        return DeviceBusyError(what, str(exc))
+    return ProtocolError(command, f"USB error: {exc}")
+
+
+class _Timeout(ProtocolError, TransientError):
+    def __init__(self, command: str, detail: str) -> None:
+        super().__init__(command, f"no reply in time ({detail})")
+
+
+class LightCrafter4500:
+    """Driver of a DLP LightCrafter 4500 over any pyusb-like device object.
+
+    ``dev`` needs ``write(endpoint, data, timeout)`` and ``read(endpoint, size, timeout)``
+    (a ``usb.core.Device`` after :meth:`open`, or :class:`~torchtof.hardware.simulated.
+    FakeLightCrafter`). Every write asks for an acknowledgement and checks its NACK flag.
+
+    Args:
+        dev: the USB device.
+        timeout_ms: per-transfer timeout.
+        video: a :class:`VideoPort` for video-port (bit-plane) sequences.
+    """
+
+    what = "DLP LightCrafter 4500"
+
+    def __init__(self, dev, timeout_ms: int = 1000, video: VideoPort | None = None) -> None:
+        self.dev, self.timeout_ms, self.video = dev, int(timeout_ms), video
+        self._seq = 0
+        self.sent: list[tuple[str, bytes]] = []  # (command, payload) log, newest last
+
+    # -- discovery -------------------------------------------------------------------------
+    @classmethod
+    def open(cls, **kwargs) -> LightCrafter4500:
+        """Find the first LightCrafter 4500 (VID 0x0451, PID 0x6401), detach the kernel HID
+        driver, claim interface 0.
+
+        Raises:
+            DeviceNotFoundError: nothing attached (or no libusb backend), with the udev hint.
+            DeviceBusyError: the interface is held by another program.
+        """
+        dev = find_device(VID, PID, cls.what)
+        try:
+            try:
+                if dev.is_kernel_driver_active(0):
+                    dev.detach_kernel_driver(0)
+            except NotImplementedError:  # pragma: no cover - not on every OS
+                pass
+            dev.set_configuration()
+            import usb.util
+
+            usb.util.claim_interface(dev, 0)
+        except Exception as exc:  # pyusb raises USBError subclasses
+            raise translate_usb_error(exc, cls.what, "open") from exc
+        return cls(dev, **kwargs)
+
+    # -- transport ---------------------------------------------------------------------------
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFF
+        return self._seq
+
+    def _transfer(self, name: str, reports: list[bytes], seq: int) -> Message:
+        try:
+            for r in reports:
+                self.dev.write(EP_OUT, r, self.timeout_ms)
+            raw = self.dev.read(EP_IN, REPORT_SIZE, self.timeout_ms)
+        except HardwareError:
+            raise
+        except Exception as exc:
+            raise translate_usb_error(exc, self.what, name) from exc
+        return decode_reply(bytes(raw), name, seq)
+
+    def write(self, name: str, payload: bytes = b"") -> None:
+        """Send command ``name`` with ``payload`` and wait for the acknowledgement.
+
+        Raises:
+            NackError: the device rejected it (the error names the command).
+        """
+        seq = self._next_seq()
+        self._transfer(name, encode(name, payload, seq), seq)
+        self.sent.append((name, bytes(payload)))
+
+    def read(self, name: str) -> bytes:
+        """Read command ``name``; returns the reply data."""
+        seq = self._next_seq()
+        return self._transfer(name, encode(name, b"", seq, read=True), seq).payload
+
+    # -- commands ----------------------------------------------------------------------------
+    def start(self) -> None:
+        self.write("PAT_START_STOP", payload_start_stop("start"))
+
+    def stop(self) -> None:
+        self.write("PAT_START_STOP", payload_start_stop("stop"))
+
+    def pause(self) -> None:
+        self.write("PAT_START_STOP", payload_start_stop("pause"))
+
+    def standby(self, on: bool = True) -> None:
+        self.write("POWER_CONTROL", payload_power(on))
+
+    def status(self) -> dict[str, int]:
+        """The hardware, system and main status bytes."""
+        return {k: self.read(f"STATUS_{k.upper()}")[0] for k in ("hw", "sys", "main")}
+
+    def version(self) -> dict[str, int]:
+        """``GET_VERSION``: the reply's 32-bit words (application, API, config, sequence)."""
+        data = self.read("GET_VERSION")
+        n = len(data) // 4
+        words = struct.unpack(f"<{n}I", data[: 4 * n])
+        keys = ("app", "api", "config", "sequence")
+        return {keys[i] if i < 4 else f"word{i}": w for i, w in enumerate(words)}
+
+    def load_pattern_lut(self, entries: Sequence[int]) -> None:
+        """Open mailbox 2 (pattern LUT) at address 0, send all entries, close it."""
+        data = pack_pattern_lut(entries)
+        self.write("MBOX_CONTROL", payload_mailbox_control("pattern"))
+        self.write("MBOX_ADDRESS", _u8(0, "mailbox address", 0, 127))
+        self.write("MBOX_DATA", data)
+        self.write("MBOX_CONTROL", payload_mailbox_control("close"))
+
+    def load_image_lut(self, indices: Sequence[int]) -> None:
+        self.write("MBOX_CONTROL", payload_mailbox_control("image"))
+        self.write("MBOX_ADDRESS", _u8(0, "mailbox address", 0, 127))
+        self.write("MBOX_DATA", pack_image_lut(indices))
+        self.write("MBOX_CONTROL", payload_mailbox_control("close"))
+
+    def validate(self, timeout_s: float = 2.0, poll_s: float = 0.0) -> None:
+        """Start LUT validation and poll until the busy bit clears.
+
+        Raises:
+            ProtocolError: naming ``LUT_VALID`` and the decoded error bits, or on timeout.
+        """
+        self.write("LUT_VALID", b"\x00")
+        t0 = time.monotonic()
+        while True:
+            status = self.read("LUT_VALID")[0]
+            if not status & 0x80:
+                break
+            if time.monotonic() - t0 > timeout_s:
+                raise ProtocolError("LUT_VALID", f"still busy after {timeout_s:g} s")
+            if poll_s:
+                time.sleep(poll_s)
+        errors = lut_valid_errors(status)
+        if errors:
+            raise ProtocolError("LUT_VALID", f"sequence rejected (status 0x{status:02x}): "
+                                + "; ".join(errors))
+
+    def show_sequence(self, patterns, exposure_us: int, period_us: int | None = None,
+                      trigger: str = "internal", source: str = "video", repeat: bool = False,
+                      leds: str = "RGB", start: bool = True) -> None:
+        """Load a 1-bit pattern sequence and (by default) start it.
+
+        The canonical DLPC350 sequence (domain-notes §7): stop → pattern display mode →
+        pattern source → pattern config → trigger mode → exposure/period → (image LUT) →
+        pattern LUT → validate (poll, error bits decoded) → start. Each pattern raises
+        TRIG_OUT1 while it is shown (the camera's trigger).
+
+        Args:
+            patterns: ``source="video"``: binary array ``(K ≤ 24, H, W)``, packed into the bit
+                planes of one 24-bit frame that :attr:`video` shows (``video.show``).
+                ``source="flash"``: a sequence of ``(flash_image_index, bit_plane)`` pairs of
+                images already stored in the controller's flash.
+            exposure_us: exposure per pattern in µs.
+            period_us: pattern period in µs (default: ``exposure_us``).
+            trigger: ``"internal"`` (the DMD paces the sequence, default), ``"external"``
+                (each pattern waits for a TRIG_IN edge) or ``"vsync"``.
+            repeat: loop the sequence.
+            leds: LEDs lit for every pattern (subset of ``"RGB"``).
+            start: send the start command.
+
+        Raises:
+            ValueError: bad patterns or timing; ProtocolError/NackError from the device.
+        """
+        period_us = exposure_us if period_us is None else period_us
+        payload_exposure_period(exposure_us, period_us)  # validate before touching the device
+        trig_entry = "external+" if trigger == "external" else "internal"
+        payload_trigger_mode(trigger)
+        if source == "video":
+            pats = np.asarray(patterns.detach().cpu() if hasattr(patterns, "detach") else patterns)
+            frame = pack_bitplanes(pats)
+            if self.video is None:
+                raise ValueError("LightCrafter4500.show_sequence: source='video' needs a video "
+                                 "port (LightCrafter4500(dev, video=...)) to show the bit planes")
+            planes = list(range(pats.shape[0]))
+            swaps = [False] * len(planes)
+            images: list[int] = []
+        elif source == "flash":
+            pairs = [(int(i), int(b)) for i, b in patterns]
+            if not 1 <= len(pairs) <= 128:
+                raise ValueError(f"show_sequence: expected 1 to 128 flash patterns, "
+                                 f"got {len(pairs)}")
+            images = []
+            swaps = []
+            for img, _ in pairs:
+                swaps.append(not images or images[-1] != img)
+                if swaps[-1]:
+                    images.append(img)
+            swaps[0] = False
+            planes = [b for _, b in pairs]
+        else:
+            raise ValueError(f"show_sequence: expected source in {tuple(_SOURCE)}, got {source!r}")
+        entries = [lut_entry(p, 1, leds, trig_entry, buffer_swap=s) for p, s in zip(planes, swaps)]
+        self.stop()
+        if source == "video":
+            self.video.show(frame)
+        self.write("DISP_MODE", payload_display_mode(True))
+        self.write("PAT_DISP_MODE", payload_pattern_source(source))
+        self.write("PAT_CONFIG", payload_pattern_config(len(entries), repeat, len(entries),
+                                                        max(1, len(images))))
+        self.write("PAT_TRIG_MODE", payload_trigger_mode(trigger))
+        self.write("PAT_EXPO_PRD", payload_exposure_period(exposure_us, period_us))
+        if images:
+            self.load_image_lut(images)
+        self.load_pattern_lut(entries)
+        self.validate()
+        if start:
+            self.start()
+
+    def close(self) -> None:
+        try:
+            import usb.util
+
+            usb.util.dispose_resources(self.dev)
+        except Exception:  # noqa: BLE001 - fake devices, already gone
+            pass
+
+
+def find_device(vid: int, pid: int, what: str):
+    """``usb.core.find(idVendor=vid, idProduct=pid)`` with errors a user understands.
+
+    Raises:
+        DeviceNotFoundError: no such device, or pyusb has no libusb backend.
+    """
+    import usb.core
+
+    try:
+        dev = usb.core.find(idVendor=vid, idProduct=pid)
+    except usb.core.NoBackendError as exc:
+        raise DeviceNotFoundError(
+            what, vid, pid, "pyusb found no libusb backend: install libusb "
+            "(apt install libusb-1.0-0, or pip install libusb-package)") from exc
+    except usb.core.USBError as exc:
+        raise translate_usb_error(exc, what, "usb.core.find") from exc
+    if dev is None:
+        raise DeviceNotFoundError(what, vid, pid)
+    return dev

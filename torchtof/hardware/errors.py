@@ -1,0 +1,124 @@
+"""Errors of the hardware layer: each says what failed and what the user can do about it.
+
+``HardwareError`` is the base. :class:`TransientError` marks faults that a retry can fix (a
+NACK, a frame timeout, a corrupt or out-of-sequence frame); :func:`torchtof.hardware.acquire`
+retries those and re-raises them after ``retries`` attempts. A vanished device
+(:class:`DeviceLostError`) is never retried: the run stops and ``--resume`` continues it.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "UDEV_HINT",
+    "HardwareError",
+    "TransientError",
+    "DeviceNotFoundError",
+    "DeviceBusyError",
+    "DeviceLostError",
+    "ProtocolError",
+    "NackError",
+    "FrameTimeoutError",
+    "FrameError",
+    "FrameSequenceError",
+]
+
+#: How to give a non-root user access to the two USB devices (Linux).
+UDEV_HINT = (
+    "On Linux, non-root access needs a udev rule, e.g. /etc/udev/rules.d/99-torchtof.rules with\n"
+    '  SUBSYSTEM=="usb", ATTR{idVendor}=="0451", ATTR{idProduct}=="6401", MODE="0666"\n'
+    '  SUBSYSTEM=="usb", ATTR{idVendor}=="0451", ATTR{idProduct}=="9105", MODE="0666"\n'
+    "then `sudo udevadm control --reload-rules && sudo udevadm trigger` and re-plug the device. "
+    "Check that it is listed by `lsusb -d 0451:`."
+)
+
+
+class HardwareError(RuntimeError):
+    """Base class of every hardware-layer error."""
+
+
+class TransientError(HardwareError):
+    """A fault that a retry may fix (NACK, timeout, corrupt or out-of-sequence frame)."""
+
+
+class DeviceNotFoundError(HardwareError):
+    """No device with the expected USB vendor/product id (or no USB backend)."""
+
+    def __init__(self, what: str, vid: int, pid: int, detail: str = "") -> None:
+        self.what, self.vid, self.pid = what, vid, pid
+        extra = f" ({detail})" if detail else ""
+        super().__init__(
+            f"no {what} found (USB {vid:04x}:{pid:04x}){extra}. Is it plugged in and powered? "
+            f"{UDEV_HINT}"
+        )
+
+
+class DeviceBusyError(HardwareError):
+    """The device exists but another process (or a kernel driver) holds its interface."""
+
+    def __init__(self, what: str, detail: str = "") -> None:
+        self.what = what
+        super().__init__(
+            f"{what} is busy: another program holds its USB interface ({detail}). Close the "
+            "vendor GUI or the other torchtof process; on Linux a kernel HID driver is detached "
+            f"automatically only with write access to the device. {UDEV_HINT}"
+        )
+
+
+class DeviceLostError(HardwareError):
+    """The device disappeared during a run (unplugged, powered off, reset)."""
+
+    def __init__(self, what: str, detail: str = "") -> None:
+        self.what = what
+        super().__init__(
+            f"{what} disappeared during the run ({detail}). Re-connect it and run the same "
+            "command with --resume (acquire(..., resume=True)) to continue where it stopped."
+        )
+
+
+class ProtocolError(HardwareError):
+    """A malformed or unexpected reply to a named command."""
+
+    def __init__(self, command: str, detail: str) -> None:
+        self.command = command
+        super().__init__(f"{command}: {detail}")
+
+
+class NackError(ProtocolError, TransientError):
+    """The device answered a command with NACK (the error flag of its reply)."""
+
+    def __init__(self, command: str, detail: str = "") -> None:
+        super().__init__(command, f"device answered NACK{': ' + detail if detail else ''}")
+
+
+class FrameTimeoutError(TransientError):
+    """No frame arrived in time for the pattern with index ``pattern_index``."""
+
+    def __init__(self, pattern_index: int | None, timeout_s: float, detail: str = "") -> None:
+        self.pattern_index = pattern_index
+        where = f"pattern {pattern_index}" if pattern_index is not None else "a frame"
+        extra = f" ({detail})" if detail else ""
+        super().__init__(
+            f"frame timeout: no ToF frame for {where} within {timeout_s:g} s{extra}. Check the "
+            "trigger cable (DMD TRIG_OUT1 -> camera trigger in) and the exposure/period."
+        )
+
+
+class FrameError(TransientError):
+    """A frame whose bytes do not decode (wrong size, bad magic, checksum mismatch)."""
+
+    def __init__(self, detail: str, pattern_index: int | None = None) -> None:
+        self.pattern_index = pattern_index
+        where = f" for pattern {pattern_index}" if pattern_index is not None else ""
+        super().__init__(f"corrupt frame{where}: {detail}")
+
+
+class FrameSequenceError(TransientError):
+    """A frame id out of sequence: a dropped frame (gap) the acquisition must re-acquire."""
+
+    def __init__(self, expected: int, got: int, pattern_index: int | None = None) -> None:
+        self.expected, self.got, self.pattern_index = expected, got, pattern_index
+        where = f" at pattern {pattern_index}" if pattern_index is not None else ""
+        super().__init__(
+            f"frame id {got} out of sequence{where}: expected {expected} "
+            f"({got - expected} frame(s) dropped)"
+        )

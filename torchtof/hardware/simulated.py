@@ -1,0 +1,475 @@
+"""Simulated LightCrafter 4500 and OPT8241 behind the same pyusb-level interface.
+
+:class:`FakeLightCrafter` (``write``/``read`` of 64-byte HID reports) parses the real
+DLPC350 byte protocol (:mod:`~torchtof.hardware.dlpc350`): it reassembles multi-report
+messages, NACKs malformed ones (unknown command, wrong payload length, out-of-range values),
+keeps the display/trigger/timing/mailbox/LUT state, answers LUT_VALID (with its error bits),
+status and version reads, and when a sequence starts it shows each LUT entry's bit plane of
+the current video frame (or flash image) and raises TRIG_OUT1. :class:`FakeOPT8241`
+(``ctrl_transfer``/``read``) keeps its registers behind the vendor control transfers of
+:mod:`~torchtof.hardware.opt8241`; on each trigger it renders one frame of the chosen scene
+through the displayed pattern with the torchtof sensor model
+(:func:`torchtof.experiment.simulate_frames`, the same code and configuration as
+:class:`~torchtof.experiment.PaperExperiment`) and queues the encoded packet on bulk IN.
+
+Noise is drawn frame by frame from one generator seeded with ``seed``, so an uninterrupted
+acquisition equals ``PaperExperiment(..., chunk_frames=1).run(seed)`` bucket for bucket.
+
+Fault injection (:class:`Faults`): frame-level faults are keyed by the camera's frame
+ordinal (0 = first frame rendered), command faults by the command's occurrence count.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..experiment import ExperimentConfig, simulate_frames, stray_light
+from ..scenes import get_scene
+from ..sensor import dust_map
+from . import dlpc350 as dlp
+from . import opt8241 as opt
+from .dlpc350 import LightCrafter4500, VideoPort
+from .opt8241 import OPT8241, CameraRules
+
+__all__ = ["Faults", "FakeLightCrafter", "FakeOPT8241", "SimulatedBench", "rules_from_config"]
+
+
+def _usb_error(msg: str, errno: int):
+    import usb.core
+
+    return usb.core.USBError(msg, errno=errno)
+
+
+def _usb_timeout(msg: str = "Operation timed out"):
+    import usb.core
+
+    return usb.core.USBTimeoutError(msg, errno=110)
+
+
+@dataclass
+class Faults:
+    """Faults to inject. Frame ordinals count every frame the camera renders (from 0).
+
+    Attributes:
+        frame_timeout: frames delivered late: the first read for them times out.
+        drop: frames rendered but never delivered (a frame-id gap).
+        duplicate: frames delivered twice.
+        corrupt: frames with one payload byte flipped (CRC mismatch).
+        nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
+            (occurrence counts from 0 per command).
+        reply_timeout: ``{command: {occurrence}}``: the LightCrafter does not answer.
+        vanish_after_frames: both devices disappear (ENODEV) once the camera has delivered
+            this many frames (the next bulk read fails).
+        hang_at_frame: on rendering this frame the camera touches ``hang_file`` and stalls
+            for ``hang_s`` (a test kills the process meanwhile).
+    """
+
+    frame_timeout: set[int] = field(default_factory=set)
+    drop: set[int] = field(default_factory=set)
+    duplicate: set[int] = field(default_factory=set)
+    corrupt: set[int] = field(default_factory=set)
+    nack: dict[str, set[int]] = field(default_factory=dict)
+    reply_timeout: dict[str, set[int]] = field(default_factory=dict)
+    vanish_after_frames: int | None = None
+    hang_at_frame: int | None = None
+    hang_file: str | None = None
+    hang_s: float = 60.0
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Faults:
+        kw = {}
+        for k, v in d.items():
+            if k in ("frame_timeout", "drop", "duplicate", "corrupt"):
+                kw[k] = set(v)
+            elif k in ("nack", "reply_timeout"):
+                kw[k] = {c: set(o) for c, o in v.items()}
+            elif k in cls.__dataclass_fields__:
+                kw[k] = v
+            else:
+                raise ValueError(f"Faults: unknown fault {k!r}; expected one of "
+                                 f"{sorted(cls.__dataclass_fields__)}")
+        return cls(**kw)
+
+
+def rules_from_config(cfg: ExperimentConfig) -> CameraRules:
+    """The camera rules of the simulated set-up, with the threshold in ADC numbers (as
+    :func:`~torchtof.experiment.simulate_frames` applies them)."""
+    g = cfg.gain() if cfg.adc_bits is not None else 1.0
+    return CameraRules(min_m=cfg.min_m, max_m=cfg.max_m, step_m=cfg.step_m,
+                       amp_threshold=cfg.amp_threshold_e / g, no_photon_m=cfg.max_m)
+
+
+class _Gone:
+    """Mixin: once ``bench.vanished`` every USB call fails with ENODEV, as pyusb does."""
+
+    bench: SimulatedBench
+
+    def _alive(self) -> None:
+        if self.bench.vanished:
+            raise _usb_error("No such device (it may have been disconnected)", 19)
+
+
+class FakeLightCrafter(_Gone):
+    """A DLPC350 that speaks the HID report protocol (module docstring)."""
+
+    def __init__(self, bench: SimulatedBench) -> None:
+        self.bench = bench
+        self._asm = dlp.Assembler()
+        self._replies: deque[bytes] = deque()
+        self.counts: dict[str, int] = {}
+        self.log: list[dlp.Message] = []
+        self.video_frame: np.ndarray | None = None
+        self.flash: dict[int, np.ndarray] = {}
+        self.state = {"standby": False, "pattern_mode": False, "source": None, "config": None,
+                      "trigger": None, "exposure_us": None, "period_us": None, "running": False,
+                      "mbox": 0, "mbox_addr": 0, "validated": False}
+        self.pattern_lut: list[int] = []
+        self.image_lut: list[int] = []
+        self.lut_status = 0
+        self._busy_reads = 0
+        self.shown: list[np.ndarray] = []  # every pattern displayed (for tests)
+        self._next = 0  # next LUT entry for external triggers
+
+    # -- pyusb surface -----------------------------------------------------------------------
+    def write(self, endpoint: int, data, timeout: int | None = None) -> int:
+        self._alive()
+        if endpoint != dlp.EP_OUT:
+            raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
+        data = bytes(data)
+        try:
+            msg = self._asm.feed(data)
+        except dlp.ProtocolError:
+            self._replies.append(struct.pack("<BBH", dlp.FLAG_NACK | dlp.FLAG_REPLY, 0, 0)
+                                 .ljust(dlp.REPORT_SIZE, b"\x00"))
+            return len(data)
+        if msg is not None:
+            self._handle(msg)
+        return len(data)
+
+    def read(self, endpoint: int, size: int, timeout: int | None = None):
+        self._alive()
+        if endpoint != dlp.EP_IN:
+            raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
+        if not self._replies:
+            raise _usb_timeout()
+        return bytearray(self._replies.popleft()[:size])
+
+    # -- protocol ----------------------------------------------------------------------------
+    def _handle(self, msg: dlp.Message) -> None:
+        self.log.append(msg)
+        name = msg.command
+        occ = self.counts.get(name, 0)
+        self.counts[name] = occ + 1
+        if occ in self.bench.faults.reply_timeout.get(name, ()):
+            return
+        if occ in self.bench.faults.nack.get(name, ()) or name not in dlp.COMMANDS:
+            self._replies.append(dlp.encode_reply(msg, nack=True))
+            return
+        size = dlp.COMMANDS[name][2]
+        if msg.read:
+            data = self._read(name) if not msg.payload else None
+            self._replies.append(dlp.encode_reply(msg, data or b"", nack=data is None))
+            return
+        ok = (size is None and len(msg.payload) > 0) or len(msg.payload) == size
+        ok = ok and self._apply(name, msg.payload)
+        if msg.reply_wanted or not ok:
+            self._replies.append(dlp.encode_reply(msg, nack=not ok))
+
+    def _read(self, name: str) -> bytes | None:
+        if name == "LUT_VALID":
+            if self._busy_reads:
+                self._busy_reads -= 1
+                return bytes([0x80])
+            return bytes([self.lut_status])
+        if name == "STATUS_HW":
+            return b"\x01"  # initialisation done, no error
+        if name == "STATUS_SYS":
+            return b"\x01"  # internal memory test passed
+        if name == "STATUS_MAIN":
+            return bytes([0x01 | (0x02 if self.state["running"] else 0)])  # DMD parked? running
+        if name == "GET_VERSION":
+            return struct.pack("<IIII", 0x03000000, 0x00010000, 0, 0)
+        return None
+
+    def _apply(self, name: str, p: bytes) -> bool:
+        s = self.state
+        if name == "POWER_CONTROL":
+            if p[0] > 2:
+                return False
+            s["standby"] = p[0] == 1
+        elif name == "DISP_MODE":
+            if p[0] > 1:
+                return False
+            s["pattern_mode"] = p[0] == 1
+        elif name == "PAT_DISP_MODE":
+            if p[0] not in (0, 3):
+                return False
+            s["source"] = {0: "video", 3: "flash"}[p[0]]
+        elif name == "PAT_TRIG_MODE":
+            if p[0] > 4:
+                return False
+            s["trigger"] = p[0]
+        elif name == "PAT_EXPO_PRD":
+            s["exposure_us"], s["period_us"] = struct.unpack("<II", p)
+        elif name == "PAT_CONFIG":
+            s["config"] = tuple(p)
+        elif name == "MBOX_CONTROL":
+            if p[0] > 3:
+                return False
+            s["mbox"], s["mbox_addr"] = p[0], 0
+            if p[0] == 2:
+                self.pattern_lut = []
+            elif p[0] == 1:
+                self.image_lut = []
+            s["validated"] = False
+        elif name == "MBOX_ADDRESS":
+            if p[0] > 127:
+                return False
+            s["mbox_addr"] = p[0]
+        elif name == "MBOX_DATA":
+            if s["mbox"] == 2:
+                if len(p) % 3:
+                    return False
+                self.pattern_lut += [int.from_bytes(p[i : i + 3], "little")
+                                     for i in range(0, len(p), 3)]
+            elif s["mbox"] == 1:
+                idx = list(p)
+                self.image_lut += idx[::-1] if len(idx) == 2 else idx
+            else:
+                return False  # mailbox closed
+        elif name == "LUT_VALID":
+            self.lut_status = self._validate()
+            s["validated"] = not self.lut_status & 0x13
+            self._busy_reads = 1  # the first poll reads busy
+        elif name == "PAT_START_STOP":
+            if p[0] > 2:
+                return False
+            if p[0] == 2:
+                if not (s["validated"] and s["pattern_mode"]):
+                    return False
+                s["running"] = True
+                self._next = 0
+                if s["trigger"] == 1 and self._internal():
+                    self._play_all()
+            else:
+                s["running"] = False
+        return True
+
+    def _internal(self) -> bool:
+        trig = {dlp.unpack_lut_entry(e)["trig"] for e in self.pattern_lut}
+        return trig <= {0, 3}
+
+    def _validate(self) -> int:
+        s, status = self.state, 0
+        e, per = s["exposure_us"], s["period_us"]
+        if e is None or per is None or not (e == per or e <= per - dlp.MIN_DARK_US):
+            status |= 0x01 | (0x10 if e is not None and per is not None and e < per else 0)
+        cfg = s["config"]
+        entries = [dlp.unpack_lut_entry(v) for v in self.pattern_lut]
+        if (cfg is None or not entries or cfg[0] + 1 != len(entries)
+                or any(x["pattern"] > 23 or x["bit_depth"] != 1 for x in entries)):
+            status |= 0x02
+        if s["source"] == "video" and self.video_frame is None:
+            status |= 0x02
+        if s["source"] == "flash" and any(i not in self.flash for i in self.image_lut):
+            status |= 0x02
+        return status
+
+    def _pattern(self, k: int) -> np.ndarray:
+        entries = [dlp.unpack_lut_entry(v) for v in self.pattern_lut]
+        e = entries[k]
+        if self.state["source"] == "video":
+            frame = self.video_frame
+        else:
+            img = sum(x["buffer_swap"] for x in entries[1 : k + 1])
+            frame = self.flash[self.image_lut[img]]
+        plane = dlp.unpack_bitplane(frame, e["pattern"])
+        return 1 - plane if e["invert"] else plane
+
+    def _play_all(self) -> None:
+        for k in range(len(self.pattern_lut)):
+            self._show(k)
+        self.state["running"] = False
+
+    def _show(self, k: int) -> None:
+        pat = self._pattern(k)
+        self.shown.append(pat)
+        self.bench.camera_usb.trigger(pat)
+
+    def trigger_in(self) -> None:
+        """A TRIG_IN edge (external trigger mode): show the next pattern."""
+        if self.state["running"] and self._next < len(self.pattern_lut):
+            self._show(self._next)
+            self._next += 1
+
+
+class FakeOPT8241(_Gone):
+    """An OPT8241-CDK-EVM: registers over vendor control transfers, frames on bulk IN."""
+
+    def __init__(self, bench: SimulatedBench) -> None:
+        self.bench = bench
+        cfg = bench.config
+        self.regs: dict[int, int] = {
+            opt.REGISTERS["stream_enable"]: 0,
+            opt.REGISTERS["mod_freq_khz"]: round(cfg.freq_hz / 1e3),
+            opt.REGISTERS["intg_time_us"]: 1000,
+            opt.REGISTERS["frame_count"]: 0,
+        }
+        self._fifo: deque[bytes] = deque()
+        self._late: set[int] = set()
+        self.rendered = 0
+        self.delivered = 0
+
+    def ctrl_transfer(self, bmRequestType: int, bRequest: int, wValue: int = 0, wIndex: int = 0,
+                      data_or_wLength=None, timeout: int | None = None):
+        self._alive()
+        stall = _usb_error("Pipe error (request stalled)", 32)
+        for slave, (rd, wr, shift, _) in opt.SLAVES.items():
+            if wValue == slave << shift and bRequest in (rd, wr):
+                break
+        else:
+            raise stall
+        nbytes = opt.SLAVES[slave][3]
+        write = bmRequestType == opt.VENDOR_OUT
+        if bRequest != (wr if write else rd) or bmRequestType not in (opt.VENDOR_OUT,
+                                                                        opt.VENDOR_IN):
+            raise stall
+        address = slave << 8 | (wIndex >> shift)
+        if write:
+            data = bytes(data_or_wLength)
+            if len(data) != nbytes:
+                raise stall
+            self.regs[address] = int.from_bytes(data, "little")
+            return len(data)
+        if int(data_or_wLength) != nbytes:
+            raise stall
+        return bytearray(self.regs.get(address, 0).to_bytes(nbytes, "little"))
+
+    def read(self, endpoint: int, size: int, timeout: int | None = None):
+        self._alive()
+        if endpoint != opt.EP_FRAMES:
+            raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
+        if not self._fifo:
+            raise _usb_timeout()
+        f = self.bench.faults
+        if f.vanish_after_frames is not None and self.delivered >= f.vanish_after_frames:
+            self.bench.vanished = True
+            self._alive()
+        ordinal, packet = self._fifo[0]
+        if ordinal in self._late:
+            self._late.discard(ordinal)
+            raise _usb_timeout()
+        self._fifo.popleft()
+        if len(packet) > size:
+            raise _usb_error("Overflow", 75)
+        self.delivered += 1
+        return bytearray(packet)
+
+    @property
+    def freq_hz(self) -> float:
+        return self.regs[opt.REGISTERS["mod_freq_khz"]] * 1e3
+
+    def trigger(self, pattern: np.ndarray) -> None:
+        """A trigger from the DMD's TRIG_OUT1: render and queue one frame (if streaming)."""
+        if not self.regs[opt.REGISTERS["stream_enable"]]:
+            return
+        f = self.bench.faults
+        ordinal = self.rendered
+        if f.hang_at_frame is not None and ordinal == f.hang_at_frame:
+            if f.hang_file:
+                Path(f.hang_file).write_text(str(ordinal))
+            time.sleep(f.hang_s)
+        frame = self.bench.render(pattern, self.freq_hz)
+        fid = self.regs[opt.REGISTERS["frame_count"]]
+        self.regs[opt.REGISTERS["frame_count"]] = (fid + 1) % (1 << 24)
+        self.rendered += 1
+        period = self.bench.lightcrafter_usb.state["period_us"] or 0
+        taps = frame.taps[0].numpy()
+        sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
+        ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
+        packet = opt.encode_frame(frame.phase[0, 0].numpy(), frame.amplitude[0, 0].numpy(), fid,
+                                  ordinal * period, ambient=ambient, flags=sat.astype(np.uint32),
+                                  taps=taps.astype(np.uint16))
+        if ordinal in f.corrupt:
+            b = bytearray(packet)
+            b[opt.HEADER.size + 5] ^= 0x40
+            packet = bytes(b)
+        if ordinal in f.frame_timeout:
+            self._late.add(ordinal)
+        if ordinal not in f.drop:
+            self._fifo.append((ordinal, packet))
+            if ordinal in f.duplicate:
+                self._fifo.append((-1, packet))
+
+
+class _SimVideo(VideoPort):
+    def __init__(self, lcr: FakeLightCrafter) -> None:
+        self.lcr = lcr
+
+    def show(self, frame: np.ndarray) -> None:
+        self.lcr.video_frame = np.array(frame, dtype=np.uint8, copy=True)
+
+
+class SimulatedBench:
+    """A LightCrafter 4500 and an OPT8241 looking at a simulated scene.
+
+    Args:
+        config: the simulated set-up (:class:`~torchtof.experiment.ExperimentConfig`); the
+            camera frame is ``roi_px × roi_px``, the DMD pattern ``n × n``.
+        seed: noise seed (one generator, frames drawn in order).
+        faults: faults to inject (:class:`Faults`).
+
+    Example:
+        >>> bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)))
+        >>> lcr, cam = bench.lightcrafter(), bench.camera()
+        >>> lcr.status()["hw"]
+        1
+    """
+
+    def __init__(self, config: ExperimentConfig | None = None, seed: int = 0,
+                 faults: Faults | None = None) -> None:
+        cfg = (config or ExperimentConfig()).validate()
+        if cfg.adc_bits is None or cfg.adc_bits > 16:
+            raise ValueError(f"SimulatedBench: the OPT8241 sends integer taps: expected adc_bits "
+                             f"in [1, 16], got {cfg.adc_bits}")
+        self.config, self.seed = cfg, seed
+        self.faults = faults or Faults()
+        self.vanished = False
+        self.generator = torch.Generator().manual_seed(seed)
+        self.scene = get_scene(cfg.scene, cfg.n, cfg.object_m, dtype=torch.float32)
+        self.dust = None
+        if cfg.scattering:
+            self.dust = dust_map(cfg.roi_px, cfg.dust_sigma_px,
+                                 torch.Generator().manual_seed(cfg.dust_seed), dtype=torch.float32)
+        self.stray = stray_light(cfg, torch.float32) if cfg.stray_e > 0 else None
+        self.lightcrafter_usb = FakeLightCrafter(self)
+        self.camera_usb = FakeOPT8241(self)
+        self.video = _SimVideo(self.lightcrafter_usb)
+
+    def render(self, pattern: np.ndarray, freq_hz: float):
+        """One ToF frame of the scene through a 0/1 pattern ``(n, n)`` (simulate_frames)."""
+        cfg = self.config
+        if pattern.shape != (cfg.n, cfg.n):
+            raise ValueError(f"SimulatedBench: the video frame is {pattern.shape}, the simulated "
+                             f"DMD is {cfg.n}x{cfg.n}")
+        if abs(freq_hz - cfg.freq_hz) > 0.5e3:
+            cfg = replace(cfg, freq_hz=freq_hz)
+        pats = torch.from_numpy(pattern.astype(np.float32))[None]
+        return simulate_frames(self.scene, pats, cfg, self.generator, self.dust, self.stray)
+
+    def lightcrafter(self, **kwargs) -> LightCrafter4500:
+        """A :class:`LightCrafter4500` driver on the fake device with the simulated video port."""
+        return LightCrafter4500(self.lightcrafter_usb, video=self.video, **kwargs)
+
+    def camera(self, **kwargs) -> OPT8241:
+        """An :class:`OPT8241` driver on the fake camera (``roi_px`` square frames)."""
+        p = self.config.roi_px
+        kw = {"width": p, "height": p, "rules": rules_from_config(self.config), **kwargs}
+        return OPT8241(self.camera_usb, **kw)
