@@ -20,6 +20,7 @@ from torchtof.recon import (
     UnrolledTVAL3,
     depth_resolved,
     dual_frequency_depth,
+    hypothesis_spacing,
     iq_buckets,
     iq_phase_amplitude,
     joint_tv,
@@ -340,10 +341,25 @@ def test_dual_frequency_on_a_scene_beyond_5_m():
         ys.append(_noisy(A(taps), 0.005, 8, 2)[0])
     net = DualFrequencyDepth(JointTV(A), 30e6, 20e6)
     depth = net(*ys)
+    res = net.solve(*ys)
+    torch.testing.assert_close(res.depth, depth)
+    assert float(res.mask.float().mean()) > 0.9  # hypotheses agree on (almost) every pixel
     single = DepthResolved(JointTV(A), 30e6)(ys[0])
     truth = s.depth_m.expand(2, -1, -1, -1)
     assert bool((depth_rmse(depth, truth) < 0.15).all())
     assert bool((depth_rmse(single, truth) > 1.0).all())  # one frequency wraps at 5 m
+
+
+def test_dual_frequency_gap_flags_inconsistent_phases():
+    assert abs(hypothesis_spacing(30e6, 20e6) - SPEED_OF_LIGHT / 1.2e8) < 1e-12  # 2.498 m
+    d = torch.tensor([2.0, 6.0], dtype=torch.float64)
+    p1, p2 = _wrapped(d, 30e6), _wrapped(d, 20e6)
+    _, gap = dual_frequency_depth(p1, p2, 30e6, 20e6, return_gap=True)
+    assert float(gap.max()) < 1e-9
+    # a 20 MHz phase off by 1 m leaves a gap of 1 m (the next hypothesis is 1.498 m away)
+    bad = _wrapped(d + 1.0, 20e6)
+    _, gap = dual_frequency_depth(p1, bad, 30e6, 20e6, return_gap=True)
+    torch.testing.assert_close(gap, torch.full_like(gap, 1.0))
 
 
 def test_dual_frequency_errors():

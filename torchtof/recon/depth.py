@@ -73,6 +73,7 @@ __all__ = [
     "depth_resolved",
     "DepthResolved",
     "dual_frequency_depth",
+    "hypothesis_spacing",
     "DualFrequencyDepth",
 ]
 
@@ -618,7 +619,8 @@ def dual_frequency_depth(
     freq_1_hz: float,
     freq_2_hz: float,
     max_m: float | None = None,
-) -> torch.Tensor:
+    return_gap: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """Unwrapped depth from the phases at two modulation frequencies (hypothesis search).
 
     Each phase gives a depth up to a whole number of its unambiguous range
@@ -635,9 +637,13 @@ def dual_frequency_depth(
         phase_1, phase_2: phases in ``[0, 2π)`` at ``freq_1_hz``/``freq_2_hz``, same shape.
         freq_1_hz, freq_2_hz: the two frequencies in Hz, different, ``> 0``.
         max_m: the range to unwrap into, metres, ``≤`` the common range (default it).
+        return_gap: also return the disagreement ``|d₁ − d₂|`` of the chosen pair (metres),
+            a confidence: wrong pairs differ by a multiple of the hypothesis spacing
+            ``c·gcd(f₁, f₂)/(2f₁f₂)`` (2.5 m for 30 + 20 MHz), so a gap near half of it
+            flags a pixel whose two phases do not describe one depth (noise, mixed pixels).
 
     Returns:
-        Depth in metres, the shape of ``phase_1``.
+        Depth in metres, the shape of ``phase_1`` (and the gap, same shape).
 
     Raises:
         TypeError: if a phase is not a real floating tensor.
@@ -680,8 +686,16 @@ def dual_frequency_depth(
     i1 = torch.div(best, n2.numel(), rounding_mode="floor")
     i2 = best - i1 * n2.numel()
     w1, w2 = f1 * f1, f2 * f2
-    depth = (w1 * d1.gather(-1, i1) + w2 * d2.gather(-1, i2)).squeeze(-1) / (w1 + w2)
-    return torch.remainder(depth, top)
+    a1, a2 = d1.gather(-1, i1).squeeze(-1), d2.gather(-1, i2).squeeze(-1)
+    depth = torch.remainder((w1 * a1 + w2 * a2) / (w1 + w2), top)
+    return (depth, (a1 - a2).abs()) if return_gap else depth
+
+
+def hypothesis_spacing(freq_1_hz: float, freq_2_hz: float) -> float:
+    """Smallest non-zero ``|n₁R₁ − n₂R₂|`` of :func:`dual_frequency_depth`'s hypotheses,
+    ``c·gcd(f₁, f₂)/(2f₁f₂)`` metres (2.5 m for 30 + 20 MHz, frequencies rounded to 1 Hz)."""
+    f1, f2 = round(freq_1_hz), round(freq_2_hz)
+    return SPEED_OF_LIGHT * math.gcd(f1, f2) / (2.0 * f1 * f2)
 
 
 class DualFrequencyDepth(nn.Module):
@@ -708,10 +722,14 @@ class DualFrequencyDepth(nn.Module):
 
     def solve(self, y_1: torch.Tensor, y_2: torch.Tensor) -> DepthResult:
         """:class:`DepthResult` with the unwrapped depth; amplitude, phase and images of the
-        first frequency; the mask of both."""
+        first frequency; the mask: both amplitude masks, and the two depths of the chosen
+        hypothesis agree within a quarter of the hypothesis spacing (0.62 m for 30 + 20 MHz;
+        wrong pairs differ by a multiple of the spacing)."""
         a, b = self.rec_1.solve(y_1), self.rec_2.solve(y_2)
-        depth = dual_frequency_depth(a.phase, b.phase, *self.freqs_hz, self.max_m)
-        return a._replace(depth=depth, mask=a.mask & b.mask)
+        depth, gap = dual_frequency_depth(a.phase, b.phase, *self.freqs_hz, self.max_m,
+                                          return_gap=True)
+        ok = gap < 0.25 * hypothesis_spacing(*self.freqs_hz)
+        return a._replace(depth=depth, mask=a.mask & b.mask & ok)
 
     def forward(self, y_1: torch.Tensor, y_2: torch.Tensor) -> torch.Tensor:
         return self.solve(y_1, y_2).depth
