@@ -13,6 +13,7 @@ from torchtof.recon import (
     DGI,
     TGI,
     TVAL3,
+    BasisPursuit,
     DepthResolved,
     DualFrequencyDepth,
     JointTV,
@@ -208,11 +209,15 @@ def test_joint_tv_errors():
 # -- DepthResolved wrapper -------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("make", [PseudoInverse, TVAL3, JointTV, UnrolledTVAL3])
+def _bp(A):
+    return BasisPursuit(A, eps="auto")
+
+
+@pytest.mark.parametrize("make", [PseudoInverse, TVAL3, JointTV, UnrolledTVAL3, _bp])
 def test_any_reconstructor_shapes_module_equals_function(make):
     n = 32 if make is UnrolledTVAL3 else 16
     A = Hadamard(n, sr=0.25)
-    _, taps = _taps("steps", n)
+    s, taps = _taps("steps", n)
     y, _ = _noisy(A(taps), 0.01, 4, 3)
     rec = make(A)
     net = DepthResolved(rec, 30e6)
@@ -227,6 +232,7 @@ def test_any_reconstructor_shapes_module_equals_function(make):
         torch.testing.assert_close(depth_resolved(y, rec, 30e6).depth, res.depth)
         d, a = net.depth_amplitude(y)
     torch.testing.assert_close(a, res.amplitude)
+    assert bool((depth_rmse(res.depth, s.depth_m.expand(3, -1, -1, -1)) < 0.3).all())
 
 
 def test_depth_resolved_batched_equals_singles_and_iq_input():
