@@ -31,7 +31,9 @@ images) with any reconstructor and applying Eq. 7 (phase), Eq. 8 (amplitude) and
     t = \\max\\big(k \\cdot \\tfrac12 σ_y \\sqrt{M/N},\\; r \\cdot \\max_u Â(u)\\big)
 
 with ``σ_y`` the noise std of the I/Q buckets, ``M/N`` the sampling rate and defaults
-``k = 3``, ``r = 0.1``. ``σ_y √(M/N)`` is the noise std of each of ``Î, Q̂`` on a pixel for
+``k = 3``, ``r = 0.1``. The noise term needs the reconstructor's operator (its ``A``) with
+orthonormal rows; otherwise (TGI on DMD buckets, unknown operators) only the relative
+floor applies. ``σ_y √(M/N)`` is the noise std of each of ``Î, Q̂`` on a pixel for
 the pseudo-inverse of orthonormal Hadamard rows (entries ``±1/n``: ``Σ_i A_{iu}² = M/N``);
 an empty pixel then has a Rayleigh amplitude and passes with probability
 ``exp(−k²/2) ≈ 1.1 %``. Regularised reconstructors leave less noise, so the rule is
@@ -546,8 +548,10 @@ def depth_resolved(
     depth = phase_to_depth(phase, f)
     n_pix = images.shape[-1] * images.shape[-2]
     A = _operator_of(reconstructor)
-    m = A.m if A is not None else y.shape[-1]
-    noise_amp = 0.5 * sigma * math.sqrt(min(m, n_pix) / n_pix)
+    if A is not None and A.orthonormal_rows:  # pixel noise σ_y √(M/N) (module docstring)
+        noise_amp = 0.5 * sigma * math.sqrt(min(A.m, n_pix) / n_pix)
+    else:  # unknown scale of the image noise: the relative floor alone
+        noise_amp = torch.zeros_like(sigma)
     peak = amplitude.flatten(1).amax(dim=1)
     threshold = torch.maximum(k * noise_amp, r * peak)
     mask = amplitude > threshold.reshape(-1, 1, 1, 1)
