@@ -25,7 +25,7 @@ EXAMPLE = ROOT / "examples" / "onnx_inference.py"
 
 #: Small sizes for the tests (the shipped unrolled weights exist for n = 32 only).
 N, SR = 16, 0.25
-SIZES = {"unrolled_tval3": 32}
+SIZES = {"unrolled_tval3": 32, "depth_resolved": 32}
 ITERS = {"bp": 5, "tval3": 3, "dip": 5}
 
 

@@ -1,5 +1,7 @@
 """Tests of torchtof.scenes: the character 天, depth scenes, scikit-image scenes, registry."""
 
+import math
+
 import pytest
 import torch
 
@@ -214,3 +216,22 @@ def test_get_scene_errors():
         get_scene("skimage:nope")
     with pytest.raises(ValueError, match="get_scene: expected object_m > 0"):
         get_scene("skimage:camera", object_m=0.0)
+
+
+def test_slanted_plane_is_a_plane_and_far_steps_pass_5_m():
+    from torchtof.scenes import FAR_LEVELS, slanted_plane
+
+    s = slanted_plane(16, 1.5, 3.5, angle_deg=30.0, dtype=torch.float64)
+    z = s.depth_m[0, 0]
+    assert float(z.min()) == 1.5 and abs(float(z.max()) - 3.5) < 1e-12
+    # a plane: constant first differences along each axis, ratio tan(30°)
+    dx, dy = z[:, 1:] - z[:, :-1], z[1:, :] - z[:-1, :]
+    assert float(dx.std()) < 1e-12 and float(dy.std()) < 1e-12
+    assert abs(float(dy.mean() / dx.mean()) - math.tan(math.radians(30))) < 1e-9
+    assert bool((s.reflectance == 1).all())
+    far = get_scene("steps_far", 32)
+    assert sorted(far.depth_m.unique().tolist()) == list(FAR_LEVELS) and max(FAR_LEVELS) > 5
+    with pytest.raises(ValueError, match="slanted_plane: expected far_m > near_m"):
+        slanted_plane(16, 3.0, 2.0)
+    with pytest.raises(TypeError, match="slanted_plane: expected angle_deg to be a number"):
+        slanted_plane(16, angle_deg="45")

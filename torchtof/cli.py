@@ -78,6 +78,9 @@ def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[st
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    if args.depth:  # depth-resolved ghost imaging (torchtof/depth_demo.py)
+        from .depth_demo import run_depth_demo
+        return run_depth_demo(args)
     from tqdm.auto import tqdm
 
     from .experiment import PaperExperiment
@@ -194,6 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--methods", default=None, help="comma-separated subset, e.g. CGI,TVAL3")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", default="demo_out")
+    d.add_argument("--depth", nargs="?", const="motorcycle", default=None, metavar="SCENE",
+                   help="depth-resolved GI from per-tap buckets on SCENE (default motorcycle)")
     d.set_defaults(func=cmd_demo)
 
     b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability")

@@ -32,6 +32,7 @@ __all__ = [
     "sky_character",
     "depth_steps",
     "depth_scene",
+    "slanted_plane",
     "skimage_scene",
     "binary_scene",
     "motorcycle_depth",
@@ -40,7 +41,11 @@ __all__ = [
 
 #: Names accepted by :func:`get_scene` besides the ``"skimage:<name>"`` and
 #: ``"binary:<name>"`` forms (``<name>`` from :data:`SKIMAGE_NAMES`).
-SCENES: tuple[str, ...] = ("sky", "steps", "motorcycle")
+SCENES: tuple[str, ...] = ("sky", "steps", "motorcycle", "slanted", "steps_far")
+
+#: Depth levels of the ``"steps_far"`` scene: beyond the 5 m range of 30 MHz (two-frequency
+#: unwrapping, :func:`torchtof.recon.dual_frequency_depth`).
+FAR_LEVELS: tuple[float, ...] = (3.5, 5.5, 6.5, 8.0)
 
 #: 2-D images whose files ship inside the scikit-image wheel (no download).
 SKIMAGE_NAMES: tuple[str, ...] = (
@@ -283,6 +288,64 @@ def depth_steps(
     )
 
 
+def slanted_plane(
+    n: int = 32,
+    near_m: float = 1.5,
+    far_m: float = 3.5,
+    angle_deg: float = 30.0,
+    dtype: torch.dtype | None = None,
+    device: torch.device | str | None = None,
+) -> Scene:
+    r"""A tilted plane: depth rises linearly across the image along a direction.
+
+    .. math::
+        z(u) = z_\text{near} + (z_\text{far} - z_\text{near})\,
+        \frac{s(u) - \min s}{\max s - \min s}, \quad s(u) = x\cos α + y\sin α
+
+    over the pixel centres, so the nearest corner is at ``near_m`` and the farthest at
+    ``far_m``. Reflectance 1 everywhere.
+
+    Args:
+        n: image side in pixels, ``>= 8``.
+        near_m, far_m: depth range in metres, ``0 < near_m < far_m``.
+        angle_deg: direction ``α`` of the depth gradient (0: left to right, 90: top down).
+        dtype: floating dtype (default float32).
+        device: target device.
+
+    Returns:
+        :class:`Scene`.
+
+    Raises:
+        TypeError: if ``n`` is not an int.
+        ValueError: if ``n < 8`` or the range is invalid.
+
+    Shape:
+        - Output: two tensors of shape :math:`(1, 1, n, n)`.
+
+    Example:
+        >>> s = slanted_plane(16, 1.0, 2.0, angle_deg=0.0)
+        >>> s.depth_m[0, 0, 0, 0].item(), s.depth_m[0, 0, 0, -1].item()
+        (1.0, 2.0)
+    """
+    func = "slanted_plane"
+    _check_n(n, func)
+    lo = check_positive(near_m, "near_m", func)
+    hi = check_positive(far_m, "far_m", func)
+    if hi <= lo:
+        raise ValueError(f"{func}: expected far_m > near_m, got near_m={near_m}, far_m={far_m}")
+    if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)):
+        raise TypeError(f"{func}: expected angle_deg to be a number, got {angle_deg!r}")
+    a = np.deg2rad(float(angle_deg))
+    c = np.arange(n, dtype=np.float64)
+    yy, xx = np.meshgrid(c, c, indexing="ij")
+    s = xx * np.cos(a) + yy * np.sin(a)
+    z = lo + (hi - lo) * (s - s.min()) / (s.max() - s.min())
+    return Scene(
+        reflectance=_to_tensor(np.ones((n, n)), dtype, device),
+        depth_m=_to_tensor(z, dtype, device),
+    )
+
+
 def _load_grey(name: str, func: str) -> np.ndarray:
     """A bundled scikit-image image as a float64 grey array in [0, 1]."""
     import skimage.color
@@ -471,6 +534,8 @@ def get_scene(
     - ``"sky"``: the binary 天 at ``object_m``, no return elsewhere (the paper's object).
     - ``"steps"``: :func:`depth_steps` with its defaults.
     - ``"motorcycle"``: :func:`motorcycle_depth` in ``[1, 4]`` m, reflectance 1.
+    - ``"slanted"``: :func:`slanted_plane` from 1.5 to 3.5 m.
+    - ``"steps_far"``: :func:`depth_steps` at :data:`FAR_LEVELS` (3.5–8 m, beyond 30 MHz's 5 m).
     - ``"skimage:<name>"``: :func:`skimage_scene` as reflectance, flat at ``object_m``.
     - ``"binary:<name>"``: :func:`binary_scene` at ``object_m``, no return elsewhere.
 
@@ -503,6 +568,10 @@ def get_scene(
     if name == "motorcycle":
         z = motorcycle_depth(n, **kw)
         return Scene(reflectance=torch.ones_like(z), depth_m=z)
+    if name == "slanted":
+        return slanted_plane(n, **kw)
+    if name == "steps_far":
+        return depth_steps(n, levels=FAR_LEVELS, **kw)
     if isinstance(name, str) and name.startswith("skimage:"):
         x = skimage_scene(name.split(":", 1)[1], n, **kw)
         return Scene(reflectance=x, depth_m=torch.full_like(x, object_m))

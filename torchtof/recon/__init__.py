@@ -3,6 +3,19 @@
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
 from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
+from .depth import (
+    DepthResolved,
+    DepthResult,
+    DualFrequencyDepth,
+    JointTV,
+    depth_resolved,
+    dual_frequency_depth,
+    hypothesis_spacing,
+    iq_buckets,
+    iq_phase_amplitude,
+    joint_tv,
+    tap_noise_sigma,
+)
 from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_dip
 from .pinv import PseudoInverse, pseudo_inverse
 from .train import TrainResult, train_unrolled
@@ -45,4 +58,15 @@ __all__ = [
     "idct2",
     "haar2",
     "ihaar2",
+    "DepthResolved",
+    "DepthResult",
+    "DualFrequencyDepth",
+    "JointTV",
+    "depth_resolved",
+    "dual_frequency_depth",
+    "hypothesis_spacing",
+    "iq_buckets",
+    "iq_phase_amplitude",
+    "joint_tv",
+    "tap_noise_sigma",
 ]
