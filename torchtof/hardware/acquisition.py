@@ -96,14 +96,15 @@ def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor
 
 def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
     d = frame.depth[None, None]  # (1, 1, H, W): one frame on the frame axis
-    taps = frame.taps
-    if taps is None:  # a camera without raw taps: NaN tap buckets, never made-up numbers
-        taps = torch.full((4, *frame.depth.shape), float("nan"))
+    if frame.taps is None:  # a frame without raw taps: NaN tap buckets, never made-up numbers
+        taps = torch.full((1, 4, 1), float("nan"))
+    else:
+        taps = tap_buckets(frame.taps[None, None])  # DESIGN §2 per-tap buckets
     return {
         "depth": depth_bucket(d),  # Eq. 10
         "gated": depth_bucket(d, gate_m=gate_m),  # §3.1 "low-pass filter"
         "intensity": intensity_bucket(frame.amplitude[None, None]),  # S_i of Eq. 9
-        "taps": tap_buckets(taps[None, None]),  # DESIGN §2 per-tap buckets
+        "taps": taps,
     }
 
 

@@ -61,6 +61,7 @@ class Faults:
         frame_timeout: frames delivered late: the first read for them times out.
         drop: frames rendered but never delivered (a frame-id gap).
         duplicate: frames delivered twice.
+        extra: frames followed by one spurious, different frame (its words in reverse order).
         corrupt: frames with bit 14 of their third 16-bit word flipped (a reserved bit in the
             ``"quad"`` and ``"iq"`` modes; undetectable in the depth modes).
         nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
@@ -75,6 +76,7 @@ class Faults:
     frame_timeout: set[int] = field(default_factory=set)
     drop: set[int] = field(default_factory=set)
     duplicate: set[int] = field(default_factory=set)
+    extra: set[int] = field(default_factory=set)
     corrupt: set[int] = field(default_factory=set)
     nack: dict[str, set[int]] = field(default_factory=dict)
     reply_timeout: dict[str, set[int]] = field(default_factory=dict)
@@ -87,7 +89,7 @@ class Faults:
     def from_dict(cls, d: dict) -> Faults:
         kw = {}
         for k, v in d.items():
-            if k in ("frame_timeout", "drop", "duplicate", "corrupt"):
+            if k in ("frame_timeout", "drop", "duplicate", "extra", "corrupt"):
                 kw[k] = set(v)
             elif k in ("nack", "reply_timeout"):
                 kw[k] = {c: set(o) for c, o in v.items()}
@@ -430,6 +432,8 @@ class FakeOPT8241(_Gone):
             self._fifo.append((ordinal, packet))
             if ordinal in f.duplicate:
                 self._fifo.append((ordinal, packet))
+        if ordinal in f.extra:
+            self._fifo.append((ordinal, np.frombuffer(packet, "<u2")[::-1].tobytes()))
 
 
 class _SimVideo(VideoPort):
