@@ -326,3 +326,10 @@ def test_oversized_transfer_is_a_usb_error():
     with pytest.raises(FrameError, match="100 bytes, a 8x8 'quad' frame has 512"):
         cam.grab(0.1)
     assert cam.frame_counter() == 0  # neither was numbered
+
+
+def test_driver_rejects_bad_modes_and_sizes():
+    with pytest.raises(ValueError, match="unknown mode 'tof'"):
+        opt.OPT8241(Recorder(), mode="tof")
+    with pytest.raises(ValueError, match="bad frame size 12x8 for mode 'depth8'"):
+        opt.OPT8241(Recorder(), width=12, height=8, mode="depth8")

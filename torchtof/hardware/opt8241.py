@@ -396,7 +396,7 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
         iq = np.frombuffer(raw, dtype="<i2").reshape(h, w, 2).astype(np.int64)
         if int(np.abs(iq).max(initial=0)) > limit:
             raise FrameError(f"I/Q beyond ±{limit} ({adc_bits}-bit taps)")
-        t4 = torch.zeros(1, 4, h, w)
+        t4 = torch.zeros(1, 4, h, w, dtype=torch.float32)
         t4[0, 0] = torch.from_numpy(iq[..., 0].astype(np.float32))  # c1 - c2 = I
         t4[0, 3] = torch.from_numpy(iq[..., 1].astype(np.float32))  # c4 - c3 = Q
     if mode in ("quad", "iq"):
@@ -450,6 +450,8 @@ class OPT8241:
         if mode not in FRAME_MODES:
             raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
                              f"{list(FRAME_MODES)}")
+        if int(width) < 1 or int(height) < 1 or (mode == "depth8" and int(width) % 8):
+            raise ValueError(f"OPT8241: bad frame size {width}x{height} for mode {mode!r}")
         self.dev, self.width, self.height = dev, int(width), int(height)
         self.rules, self.mode, self.adc_bits = rules, mode, int(adc_bits)
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
@@ -596,7 +598,7 @@ class OPT8241:
     def frame_size(self) -> int:
         return frame_bytes(self.width, self.height, self.mode)
 
-    def _read(self, timeout_s: float, what: str):
+    def _read(self, timeout_s: float):
         return self.dev.read(EP_FRAMES, self.frame_size + BULK_EXTRA,
                              max(1, int(timeout_s * 1000)))
 
@@ -613,7 +615,7 @@ class OPT8241:
 
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
         try:
-            raw = self._read(timeout, "bulk read")
+            raw = self._read(timeout)
         except usb.core.USBTimeoutError as exc:
             raise FrameTimeoutError(self.pattern_index, timeout) from exc
         except HardwareError:
@@ -637,7 +639,7 @@ class OPT8241:
         n, t0 = 0, time.monotonic()
         while time.monotonic() - t0 < 10.0:
             try:
-                self._read(timeout_s, "flush")
+                self._read(timeout_s)
             except usb.core.USBTimeoutError:
                 return n
             except Exception as exc:
