@@ -13,6 +13,7 @@ from torchtof.hardware import acquire, load_buckets, load_run
 from torchtof.hardware.errors import (
     DeviceLostError,
     FrameError,
+    FrameSequenceError,
     FrameTimeoutError,
     ProtocolError,
 )
@@ -25,11 +26,11 @@ CLEAN = ExperimentConfig(n=N, roi_px=16, srs=(SR,), shot=None, read_noise_e=0.0)
 NOISY = replace(CLEAN, shot="poisson", read_noise_e=12.0)
 
 
-def run(path, cfg=CLEAN, seed=0, faults=None, **kw):
+def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", **kw):
     bench = SimulatedBench(cfg, seed=seed, faults=Faults(**(faults or {})))
     kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3,
           "metadata": {"simulation": {"config": asdict(cfg), "seed": seed}}, **kw}
-    return acquire(path, bench.lightcrafter(), bench.camera(), **kw), bench
+    return acquire(path, bench.lightcrafter(), bench.camera(mode=mode), **kw), bench
 
 
 def pure(cfg, seed=0):
@@ -97,6 +98,7 @@ FAULTS = {
     "dropped": {"drop": {5}},
     "dropped_last_of_sequence": {"drop": {23}},
     "duplicated": {"duplicate": {4}},
+    "extra_frame": {"extra": {5}},
     "corrupt": {"corrupt": {6}},
     "nack": {"nack": {"PAT_EXPO_PRD": {1}}},
     "no_reply": {"reply_timeout": {"MBOX_DATA": {0}}},
@@ -118,9 +120,13 @@ def test_transient_fault_is_retried_to_the_same_buckets(fault, reference, tmp_pa
 
 
 @pytest.mark.parametrize("faults,error,match,first", [
-    ({"frame_timeout": set(range(3, 99))}, FrameTimeoutError, "pattern 3 within", 3),
-    ({"corrupt": set(range(3, 99))}, FrameError, "corrupt frame for pattern 3: CRC", 3),
+    # a sequence is recorded only once all its frames arrived: nothing of sequence 0 is kept
+    ({"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within", 0),
+    ({"corrupt": set(range(3, 99))}, FrameError, r"corrupt frame for pattern \d+: reserved bits",
+     0),
     # PAT_START_STOP #0, #1 are the first sequence's stop/start; the second sequence fails
+    ({"extra": set(range(99))}, FrameSequenceError,
+     "48 frame.s. in the sequence from pattern 0, expected 24", 0),  # one extra per frame
     ({"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
      "PAT_START_STOP: device answered NACK", 24),
 ])
@@ -137,13 +143,14 @@ def test_persistent_fault_gives_a_clear_error(faults, error, match, first, tmp_p
 def test_device_vanishing_then_resume(reference, tmp_path):
     path = tmp_path / "v.zarr"
     with pytest.raises(DeviceLostError, match="--resume"):
-        run(path, faults={"vanish_after_frames": 11})
+        run(path, faults={"vanish_after_frames": 27})
     g = zarr.open_group(str(path), mode="r")
-    assert g["frames_ok"][:].tolist() == [1] * 11 + [0] * 21  # vanished while frame 11 in flight
+    # vanished while frame 27 was in flight: the second sequence (24-31) is lost as a whole
+    assert g["frames_ok"][:].tolist() == [1] * 24 + [0] * 8
     with pytest.raises(FileExistsError, match="resume=True"):
         run(path)
     res, bench = run(path, resume=True)
-    assert bench.camera_usb.rendered == 22  # resumed at the pair boundary 10
+    assert bench.camera_usb.rendered == 8  # resumed at the pair boundary 24
     got = load_buckets(path)[0]
     for kind, ref in reference[2].items():
         assert torch.equal(got[kind], ref), kind
@@ -229,3 +236,29 @@ def test_ctrl_c_marks_the_store_interrupted_and_resume_completes_it(reference, t
     assert bench.camera_usb.rendered == 26  # from pair boundary 6
     for kind, ref in reference[2].items():
         assert torch.equal(load_buckets(path)[0][kind], ref), kind
+
+
+def test_iq_mode_run_equals_pure_simulation_except_the_taps(reference, tmp_path):
+    """Raw I/Q frames (SDK-documented layout) give the depth, gated and intensity buckets
+    bit for bit; the four taps are not in the stream, so the tap buckets stay NaN."""
+    path = tmp_path / "iq.zarr"
+    res, _ = run(path, mode="iq")
+    got = load_buckets(path)[0]
+    for kind in ("depth", "depth_gated", "intensity"):
+        assert torch.equal(got[kind], reference[2][kind]), kind
+    assert torch.isnan(got["taps"]).all()
+    assert zarr.open_group(str(path), mode="r").attrs["camera"]["mode"] == "iq"
+
+
+@pytest.mark.parametrize("mode", ["depth", "depth8"])
+def test_depth_mode_run_is_the_12_bit_rounding_of_the_pure_simulation(reference, mode,
+                                                                        tmp_path):
+    res, _ = run(tmp_path / "d.zarr", mode=mode)
+    got, ref = load_buckets(tmp_path / "d.zarr")[0], reference[2]
+    pixels = 16 * 16
+    # amplitude rounded to integers: each frame's intensity bucket within half an ADC unit/px
+    assert float((got["intensity"] - ref["intensity"]).abs().max()) <= 0.5 * pixels
+    # depth from the 12-bit phase: a pixel may land on the neighbouring 0.25 m step
+    assert float((got["depth"] - ref["depth"]).abs().max()) <= 0.25 * pixels
+    assert float((got["depth"] - ref["depth"]).abs().mean()) < 0.25
+    assert torch.isnan(got["taps"]).all() and res.retries == 0

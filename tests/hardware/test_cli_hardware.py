@@ -158,3 +158,32 @@ def test_busy_device(monkeypatch):
         dlpc350.LightCrafter4500.open()
     with pytest.raises(DeviceBusyError, match="OPT8241 ToF camera is busy"):
         opt8241.OPT8241.open()
+
+
+@pytest.mark.parametrize("fake", [None, "2.18.2"])
+def test_missing_or_old_zarr_names_the_requirement(fake, monkeypatch, tmp_path, capsys):
+    """zarr 3 needs Python >= 3.11; the package allows 3.10: a clear error, not a crash deep
+    in the v2 API."""
+    import types
+
+    from torchtof.hardware.acquisition import require_zarr3
+
+    if fake is None:
+        monkeypatch.setitem(sys.modules, "zarr", None)  # import zarr -> ImportError
+        first = "zarr is not installed"
+    else:
+        monkeypatch.setitem(sys.modules, "zarr", types.SimpleNamespace(__version__=fake))
+        first = f"zarr {fake} is installed"
+    with pytest.raises(ImportError, match=rf"{first}.*zarr>=3, which needs Python>=3.11"):
+        require_zarr3()
+    assert main([*ARGS, "-o", str(tmp_path / "z.zarr")]) == 1
+    assert main(["reconstruct", str(tmp_path / "z.zarr"), "--method", "cgi"]) == 1
+    err = capsys.readouterr().err
+    assert f"torchtof acquire: {first}" in err and f"torchtof reconstruct: {first}" in err
+    assert "pip install 'zarr>=3'" in err and not (tmp_path / "z.zarr").exists()
+
+
+def test_require_zarr3_passes_with_the_installed_zarr():
+    from torchtof.hardware.acquisition import require_zarr3
+
+    assert require_zarr3() is zarr and int(zarr.__version__.split(".")[0]) >= 3

@@ -245,9 +245,9 @@ def test_external_trigger_waits_for_trig_in():
     lcr.show_sequence(pats, exposure_us=1000, trigger="external")
     fake = bench.lightcrafter_usb
     assert [dlp.unpack_lut_entry(e)["trig"] for e in fake.pattern_lut] == [1, 1]
-    assert fake.shown == [] and cam.frame_counter() == 0  # nothing until a TRIG_IN edge
+    assert fake.shown == [] and bench.camera_usb.rendered == 0  # nothing until a TRIG_IN edge
     fake.trigger_in()
     fake.trigger_in()
     fake.trigger_in()  # past the end of the sequence: ignored
     np.testing.assert_array_equal(np.stack(fake.shown), pats)
-    assert cam.frame_counter() == 2
+    assert bench.camera_usb.rendered == 2 and len(bench.camera_usb._fifo) == 2

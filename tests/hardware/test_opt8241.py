@@ -1,7 +1,9 @@
-"""OPT8241: register requests (Voxel SDK table, domain-notes §5.3), frame packets, decoding
-to depth with the camera rules, and the driver on the fake camera."""
+"""OPT8241: register requests and named OPT9221 bit fields (Voxel SDK OPT9221.dml, written
+out by hand below), the PLL and integration-time conversions, decoding of hand-built frames
+in every documented layout, and the driver on the fake camera."""
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -11,7 +13,13 @@ from torchtof.experiment import ExperimentConfig
 from torchtof.hardware import opt8241 as opt
 from torchtof.hardware.errors import FrameError, FrameTimeoutError, ProtocolError
 from torchtof.hardware.simulated import SimulatedBench
-from torchtof.sensor import SPEED_OF_LIGHT, cw_tof_sensor, phasor_from_depth
+from torchtof.sensor import (
+    SPEED_OF_LIGHT,
+    cw_tof_sensor,
+    phasor_from_depth,
+    tap_amplitude,
+    tap_phase,
+)
 
 
 @pytest.mark.parametrize("address,write,expected", [
@@ -35,26 +43,233 @@ def test_register_request_bad_slave():
         opt.register_request(0x12345, True)
 
 
+class Recorder:
+    """A pyusb-like device that logs every control transfer and keeps 24-bit registers."""
+
+    def __init__(self, regs=None):
+        self.regs, self.log = dict(regs or {}), []
+
+    def ctrl_transfer(self, rtype, req, wvalue, windex, data, timeout=None):
+        slave = wvalue >> 8 if wvalue > 0xFF else wvalue
+        reg = windex >> 8 if wvalue > 0xFF else windex
+        address = slave << 8 | reg
+        if rtype == 0x40:
+            self.log.append((rtype, req, wvalue, windex, bytes(data)))
+            self.regs[address] = int.from_bytes(bytes(data), "little")
+            return len(data)
+        self.log.append((rtype, req, wvalue, windex, data))
+        return bytearray(self.regs.get(address, 0).to_bytes(data, "little"))
+
+
+# name, value, wValue (slave), wIndex (register), the 3 bytes written (register initially 0):
+# bank/address/lsb/msb from OPT9221.dml, bank 0 -> slave 0x58, bank 3 -> slave 0x5C
+FIELDS = [
+    ("mod_pll_update", 1, 0x58, 0x02, b"\x04\x00\x00"),  # reg 2 bit 2
+    ("mod_m_frac1", 0xABCD, 0x58, 0x0C, b"\xcd\xab\x00"),  # reg 12 bits 0-15
+    ("mod_m1", 15, 0x58, 0x0C, b"\x00\x00\x0f"),  # reg 12 bits 16-21
+    ("mod_n1", 2, 0x58, 0x0F, b"\x02\x00\x00"),  # reg 15 bits 0-1
+    ("mod_ps1", 2, 0x58, 0x0F, b"\x20\x00\x00"),  # reg 15 bits 4-6
+    ("tg_dis", 1, 0x58, 0x80, b"\x01\x00\x00"),  # reg 128 bit 0
+    ("slave_mode", 1, 0x58, 0x81, b"\x01\x00\x00"),  # reg 129 bit 0
+    ("pix_cnt_max", 100000, 0x58, 0x82, b"\xa0\x86\x01"),  # reg 130 bits 0-21
+    ("quad_cnt_max", 4, 0x58, 0x83, b"\x04\x00\x00"),  # reg 131 bits 0-3
+    ("sub_frame_cnt_max", 4, 0x58, 0x83, b"\x40\x00\x00"),  # reg 131 bits 4-7
+    ("output_mode", 15, 0x5C, 0x25, b"\x00\x0f\x00"),  # bank 3 reg 37 bits 8-11
+    ("op_data_arrange_mode", 2, 0x5C, 0x25, b"\x00\x00\x08"),  # bits 18-19
+    ("pixel_data_size", 8, 0x5C, 0x27, b"\x00\x40\x00"),  # bank 3 reg 39 bits 11-14
+    ("debug_frame_number_en", 1, 0x5C, 0x39, b"\x00\x10\x00"),  # bank 3 reg 57 bit 12
+    ("frm_header_en", 1, 0x5C, 0x3C, b"\x02\x00\x00"),  # bank 3 reg 60 bit 1
+    ("blk_header_en", 1, 0x5C, 0x3C, b"\x04\x00\x00"),  # bit 2
+    ("intg_duty_cycle", 63, 0x5C, 0x4C, b"\x3f\x00\x00"),  # bank 3 reg 76 bits 0-5
+]
+
+
+def test_every_named_register_has_a_byte_exact_test():
+    assert {f[0] for f in FIELDS} == set(opt.REGISTERS)
+
+
+@pytest.mark.parametrize("name,value,slave,reg,data", FIELDS)
+def test_named_register_requests_byte_exact(name, value, slave, reg, data):
+    dev = Recorder()
+    cam = opt.OPT8241(dev)
+    cam.write_field(name, value)
+    # read-modify-write: read the 3-byte register, write it back with the field set
+    assert dev.log == [(0xC0, 0x08, slave, reg, 3), (0x40, 0x09, slave, reg, data)]
+    assert cam.read_field(name) == value
+
+
+def test_write_field_keeps_the_other_bits_and_checks_the_width():
+    dev = Recorder({0x580F: 0xFFFFFF})
+    cam = opt.OPT8241(dev)
+    cam.write_field("mod_ps1", 2)
+    assert dev.regs[0x580F] == 0xFFFFAF  # bits 4-6 = 010, all others untouched
+    with pytest.raises(ValueError, match="mod_ps1=8 does not fit bits 4..6"):
+        cam.write_field("mod_ps1", 8)
+    with pytest.raises(TypeError, match="integer"):
+        cam.write_field("tg_dis", True)
+    with pytest.raises(ValueError, match="unknown register field"):
+        cam.read_field("stream_enable")
+
+
+def test_pll_settings_match_the_sdk_and_the_dml_defaults():
+    # 48 MHz (the SDK default) gives the DML reset values mod_m1=16, mod_n1=2, mod_ps1=1
+    assert opt.pll_settings(48e6) == {"mod_ps1": 1, "mod_n1": 2, "mod_m1": 16, "mod_m_frac1": 0}
+    assert opt.pll_frequency_hz(16, 0, 2, 1, 4) == 48e6
+    # 30 MHz: ps = floor(300/4/30) = 2, vco = 3*4*30 = 360 MHz, M = 360*2/48 = 15
+    assert opt.pll_settings(30e6) == {"mod_ps1": 2, "mod_n1": 2, "mod_m1": 15, "mod_m_frac1": 0}
+    # 20 MHz: ps = 3, vco = 320 MHz, M·= 13.333…: frac = floor(0.3333… · 65536) = 21845
+    s = opt.pll_settings(20e6)
+    assert s == {"mod_ps1": 3, "mod_n1": 2, "mod_m1": 13, "mod_m_frac1": 21845}
+    f = opt.pll_frequency_hz(s["mod_m1"], s["mod_m_frac1"], 2, 3, 4)
+    assert f == pytest.approx(48e6 * (13 + 21845 / 65536) / 32) and abs(f - 20e6) < 10.0
+    for bad in (9e6, 151e6, float("nan")):  # 37.5/4 … 600/4 MHz
+        with pytest.raises(ValueError, match="freq_hz"):
+            opt.pll_settings(bad)
+
+
+def test_set_modulation_frequency_request_sequence():
+    dev = Recorder({0x5883: 0x44})  # quad_cnt_max = 4, sub_frame_cnt_max = 4
+    cam = opt.OPT8241(dev)
+    assert cam.set_modulation_frequency(30e6) == 30e6
+    writes = [(w, d) for (t, _, _, w, d) in dev.log if t == 0x40]
+    assert writes == [
+        (0x02, b"\x04\x00\x00"),  # mod_pll_update = 1
+        (0x0C, b"\x00\x00\x0f"),  # mod_m1 = 15
+        (0x0F, b"\x02\x00\x00"),  # mod_n1 = 2
+        (0x0C, b"\x00\x00\x0f"),  # mod_m_frac1 = 0
+        (0x0F, b"\x22\x00\x00"),  # mod_ps1 = 2
+        (0x02, b"\x00\x00\x00"),  # mod_pll_update = 0
+    ]
+    assert cam.freq_hz == 30e6
+
+
+def test_integration_time_conversion():
+    dev = Recorder({0x5882: 100000, 0x5883: 0x44, 0x5C4C: 6})  # DML defaults
+    cam = opt.OPT8241(dev)
+    frame_us = 100000 * 4 * 4 / 48  # pix_cnt_max · quads · sub-frames / 48 MHz
+    assert cam.integration_time_us == pytest.approx(6 / 63 * frame_us)
+    got = cam.set_integration_time(1000)  # nearest duty: round(1000 / 33333.3 · 63) = 2
+    assert dev.regs[0x5C4C] == 2 and got == pytest.approx(2 / 63 * frame_us)
+    for bad in (-1, frame_us + 1, float("nan"), True):
+        with pytest.raises(ValueError, match="integration time"):
+            cam.set_integration_time(bad)
+
+
+# -- frame decoding on hand-built bytes ------------------------------------------------------
+WIDE = opt.CameraRules(min_m=0.0, max_m=100.0, step_m=None)
+
+
+def test_decode_depth_continuous():
+    # pixel 0: amplitude 0x123, ambient 4, phase 0x800 (π), flags 1; pixel 1: all zero
+    raw = bytes([0x23, 0x41, 0x00, 0x18, 0, 0, 0, 0])
+    fr = opt.decode_frame(raw, 2, 1, 30e6, "depth", WIDE, frame_id=5, timestamp=1.5)
+    assert fr.amplitude.tolist() == [[0x123, 0]]
+    assert fr.ambient.tolist() == [[4, 0]] and fr.flags.tolist() == [[1, 0]]
+    assert fr.phase[0, 0].item() == pytest.approx(math.pi)
+    # θ = π at 30 MHz: c / (4 f) (Eq. 1)
+    assert fr.depth[0, 0].item() == pytest.approx(SPEED_OF_LIGHT / (4 * 30e6), rel=1e-6)
+    assert (fr.frame_id, fr.timestamp, fr.taps) == (5, 1.5, None)
+
+
+def test_decode_depth_rearranged_in_chunks_of_8():
+    amp = [0x100 + k for k in range(8)]
+    phase = [0x200 * k | (k % 4) << 12 for k in range(8)]  # flags k % 4
+    raw = struct.pack("<16H", *amp, *phase)  # 8 amplitude words, then 8 phase words
+    fr = opt.decode_frame(raw, 8, 1, 30e6, "depth8", WIDE)
+    assert fr.amplitude[0].tolist() == amp
+    assert fr.flags[0].tolist() == [k % 4 for k in range(8)]
+    np.testing.assert_allclose(fr.phase[0].numpy(), [2 * math.pi * 0x200 * k / 4096
+                                                     for k in range(8)], rtol=1e-6)
+    assert opt.pack_depth(np.array([[0x200 * k for k in range(8)]]), np.array([amp]),
+                          flags=np.array([[k % 4 for k in range(8)]]), arrange=2) == raw
+    with pytest.raises(ValueError, match="divisible by 8"):
+        opt.decode_frame(bytes(24), 6, 1, 30e6, "depth8")
+
+
+def test_decode_depth2():
+    fr = opt.decode_frame(struct.pack("<H", 0xA800), 1, 1, 30e6, "depth2", WIDE)
+    assert fr.amplitude.item() == 0xA00 and fr.phase.item() == pytest.approx(math.pi)
+
+
+def test_decode_iq_and_quad_follow_eqs_7_and_8():
+    raw = struct.pack("<hh", 3, -4)  # I = 3, Q = -4
+    fr = opt.decode_frame(raw, 1, 1, 30e6, "iq", WIDE)
+    assert fr.amplitude.item() == 2.5  # |3 - 4j| / 2 (Eq. 8)
+    assert fr.phase.item() == pytest.approx(math.atan2(-4, 3) + 2 * math.pi)
+    taps = [700, 400, 100, 900]  # c1..c4 (Fig. 1 order)
+    fr = opt.decode_frame(struct.pack("<4H", *taps), 1, 1, 30e6, "quad", WIDE)
+    t = torch.tensor(taps, dtype=torch.float32).view(1, 4, 1, 1)
+    assert fr.taps.view(-1).tolist() == taps
+    assert torch.equal(fr.phase, tap_phase(t)[0, 0]) and torch.equal(fr.amplitude,
+                                                                     tap_amplitude(t)[0, 0])
+
+
+@pytest.mark.parametrize("mode,raw,match", [
+    ("depth", bytes(7), "7 bytes, a 2x1 'depth' frame has 8"),
+    ("quad", bytes(17), "17 bytes"),
+    ("quad", struct.pack("<4H", 0, 0x1000, 0, 0), "reserved bits"),  # bit 12 of a 12-bit quad
+    ("iq", struct.pack("<hh", 4096, 0), "I/Q beyond"),
+])
+def test_corrupt_frames_raise(mode, raw, match):
+    w = 2 if mode == "depth" else 1
+    with pytest.raises(FrameError, match=match):
+        opt.decode_frame(raw, w, 1, 30e6, mode)
+
+
+def test_encode_frame_and_pack_reject_bad_input():
+    with pytest.raises(ValueError, match="taps"):
+        opt.encode_frame("quad", np.ones((3, 2, 2)))
+    with pytest.raises(ValueError, match="unknown mode"):
+        opt.encode_frame("tof", np.ones((4, 2, 2), dtype=np.int64))
+    with pytest.raises(ValueError, match="phase12"):
+        opt.pack_depth(np.full((1, 2), 4096), np.zeros((1, 2)))
+
+
+def _sensor_frame():
+    g = torch.Generator().manual_seed(0)
+    depth = 1.0 + 3.0 * torch.rand(1, 1, 6, 8, generator=g)
+    kw = dict(freq_hz=30e6, ambient_e=300.0, shot="poisson", read_noise_e=3.0, adc_bits=12,
+              gain_e_per_dn=1.0, min_m=1.0, max_m=5.0, amp_threshold=20.0, step_m=0.25)
+    return cw_tof_sensor(phasor_from_depth(800.0, depth, 30e6), generator=g, **kw)
+
+
+@pytest.mark.parametrize("mode", ["quad", "iq"])
+def test_quad_and_iq_frames_equal_the_sensor_model_bit_for_bit(mode):
+    fr = _sensor_frame()
+    raw = opt.encode_frame(mode, fr.taps[0].numpy().astype(np.int64))
+    out = opt.decode_frame(raw, 8, 6, 30e6, mode, opt.CameraRules(1.0, 5.0, 0.25, 20.0, 5.0))
+    assert torch.equal(out.depth, fr.depth[0, 0])
+    assert torch.equal(out.amplitude, fr.amplitude[0, 0])
+    assert torch.equal(out.phase, fr.phase[0, 0])
+    assert (out.taps is not None) == (mode == "quad")
+
+
+@pytest.mark.parametrize("mode", ["depth", "depth8"])
+def test_depth_frames_agree_to_the_12_bit_quantum(mode):
+    fr = _sensor_frame()
+    raw = opt.encode_frame(mode, fr.taps[0].numpy().astype(np.int64))
+    out = opt.decode_frame(raw, 8, 6, 30e6, mode, WIDE)
+    dphi = (out.phase - fr.phase[0, 0]).abs()
+    assert float(torch.minimum(dphi, 2 * math.pi - dphi).max()) <= math.pi / 4096 + 1e-6
+    assert float((out.amplitude - fr.amplitude[0, 0]).abs().max()) <= 0.5
+
+
+# -- the driver on the fake camera ------------------------------------------------------------
 def _camera(**kw):
-    cfg = ExperimentConfig(n=8, roi_px=8, srs=(0.25,), **kw)
+    cfg = ExperimentConfig(n=8, roi_px=8, srs=(0.25,))
     bench = SimulatedBench(cfg)
-    return bench, bench.camera()
+    return bench, bench.camera(**kw)
 
 
-def test_register_round_trip_on_fake():
+def test_fake_camera_registers_through_the_driver():
     bench, cam = _camera()
-    cam.set_modulation_frequency(48e6)
-    assert cam.freq_hz == 48e6 and bench.camera_usb.regs[0x5881] == 48000
-    cam.set_integration_time(700)
-    assert cam.integration_time_us == 700
+    assert cam.freq_hz == 30e6  # the fake's PLL is set for the configuration
+    assert cam.set_modulation_frequency(48e6) == 48e6
+    assert bench.camera_usb.regs[0x580C] == 16 << 16 and bench.camera_usb.freq_hz == 48e6
     cam.write_register(0x2D10, 0xAB)  # a 1-byte slave, shifted request fields
     assert cam.read_register(0x2D10) == 0xAB
     with pytest.raises(ValueError, match="does not fit"):
         cam.write_register(0x2D10, 256)
-    with pytest.raises(ValueError, match="freq_hz"):
-        cam.set_modulation_frequency(5e6)
-    with pytest.raises(ValueError, match="unknown register"):
-        cam.read_register("nope")
 
 
 def test_fake_camera_stalls_on_malformed_requests():
@@ -70,73 +285,6 @@ def test_fake_camera_stalls_on_malformed_requests():
         dev.ctrl_transfer(0xC0, 0x08, 0x11, 0x00, 3)  # unknown slave
 
 
-def test_frame_packet_round_trip_phase_path():
-    rng = np.random.default_rng(0)
-    p12 = rng.integers(0, 4096, size=(3, 5))
-    phase = p12 * (2 * math.pi / 4096)
-    amp = rng.integers(0, 4096, size=(3, 5)).astype(float)
-    raw = opt.encode_frame(phase, amp, frame_id=77, timestamp_us=1500, ambient=np.full((3, 5), 3),
-                           flags=np.eye(3, 5, dtype=np.uint32))
-    assert len(raw) == opt.HEADER.size + 4 * 15
-    word = int.from_bytes(raw[32:36], "little")  # pixel (0, 0): phase | amp << 12 | ...
-    assert word == int(p12[0, 0]) | int(amp[0, 0]) << 12 | 3 << 24 | 1 << 28
-    f = 30e6
-    rules = opt.CameraRules(min_m=0.0, max_m=10.0, step_m=None)
-    fr = opt.decode_frame(raw, f, rules)
-    assert fr.frame_id == 77 and fr.timestamp == pytest.approx(1.5e-3) and fr.taps is None
-    np.testing.assert_array_equal(fr.amplitude.numpy(), amp.astype(np.float32))
-    # depth_m = phase12 · c / (2 f 4096) (domain-notes §5.3)
-    np.testing.assert_allclose(fr.depth.numpy(), p12 * SPEED_OF_LIGHT / (2 * f * 4096),
-                               rtol=1e-6)
-    assert fr.ambient.unique().tolist() == [3] and fr.flags.sum() == 3
-
-
-def test_decode_applies_camera_rules():
-    phase = np.array([[0.0, math.pi, 1.0]])
-    amp = np.array([[100.0, 100.0, 2.0]])
-    rules = opt.CameraRules(min_m=1.0, max_m=5.0, step_m=0.25, amp_threshold=5.0, no_photon_m=5.0)
-    fr = opt.decode_frame(opt.encode_frame(phase, amp, 0, 0), 30e6, rules)
-    # 0 m -> clipped to 1; π -> 2.498 m -> 2.5 on the 0.25 m grid; dark pixel -> 5
-    assert fr.depth.tolist() == [[1.0, 2.5, 5.0]]
-
-
-def test_taps_path_equals_the_sensor_model_bit_for_bit():
-    g = torch.Generator().manual_seed(0)
-    depth = 1.0 + 3.0 * torch.rand(1, 1, 6, 7, generator=g)
-    kw = dict(freq_hz=30e6, ambient_e=300.0, shot="poisson", read_noise_e=3.0, adc_bits=12,
-              gain_e_per_dn=1.0, min_m=1.0, max_m=5.0, amp_threshold=20.0, step_m=0.25)
-    fr = cw_tof_sensor(phasor_from_depth(800.0, depth, 30e6), generator=g, **kw)
-    raw = opt.encode_frame(fr.phase[0, 0].numpy(), fr.amplitude[0, 0].numpy(), 3, 0,
-                           taps=fr.taps[0].numpy().astype(np.uint16))
-    rules = opt.CameraRules(1.0, 5.0, 0.25, 20.0, 5.0)
-    out = opt.decode_frame(raw, 30e6, rules)
-    assert torch.equal(out.taps, fr.taps[0])
-    assert torch.equal(out.depth, fr.depth[0, 0])
-    assert torch.equal(out.amplitude, fr.amplitude[0, 0])
-    assert torch.equal(out.phase, fr.phase[0, 0])
-    # the 12-bit phase path agrees to the phase quantum (2π/4096)
-    coarse = opt.decode_frame(raw, 30e6, opt.CameraRules(0.0, 10.0, None), use_taps=False)
-    dphi = (coarse.phase - fr.phase[0, 0]).abs()
-    assert float(torch.minimum(dphi, 2 * math.pi - dphi).max()) <= math.pi / 4096 + 1e-6
-
-
-@pytest.mark.parametrize("mutate,match", [
-    (lambda b: b[:20], "shorter than"),
-    (lambda b: b"XXXX" + b[4:], "magic"),
-    (lambda b: b[:-1], "payload of"),
-    (lambda b: b[:40] + bytes([b[40] ^ 1]) + b[41:], "CRC-32"),
-])
-def test_corrupt_packets_raise(mutate, match):
-    raw = opt.encode_frame(np.zeros((2, 3)), np.ones((2, 3)), 0, 0, taps=np.ones((4, 2, 3)))
-    with pytest.raises(FrameError, match=match):
-        opt.decode_frame(mutate(raw), 30e6)
-
-
-def test_encode_frame_rejects_bad_taps():
-    with pytest.raises(ValueError, match="taps"):
-        opt.encode_frame(np.zeros((2, 3)), np.ones((2, 3)), 0, 0, taps=np.ones((4, 3, 2)))
-
-
 def test_grab_timeout_names_the_pattern():
     _, cam = _camera()
     cam.start()
@@ -146,19 +294,42 @@ def test_grab_timeout_names_the_pattern():
     assert cam.flush(0.001) == 0
 
 
-def test_camera_renders_only_while_streaming_and_counts_frames():
-    bench, cam = _camera()
+@pytest.mark.parametrize("mode", list(opt.FRAME_MODES))
+def test_fake_camera_streams_the_mode_the_registers_select(mode):
+    bench, cam = _camera(mode=mode)
     pat = np.ones((8, 8), dtype=np.uint8)
-    bench.camera_usb.trigger(pat)  # not streaming: ignored
-    assert cam.frame_counter() == 0
+    bench.camera_usb.trigger(pat)  # tg_dis = 1: not streaming, ignored
+    assert bench.camera_usb.rendered == 0
     cam.start()
+    assert bench.camera_usb.mode == mode and bench.camera_usb.field("blk_header_en") == 0
+    assert bench.camera_usb.field("slave_mode") == 1
+    bench.lightcrafter_usb.state["period_us"] = 1000
     bench.camera_usb.trigger(pat)
     bench.camera_usb.trigger(pat)
-    assert cam.frame_counter() == 2
+    raw = bytes(bench.camera_usb._fifo[0][1])
+    assert len(raw) == 8 * 8 * opt.FRAME_MODES[mode][1]  # no header: W·H·bytes per pixel
     a, b = cam.grab(0.1), cam.grab(0.1)
-    assert (a.frame_id, b.frame_id) == (0, 1) and a.depth.shape == (8, 8)
-    assert a.taps.shape == (4, 8, 8)
-    bench.camera_usb._fifo.append((9, bytes(10_000)))  # larger than a frame: USB overflow
+    assert (a.frame_id, b.frame_id) == (0, 1) and cam.frame_counter() == 2  # host-side ids
+    assert (a.timestamp, b.timestamp) == (0.0, 1e-3)  # the simulated host clock
+    assert a.depth.shape == (8, 8) and (a.taps is not None) == (mode == "quad")
+    cam.stop()
+    assert bench.camera_usb.field("tg_dis") == 1
+
+
+def test_oversized_transfer_is_a_usb_error():
+    bench, cam = _camera()
+    cam.start()
+    bench.camera_usb._fifo.append((9, bytes(10_000)))  # larger than frame + 255: overflow
     with pytest.raises(ProtocolError, match="bulk read: USB error.*Overflow"):
         cam.grab(0.1)
-    cam.stop()
+    bench.camera_usb._fifo.append((9, bytes(100)))  # a short transfer: not a frame
+    with pytest.raises(FrameError, match="100 bytes, a 8x8 'quad' frame has 512"):
+        cam.grab(0.1)
+    assert cam.frame_counter() == 0  # neither was numbered
+
+
+def test_driver_rejects_bad_modes_and_sizes():
+    with pytest.raises(ValueError, match="unknown mode 'tof'"):
+        opt.OPT8241(Recorder(), mode="tof")
+    with pytest.raises(ValueError, match="bad frame size 12x8 for mode 'depth8'"):
+        opt.OPT8241(Recorder(), width=12, height=8, mode="depth8")

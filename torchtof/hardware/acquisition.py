@@ -3,19 +3,28 @@
 For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2`` (DESIGN
 §2, :class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns
 are loaded in sequences of at most 24 (one 24-bit video frame of bit planes); the DMD paces
-the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern. Each frame's id
-must follow the camera's frame counter: a gap (dropped frame) or a timeout, NACK or corrupt
-frame re-acquires from the failing pattern (``retries`` times, then a clear error); a
-duplicate (id already seen) is discarded. Buckets per frame (paper Eq. 10, §3.1, DESIGN §2):
-depth ``Σ d``, gated depth ``Σ gate(d)``, intensity ``Σ a`` and the four tap sums.
+the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern.
+
+**Frame bookkeeping.** The OPT8241's frames carry no id or counter (:mod:`.opt8241`): the
+host numbers them as they arrive, as TI's SDK does. A frame lost inside the camera or on the
+way therefore cannot be recognised by its id, only by the *count*: the frames of a sequence
+are held in memory until all of them (one per pattern) have arrived and no extra frame follows
+within 50 ms; only then are they recorded. A missing frame (the sequence's last grab times
+out), an extra frame, a timeout, NACK or corrupt frame re-acquires the whole sequence
+(``retries`` times, then a clear error); a frame byte-identical to the one before it (a
+duplicated transfer) is discarded. What this cannot see: a lost frame *and* an extra frame in
+the same sequence (they cancel), and a repeated frame that is not byte-identical. Buckets per
+frame (paper Eq. 10, §3.1, DESIGN §2): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
+``Σ a`` and the four tap sums (NaN unless the camera sends raw quads).
 
 **Recording** (zarr v3, :func:`acquire`): every frame and its buckets are written as they
 arrive (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``, ``frames_taps``,
 ``frames_id``, ``frames_timestamp``, ``buckets_depth``, ``buckets_gated``,
 ``buckets_intensity``, ``buckets_taps`` — frame axis last for buckets ``(1, C, 2M)``, first
-for frames, chunked per pattern sequence) and then marked done in ``frames_ok``. zarr's
-local store replaces each chunk file atomically, so a killed run loses at most the frame in
-flight; ``resume=True`` continues after the last complete pattern pair. Patterns, order,
+for frames, chunked per pattern sequence) and then marked done in ``frames_ok``, once its
+sequence is complete. zarr's local store replaces each chunk file atomically, so a killed run
+loses at most the sequence in flight (≤ 24 frames); ``resume=True`` continues after the last
+complete pattern pair. Needs zarr ≥ 3 (Python ≥ 3.11): :func:`require_zarr3`. Patterns, order,
 timing, camera settings and package versions are store attributes.
 """
 
@@ -31,9 +40,16 @@ import torch
 
 from ..bucket import PAPER_GATE_M, depth_bucket, intensity_bucket, tap_buckets
 from ..operators import DMDSplit, Hadamard
-from .errors import DeviceLostError, FrameSequenceError, HardwareError, TransientError
+from .errors import (
+    DeviceLostError,
+    FrameSequenceError,
+    FrameTimeoutError,
+    HardwareError,
+    TransientError,
+)
 
-__all__ = ["AcquisitionResult", "acquire", "load_buckets", "load_run", "MAX_SEQUENCE"]
+__all__ = ["AcquisitionResult", "acquire", "load_buckets", "load_run", "require_zarr3",
+           "MAX_SEQUENCE"]
 
 MAX_SEQUENCE = 24  # 1-bit patterns per 24-bit video frame (DLPC350 video-port bit planes)
 _KINDS = ("depth", "gated", "intensity", "taps")
@@ -80,20 +96,47 @@ def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor
 
 def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
     d = frame.depth[None, None]  # (1, 1, H, W): one frame on the frame axis
-    taps = frame.taps
-    if taps is None:  # a camera without raw taps: NaN tap buckets, never made-up numbers
-        taps = torch.full((4, *frame.depth.shape), float("nan"))
+    if frame.taps is None:  # a frame without raw taps: NaN tap buckets, never made-up numbers
+        taps = torch.full((1, 4, 1), float("nan"))
+    else:
+        taps = tap_buckets(frame.taps[None, None])  # DESIGN §2 per-tap buckets
     return {
         "depth": depth_bucket(d),  # Eq. 10
         "gated": depth_bucket(d, gate_m=gate_m),  # §3.1 "low-pass filter"
         "intensity": intensity_bucket(frame.amplitude[None, None]),  # S_i of Eq. 9
-        "taps": tap_buckets(taps[None, None]),  # DESIGN §2 per-tap buckets
+        "taps": taps,
     }
+
+
+def require_zarr3():
+    """The ``zarr`` module, version 3 or later (the recorder uses the v3 API).
+
+    Raises:
+        ImportError: zarr is missing or older than 3, naming the requirement (zarr 3 needs
+            Python ≥ 3.11).
+    """
+    import sys
+
+    hint = ("torchtof acquire/reconstruct record runs with zarr>=3, which needs Python>=3.11 "
+            f"(this is Python {sys.version_info.major}.{sys.version_info.minor}): "
+            "pip install 'zarr>=3'")
+    try:
+        import zarr
+    except ImportError as exc:
+        raise ImportError(f"zarr is not installed; {hint}") from exc
+    version = str(getattr(zarr, "__version__", "0"))
+    try:
+        major = int(version.split(".")[0])
+    except ValueError:
+        major = 0
+    if major < 3:
+        raise ImportError(f"zarr {version} is installed; {hint}")
+    return zarr
 
 
 def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, int], chunk: int,
                 resume: bool):
-    import zarr
+    zarr = require_zarr3()
 
     path = Path(path)
     f = patterns.shape[0]
@@ -213,7 +256,7 @@ def acquire(
                 "source": "video", "bitplanes_per_frame": MAX_SEQUENCE},
         "camera": {"freq_hz": camera.freq_hz, "integration_time_us": camera.integration_time_us,
                    "width": w, "height": h, "rules": vars(camera.rules).copy(),
-                   "use_taps": camera.use_taps},
+                   "mode": getattr(camera, "mode", None)},
         "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         **(metadata or {}),
     }
@@ -283,26 +326,37 @@ def acquire(
 
 def _acquire_sequence(lcr, camera, pats, s0, s1, exposure_us, period_us, retries, timeout_s,
                       commit, stats) -> None:
-    """Frames ``s0 … s1−1``: load, start, grab and commit; re-acquire from the failing
-    pattern on a transient fault."""
-    pos, attempt = s0, 0
-    while pos < s1:
+    """Frames ``s0 … s1−1``: load, start, grab all, check the count (module docstring), then
+    commit; re-acquire the sequence on a transient fault."""
+    attempt = 0
+    while True:
         try:
-            expected = camera.frame_counter()
-            camera.pattern_index = pos
-            lcr.show_sequence(pats[pos:s1], exposure_us, period_us, trigger="internal")
-            while pos < s1:
-                camera.pattern_index = pos
+            camera.pattern_index = s0
+            lcr.show_sequence(pats[s0:s1], exposure_us, period_us, trigger="internal")
+            frames: list = []
+            while len(frames) < s1 - s0:
+                camera.pattern_index = s0 + len(frames)
                 frame = camera.grab(timeout_s)
-                delta = (frame.frame_id - expected) % (1 << 24)
-                if delta >= 1 << 23:  # an id already seen: a duplicated frame
+                if frames and _same_bytes(frame, frames[-1]):  # a duplicated transfer
                     stats["duplicates"] += 1
                     continue
-                if delta:
-                    raise FrameSequenceError(expected, frame.frame_id, pos)
-                commit(pos, frame)
-                expected += 1
-                pos += 1
+                frames.append(frame)
+            extra = 0
+            camera.pattern_index = None
+            while True:  # no frame may follow the sequence's last pattern
+                try:
+                    frame = camera.grab(min(timeout_s, 0.05))
+                except FrameTimeoutError:
+                    break
+                if _same_bytes(frame, frames[-1]):
+                    stats["duplicates"] += 1
+                else:
+                    extra += 1
+            if extra:
+                raise FrameSequenceError(s1 - s0, s1 - s0 + extra, s0)
+            for k, frame in enumerate(frames):
+                commit(s0 + k, frame)
+            return
         except DeviceLostError:
             raise
         except TransientError:
@@ -317,6 +371,11 @@ def _acquire_sequence(lcr, camera, pats, s0, s1, exposure_us, period_us, retries
             camera.flush()
 
 
+def _same_bytes(a, b) -> bool:
+    ra, rb = getattr(a, "raw", None), getattr(b, "raw", None)
+    return ra is not None and ra == rb
+
+
 def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Recorded interleaved buckets ``{"depth", "depth_gated", "intensity", "taps"}`` (each
     ``(1, C, 2·m_acquired)``) and the store attributes.
@@ -324,7 +383,7 @@ def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     Raises:
         ValueError: not a torchtof acquisition, or no complete pattern pair recorded.
     """
-    import zarr
+    zarr = require_zarr3()
 
     group = zarr.open_group(str(path), mode="r")
     attrs = dict(group.attrs)

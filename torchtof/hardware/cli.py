@@ -26,9 +26,23 @@ def _sim_config(args: argparse.Namespace):
     return ExperimentConfig(**kw).validate()
 
 
+def _zarr_ok(cmd: str) -> bool:
+    from .acquisition import require_zarr3
+
+    try:
+        require_zarr3()
+    except ImportError as exc:
+        print(f"torchtof {cmd}: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def cmd_acquire(args: argparse.Namespace) -> int:
     from .acquisition import acquire
     from .errors import HardwareError
+
+    if not _zarr_ok("acquire"):
+        return 1
 
     metadata = {}
     try:
@@ -75,6 +89,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     from ..methods import _scores, build_method
     from .acquisition import load_run
 
+    if not _zarr_ok("reconstruct"):
+        return 1
     data = load_run(args.store)
     name = _method_name(args.method)
     sr = data.config.srs[0]

@@ -104,7 +104,7 @@ class FrameTimeoutError(TransientError):
 
 
 class FrameError(TransientError):
-    """A frame whose bytes do not decode (wrong size, bad magic, checksum mismatch)."""
+    """A frame whose bytes do not decode (wrong size, reserved bits set, values out of range)."""
 
     def __init__(self, detail: str, pattern_index: int | None = None) -> None:
         self.pattern_index = pattern_index
@@ -113,12 +113,12 @@ class FrameError(TransientError):
 
 
 class FrameSequenceError(TransientError):
-    """A frame id out of sequence: a dropped frame (gap) the acquisition must re-acquire."""
+    """Frames out of sequence: more frames than patterns in a sequence (the OPT8241 frames
+    carry no id, so a lost frame shows as a missing one — a timeout — and an extra frame as
+    this error); the acquisition re-acquires the sequence."""
 
     def __init__(self, expected: int, got: int, pattern_index: int | None = None) -> None:
         self.expected, self.got, self.pattern_index = expected, got, pattern_index
-        where = f" at pattern {pattern_index}" if pattern_index is not None else ""
-        super().__init__(
-            f"frame id {got} out of sequence{where}: expected {expected} "
-            f"({got - expected} frame(s) dropped)"
-        )
+        where = f" in the sequence from pattern {pattern_index}" if pattern_index is not None \
+            else ""
+        super().__init__(f"{got} frame(s){where}, expected {expected}")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -18,11 +18,12 @@ class Frame:
         phase: ``(H, W)`` phase in radians, ``[0, 2π)`` (paper Eq. 7).
         amplitude: ``(H, W)`` amplitude in ADC numbers (Eq. 8).
         depth: ``(H, W)`` depth in metres after the camera rules (Eq. 1, paper §2.2).
-        timestamp: seconds (camera clock).
-        frame_id: the camera's frame counter.
+        timestamp: seconds (OPT8241: host clock when the transfer completed, as the SDK).
+        frame_id: the frame's number (OPT8241: counted on the host, the frames carry none).
         taps: optional raw correlation taps ``(4, H, W)`` in the Fig. 1 order (ADC numbers).
         ambient: optional 4-bit ambient code per pixel ``(H, W)``.
-        flags: optional 4-bit flags per pixel ``(H, W)`` (bit 0: a tap saturated).
+        flags: optional 4-bit flags per pixel ``(H, W)`` (meaning not documented by TI).
+        raw: the bytes the frame was decoded from (duplicate detection), if any.
     """
 
     phase: torch.Tensor
@@ -33,6 +34,7 @@ class Frame:
     taps: torch.Tensor | None = None
     ambient: torch.Tensor | None = None
     flags: torch.Tensor | None = None
+    raw: bytes | None = field(default=None, repr=False, compare=False)
 
 
 @runtime_checkable

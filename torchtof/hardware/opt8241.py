@@ -1,40 +1,94 @@
-"""TI OPT8241 ToF camera (OPT8241-CDK-EVM, "TintinCDK") over USB: registers and frames.
+"""TI OPT8241 ToF camera (OPT8241-CDK-EVM, "TintinCDK", OPT9221 controller) over USB.
 
-From the Voxel SDK (BSD) facts in ``domain-notes.md`` §5.3: USB VID 0x0451, PID 0x9105 is
-the custom bulk device; frames arrive on bulk IN endpoint 0x82; registers are read and
-written with vendor device control transfers. A 16-bit register address is
-``slave << 8 | reg``; the request carries ``wValue = slave << shift`` and
-``wIndex = reg << shift`` with per-slave request codes (read, write, shift, bytes):
+Everything below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — facts only, no
+code — and **none of it was verified against a physical camera here**. File names refer to
+that repository.
+
+**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, ``TI3DToF/VoxelUSBProgrammer.cpp``,
+domain-notes §5.3): VID 0x0451, PID 0x9105 is the custom bulk device; registers are read and
+written with vendor device control transfers, ``wValue = slave << shift``,
+``wIndex = reg << shift``, the register value little endian in ``nbytes`` bytes:
 
 ====================  ============  ===========  =====  ======
 slave                 read request  write req.   shift  bytes
 ====================  ============  ===========  =====  ======
-0x58, 0x5C (ToF)      0x08          0x09         0      3
+0x58, 0x5C (OPT9221)  0x08          0x09         0      3
 0x4B, 0x4E            0x0A          0x0B         0      2
 0x2D, 0x52, 0x54      0x04          0x03         8      1
 ====================  ============  ===========  =====  ======
 
-Per pixel the OPT9221 outputs 12-bit phase + 12-bit amplitude + 4-bit ambient + 4-bit flags
-(Voxel ``ToFFrameGenerator``); depth = ``phase12 · c / (2f · 4096)`` (Eq. 1 with
-``θ = 2π·phase12/4096``), then the camera rules of paper §2.2
-(:func:`torchtof.sensor.camera_rules`).
+**Register map** (``TI3DToF/OPT9221.dml``; bank 0 "TG" → slave 0x58, bank 3 "DE" → slave
+0x5C, address = ``slave << 8 | register`` as ``ToFTintinCamera.cpp`` remaps them). The
+OPT9221 registers are 24 bits wide; a named parameter is a bit field of one register
+(:data:`REGISTERS`), written by read-modify-write.
 
-**Not from TI documentation (to check on a device):** the register addresses in
-:data:`REGISTERS` (modulation frequency, integration time, streaming enable) and their
-units, the byte order of register values (little endian here), and the frame packet
-header (:data:`HEADER`): the notes give only the per-pixel word. torchtof's frame packet is
-a 32-byte header (magic ``b"TTOF"``, version, flags, frame id, timestamp, size, payload
-length, CRC-32 of the payload) + one little-endian u32 per pixel
-(``phase12 | amp12 << 12 | ambient4 << 24 | flags4 << 28``) + optionally the raw taps
-as u16 ``(4, H, W)`` (Fig. 1 order). The simulator speaks exactly this format.
+* Modulation frequency (DML description of ``mod_m1``/``mod_n1``/``mod_ps1``, system clock
+  48 MHz from ``ToFTintinCamera::_getSystemClockFrequency``)::
+
+      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1      (300 MHz < f_vco < 600 MHz)
+      f_mod = f_vco / ((1 + mod_ps1) · quad_cnt_max)
+
+  :meth:`OPT8241.set_modulation_frequency` programs it as ``TintinModulationFrequencyParameter``
+  and ``TintinVCOFrequency`` do (``ToFTintinCamera.cpp``): ``mod_ps1 = ⌊300 / quad_cnt_max /
+  f_MHz⌋``, ``f_vco = (mod_ps1 + 1) · quad_cnt_max · f``, ``mod_n1 = 2``, ``mod_m1`` and
+  ``mod_m_frac1`` the integer and 16-bit fractional parts of ``f_vco · 2 / 48``, the writes
+  framed by ``mod_pll_update`` = 1 … 0 (DML: "set this register to 1 and then back to 0 to
+  update the PLL frequency"); limits 37.5/quad … 600/quad MHz. The SDK computes in float32,
+  torchtof in float64: ``mod_m_frac1`` may differ in its last bit.
+* Integration time: ``intg_duty_cycle`` (6 bits), DML: "integration time = intg_duty_cycle ·
+  100/63" percent of the cycle; ``ToFCamera.cpp`` exposes it as "percentage of total cycle
+  time". The frame time is ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` system clock
+  cycles (DML description of ``pix_cnt_max``). **torchtof's own derivation** (no SDK formula
+  in µs): ``t_int[µs] = intg_duty_cycle / 63 · pix_cnt_max · quad_cnt_max · sub_frame_cnt_max
+  / 48``.
+* Streaming: ``tg_dis`` (``0x5880`` bit 0). The SDK writes ``tg_dis = 1`` while configuring
+  and ``0`` to run (``ToFTintinCamera::_init`` / ``_initStartParams``); the DML description of
+  that bit reads the other way round ("'0': TFC stops all processing") — unresolved here;
+  torchtof follows the SDK code. ``slave_mode`` (``0x5881`` bit 0, DML: "waits for external
+  sync through VD_IN pin for the start of frames") gives one frame per DMD trigger; that the
+  CDK board routes a trigger input to VD_IN is **not confirmed**.
+* There is **no frame-counter register** in the DML. ``debug_frame_number_en`` (``0x5C39``
+  bit 12, DML: "Debug. Replaces first byte of each frame with the current frame number") is
+  listed in :data:`REGISTERS` but not used: it would overwrite pixel (0, 0).
+
+**Frames** (``Voxel/USBBulkStreamer.cpp``, ``TI3DToF/ToFFrameGenerator.cpp``,
+``TintinCDKCamera::_setStreamerFrameSize``): one bulk IN transfer on endpoint 0x82 is one
+frame of exactly ``width · height · bytes_per_pixel`` bytes — no header, no frame id, no
+timestamp, no checksum (the SDK asks for 255 extra bytes and drops any transfer of another
+size; the bulk device runs with ``blk_header_en = 0``). The SDK numbers frames on the host
+(``_currentID++`` per complete transfer) and time-stamps them with the host clock in µs;
+:class:`OPT8241` does the same, so a frame lost inside the camera cannot be seen from its id
+(:mod:`~torchtof.hardware.acquisition` checks frame counts per pattern sequence instead).
+Pixel layouts, little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
+
+* ``"depth"`` (``output_mode`` 0, ``pixel_data_size`` 4, ``op_data_arrange_mode`` 0): per
+  pixel ``amplitude12 | ambient4 << 12`` then ``phase12 | flags4 << 12``;
+* ``"depth8"`` (same, ``op_data_arrange_mode`` 2, the DML default): per row, per group of 8
+  pixels, 8 amplitude/ambient words then 8 phase/flags words;
+* ``"depth2"`` (``pixel_data_size`` 2): ``phase12 | amplitude_msb4 << 12`` (amplitude =
+  top nibble ``<< 8``);
+* ``"iq"`` (``output_mode`` 1 "raw IQ data", 4 bytes): int16 ``I`` then int16 ``Q``; the SDK
+  takes ``phase = arg(I + jQ)``. torchtof uses ``I = c₁ − c₂``, ``Q = c₄ − c₃`` (Eq. 7) and
+  amplitude ``|I + jQ| / 2`` (Eq. 8); the device's I/Q scale is **not confirmed**;
+* ``"quad"`` (``output_mode`` 15 "raw quad data" in the DML): **layout not documented in the
+  SDK**. torchtof assumes 8 bytes per pixel, four uint16 correlation samples in the Fig. 1
+  order with 12 significant bits (the datasheet's 12-bit outputs). It is the only mode that
+  carries the four taps (per-tap buckets); the simulator uses it by default.
+
+12-bit phase to depth: ``θ = 2π · phase12 / 4096``, ``depth = θ · c / (4π f)`` (Eq. 1), then
+the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`). The SDK's ambient and
+flag bit meanings are not documented; they are passed through.
+
+**Corrupt frames**: without a checksum the decoder can check only what the format fixes — the
+exact size, the unused top bits of the 12-bit quad samples and the ±(2^12 − 1) range of I/Q.
+A flipped bit inside a depth-mode word is undetectable (USB's own packet CRC is the real
+protection on the wire).
 """
 
 from __future__ import annotations
 
 import math
-import struct
 import time
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,20 +104,31 @@ __all__ = [
     "PID",
     "EP_FRAMES",
     "SLAVES",
+    "SYSCLK_MHZ",
+    "Field",
     "REGISTERS",
-    "HEADER",
+    "FRAME_MODES",
     "CameraRules",
     "register_request",
+    "pll_settings",
+    "pll_frequency_hz",
+    "pack_depth",
+    "pack_depth2",
+    "pack_iq",
+    "pack_quads",
     "encode_frame",
+    "frame_bytes",
     "decode_frame",
     "OPT8241",
 ]
 
 VID, PID = 0x0451, 0x9105
 EP_FRAMES = 0x82
+BULK_EXTRA = 255  # extra bytes asked per frame transfer (Voxel/USBBulkStreamer.cpp)
 VENDOR_OUT, VENDOR_IN = 0x40, 0xC0  # bmRequestType: vendor, device, host->device / device->host
+SYSCLK_MHZ = 48  # ToFTintinCamera::_getSystemClockFrequency
 
-#: slave -> (read request, write request, shift, register bytes), domain-notes §5.3.
+#: slave -> (read request, write request, shift, register bytes) (TintinCDKCamera.cpp).
 SLAVES: dict[int, tuple[int, int, int, int]] = {
     0x58: (0x08, 0x09, 0, 3),
     0x5C: (0x08, 0x09, 0, 3),
@@ -74,18 +139,59 @@ SLAVES: dict[int, tuple[int, int, int, int]] = {
     0x54: (0x04, 0x03, 8, 1),
 }
 
-#: Named registers (address = slave << 8 | reg). PLACEHOLDERS, not from TI's register map:
-#: replace them with the OPT9221 addresses (Voxel DML files) before using a real camera.
-REGISTERS: dict[str, int] = {
-    "stream_enable": 0x5880,
-    "mod_freq_khz": 0x5881,
-    "intg_time_us": 0x5882,
-    "frame_count": 0x5883,  # id of the next frame (wraps at 2^24)
+
+@dataclass(frozen=True)
+class Field:
+    """A bit field ``[lsb, msb]`` of the 24-bit register at ``address`` (OPT9221.dml)."""
+
+    address: int
+    lsb: int
+    msb: int
+
+    @property
+    def mask(self) -> int:
+        return ((1 << (self.msb - self.lsb + 1)) - 1) << self.lsb
+
+    def get(self, register: int) -> int:
+        return (register & self.mask) >> self.lsb
+
+    def put(self, register: int, value: int) -> int:
+        width = self.msb - self.lsb + 1
+        if not 0 <= int(value) < 1 << width:
+            raise ValueError(f"Field: value {value} does not fit {width} bits")
+        return (register & ~self.mask) | (int(value) << self.lsb)
+
+
+#: Named OPT9221 parameters: DML name -> bit field (``TI3DToF/OPT9221.dml``: bank, register
+#: address, lsb, msb; bank 0 -> slave 0x58, bank 3 -> slave 0x5C).
+REGISTERS: dict[str, Field] = {
+    "mod_pll_update": Field(0x5802, 2, 2),  # bank 0 reg 2
+    "mod_m_frac1": Field(0x580C, 0, 15),  # bank 0 reg 12
+    "mod_m1": Field(0x580C, 16, 21),
+    "mod_n1": Field(0x580F, 0, 1),  # bank 0 reg 15
+    "mod_ps1": Field(0x580F, 4, 6),
+    "tg_dis": Field(0x5880, 0, 0),  # bank 0 reg 128
+    "slave_mode": Field(0x5881, 0, 0),  # bank 0 reg 129
+    "pix_cnt_max": Field(0x5882, 0, 21),  # bank 0 reg 130
+    "quad_cnt_max": Field(0x5883, 0, 3),  # bank 0 reg 131
+    "sub_frame_cnt_max": Field(0x5883, 4, 7),
+    "output_mode": Field(0x5C25, 8, 11),  # bank 3 reg 37
+    "op_data_arrange_mode": Field(0x5C25, 18, 19),
+    "pixel_data_size": Field(0x5C27, 11, 14),  # bank 3 reg 39
+    "debug_frame_number_en": Field(0x5C39, 12, 12),  # bank 3 reg 57
+    "frm_header_en": Field(0x5C3C, 1, 1),  # bank 3 reg 60
+    "blk_header_en": Field(0x5C3C, 2, 2),
+    "intg_duty_cycle": Field(0x5C4C, 0, 5),  # bank 3 reg 76
 }
 
-HEADER = struct.Struct("<4sHHIQHHII")  # magic, version, flags, id, t_us, W, H, payload, crc32
-MAGIC, VERSION = b"TTOF", 1
-FLAG_TAPS = 1
+#: frame mode -> (output_mode, pixel_data_size, op_data_arrange_mode) (module docstring).
+FRAME_MODES: dict[str, tuple[int, int, int]] = {
+    "depth": (0, 4, 0),
+    "depth8": (0, 4, 2),
+    "depth2": (0, 2, 0),
+    "iq": (1, 4, 0),
+    "quad": (15, 8, 0),
+}
 _TWO_PI = 2.0 * math.pi
 
 
@@ -109,8 +215,8 @@ def register_request(address: int, write: bool) -> tuple[int, int, int, int, int
     """``(bmRequestType, bRequest, wValue, wIndex, nbytes)`` of a register access.
 
     Example:
-        >>> register_request(0x5881, write=True)
-        (64, 9, 88, 129, 3)
+        >>> register_request(0x580C, write=True)
+        (64, 9, 88, 12, 3)
         >>> register_request(0x2D10, write=False)
         (192, 4, 11520, 4096, 1)
     """
@@ -125,71 +231,199 @@ def register_request(address: int, write: bool) -> tuple[int, int, int, int, int
             reg << shift, nbytes)
 
 
-def encode_frame(phase: np.ndarray, amplitude: np.ndarray, frame_id: int, timestamp_us: int,
-                 ambient: np.ndarray | None = None, flags: np.ndarray | None = None,
-                 taps: np.ndarray | None = None) -> bytes:
-    """Encode one frame packet (module docstring). ``phase`` in radians, ``amplitude`` in ADC
-    numbers (rounded and clipped to 12 bits), ``taps`` integer ADC numbers ``(4, H, W)``."""
-    phase = np.asarray(phase, dtype=np.float64)
-    h, w = phase.shape
-    p12 = np.rint(np.mod(phase, _TWO_PI) * (4096 / _TWO_PI)).astype(np.uint32) % 4096
-    a12 = np.clip(np.rint(np.asarray(amplitude, dtype=np.float64)), 0, 4095).astype(np.uint32)
-    amb = np.zeros_like(p12) if ambient is None else np.asarray(ambient, np.uint32) & 0xF
-    flg = np.zeros_like(p12) if flags is None else np.asarray(flags, np.uint32) & 0xF
-    words = (p12 | a12 << 12 | amb << 24 | flg << 28).astype("<u4").tobytes()
-    hdr_flags = 0
-    if taps is not None:
-        taps = np.asarray(taps)
-        if taps.shape != (4, h, w) or (taps < 0).any() or (taps > 0xFFFF).any():
-            raise ValueError(f"encode_frame: expected integer taps (4, {h}, {w}) in [0, 65535]")
-        words += np.asarray(taps).astype("<u2").tobytes()
-        hdr_flags |= FLAG_TAPS
-    return HEADER.pack(MAGIC, VERSION, hdr_flags, frame_id & 0xFFFFFFFF, int(timestamp_us), w, h,
-                       len(words), zlib.crc32(words)) + words
+def pll_settings(freq_hz: float, quad_cnt_max: int = 4) -> dict[str, int]:
+    """PLL fields for a modulation frequency, as ``ToFTintinCamera.cpp`` computes them
+    (module docstring): ``{"mod_ps1", "mod_n1", "mod_m1", "mod_m_frac1"}``.
+
+    Example:
+        >>> pll_settings(30e6)
+        {'mod_ps1': 2, 'mod_n1': 2, 'mod_m1': 15, 'mod_m_frac1': 0}
+    """
+    if isinstance(quad_cnt_max, bool) or not 1 <= int(quad_cnt_max) <= 15:
+        raise ValueError(f"pll_settings: expected quad_cnt_max in [1, 15], got {quad_cnt_max!r}")
+    f_mhz = float(freq_hz) / 1e6
+    lo, hi = 37.5 / quad_cnt_max, 600.0 / quad_cnt_max
+    if not math.isfinite(f_mhz) or not lo <= f_mhz <= hi:
+        raise ValueError(f"pll_settings: expected freq_hz in [{lo * 1e6:g}, {hi * 1e6:g}] for "
+                         f"quad_cnt_max={quad_cnt_max}, got {freq_hz!r}")
+    ps = int(300.0 / quad_cnt_max / f_mhz)
+    if ps > 7:
+        raise ValueError(f"pll_settings: freq_hz {freq_hz!r} needs mod_ps1={ps} > 7")
+    vco = (ps + 1) * quad_cnt_max * f_mhz
+    n = 2
+    m_f = vco * n / SYSCLK_MHZ
+    m = int(m_f)
+    return {"mod_ps1": ps, "mod_n1": n, "mod_m1": m, "mod_m_frac1": int((m_f - m) * (1 << 16))}
 
 
-def decode_frame(raw: bytes, freq_hz: float, rules: CameraRules = CameraRules(),
-                 use_taps: bool = True) -> Frame:
-    """Decode a frame packet into a :class:`Frame` (depth in metres with the camera rules).
+def pll_frequency_hz(mod_m1: int, mod_m_frac1: int, mod_n1: int, mod_ps1: int,
+                     quad_cnt_max: int) -> float:
+    """Modulation frequency of PLL 1 in Hz (DML description of ``mod_m1``):
+    ``48 MHz · (M + M_frac/2^16) / (N · (1 + PS) · quad_cnt_max)``."""
+    if mod_n1 == 0 or quad_cnt_max == 0:
+        raise ProtocolError("read modulation frequency",
+                            f"mod_n1={mod_n1}, quad_cnt_max={quad_cnt_max}: PLL not configured")
+    vco_mhz = SYSCLK_MHZ * (mod_m1 + mod_m_frac1 / 65536.0) / mod_n1
+    return vco_mhz / ((1 + mod_ps1) * quad_cnt_max) * 1e6
 
-    With raw taps in the packet and ``use_taps`` (default) the phase, amplitude and depth
-    are computed from the taps exactly as :func:`torchtof.sensor.cw_tof_sensor` does
-    (Eqs. 7, 8, 1 and §2.2); otherwise from the 12-bit phase and amplitude words.
+
+# -- frame packing (what the OPT9221 sends; the simulator and tests use these) -------------
+def _u12(a, name: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.ndim != 2 or (a < 0).any() or (a > 0xFFF).any():
+        raise ValueError(f"pack: expected {name} as a 2-D array of integers in [0, 4095]")
+    return a.astype(np.uint16)
+
+
+def _u4(a, like: np.ndarray, name: str) -> np.ndarray:
+    if a is None:
+        return np.zeros_like(like)
+    a = np.asarray(a)
+    if a.shape != like.shape or (a < 0).any() or (a > 0xF).any():
+        raise ValueError(f"pack: expected {name} {like.shape} in [0, 15]")
+    return a.astype(np.uint16)
+
+
+def pack_depth(phase12, amplitude12, ambient=None, flags=None, arrange: int = 0) -> bytes:
+    """A 4-byte-per-pixel depth frame (``output_mode`` 0): words
+    ``amplitude | ambient << 12`` and ``phase | flags << 12`` per pixel (``arrange`` 0) or per
+    8-pixel group (``arrange`` 2), ToFFrameGenerator.cpp."""
+    p = _u12(phase12, "phase12")
+    a = _u12(amplitude12, "amplitude12")
+    if a.shape != p.shape:
+        raise ValueError(f"pack_depth: amplitude12 {a.shape} != phase12 {p.shape}")
+    w0 = a | _u4(ambient, a, "ambient") << 12
+    w1 = p | _u4(flags, p, "flags") << 12
+    h, w = p.shape
+    if arrange == 0:
+        words = np.stack([w0, w1], axis=-1)
+    elif arrange == 2:
+        if w % 8:
+            raise ValueError(f"pack_depth: arrange 2 needs a width divisible by 8, got {w}")
+        words = np.stack([w0.reshape(h, w // 8, 8), w1.reshape(h, w // 8, 8)], axis=2)
+    else:
+        raise ValueError(f"pack_depth: expected arrange 0 or 2, got {arrange!r}")
+    return words.astype("<u2").tobytes()
+
+
+def pack_depth2(phase12, amplitude12) -> bytes:
+    """A 2-byte-per-pixel frame: ``phase12 | (amplitude12 >> 8) << 12`` (ToFFrameGenerator)."""
+    p, a = _u12(phase12, "phase12"), _u12(amplitude12, "amplitude12")
+    return (p | (a >> 8) << 12).astype("<u2").tobytes()
+
+
+def pack_iq(i, q) -> bytes:
+    """A raw-IQ frame (``output_mode`` 1): int16 ``I``, int16 ``Q`` per pixel."""
+    i, q = np.asarray(i), np.asarray(q)
+    if i.shape != q.shape or i.ndim != 2 or (np.abs(i) > 0x7FFF).any() or \
+            (np.abs(q) > 0x7FFF).any():
+        raise ValueError("pack_iq: expected equal 2-D integer arrays i, q within int16")
+    return np.stack([i, q], axis=-1).astype("<i2").tobytes()
+
+
+def pack_quads(taps) -> bytes:
+    """A raw-quad frame (``output_mode`` 15, **assumed layout**): four uint16 taps per pixel,
+    ``taps`` ``(4, H, W)`` in the Fig. 1 order."""
+    t = np.asarray(taps)
+    if t.ndim != 3 or t.shape[0] != 4 or (t < 0).any() or (t > 0xFFFF).any():
+        raise ValueError(f"pack_quads: expected integer taps (4, H, W) in [0, 65535], got "
+                         f"shape {t.shape}")
+    return np.moveaxis(t, 0, -1).astype("<u2").tobytes()
+
+
+def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None) -> bytes:
+    """Encode one frame in ``mode`` from integer taps ``(4, H, W)`` (Fig. 1 order), as the
+    camera would send it: phase and amplitude of Eqs. 7-8 rounded to 12 bits for the depth
+    modes, ``I = c₁ − c₂``, ``Q = c₄ − c₃`` for ``"iq"``, the taps for ``"quad"``."""
+    t = np.asarray(taps)
+    if t.ndim != 3 or t.shape[0] != 4:
+        raise ValueError(f"encode_frame: expected taps (4, H, W), got {t.shape}")
+    if mode == "quad":
+        return pack_quads(t)
+    ti = t.astype(np.int64)
+    i, q = ti[0] - ti[1], ti[3] - ti[2]
+    if mode == "iq":
+        return pack_iq(i, q)
+    tt = torch.from_numpy(t.astype(np.float32))[None]
+    phase = tap_phase(tt)[0, 0].double().numpy()  # Eq. 7
+    amp = tap_amplitude(tt)[0, 0].double().numpy()  # Eq. 8
+    p12 = np.rint(phase * (4096 / _TWO_PI)).astype(np.int64) % 4096
+    a12 = np.clip(np.rint(amp), 0, 4095).astype(np.int64)
+    if mode in ("depth", "depth8"):
+        return pack_depth(p12, a12, ambient, flags, FRAME_MODES[mode][2])
+    if mode == "depth2":
+        return pack_depth2(p12, a12)
+    raise ValueError(f"encode_frame: unknown mode {mode!r}; expected one of {list(FRAME_MODES)}")
+
+
+def frame_bytes(width: int, height: int, mode: str) -> int:
+    """Bytes of one frame: ``width · height · pixel_data_size`` (TintinCDKCamera.cpp)."""
+    if mode not in FRAME_MODES:
+        raise ValueError(f"frame_bytes: unknown mode {mode!r}; expected one of "
+                         f"{list(FRAME_MODES)}")
+    return int(width) * int(height) * FRAME_MODES[mode][1]
+
+
+def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str = "depth",
+                 rules: CameraRules = CameraRules(), frame_id: int = 0,
+                 timestamp: float = 0.0, adc_bits: int = 12) -> Frame:
+    """Decode one bulk transfer into a :class:`Frame` (module docstring for the layouts).
+
+    Phase, amplitude and depth follow Eqs. 7, 8 and 1 and the camera rules (§2.2): from the
+    taps in ``"quad"`` mode and from ``I``/``Q`` in ``"iq"`` mode exactly as
+    :func:`torchtof.sensor.cw_tof_sensor` computes them; from the 12-bit words otherwise.
+    ``frame_id`` and ``timestamp`` come from the host (the frames carry neither).
 
     Raises:
-        FrameError: short packet, wrong magic/version, size mismatch or CRC mismatch.
+        FrameError: wrong size, quad samples beyond ``adc_bits`` (reserved bits set), I/Q
+            beyond ``±(2^adc_bits − 1)``.
+        ValueError: unknown mode, or ``"depth8"`` with a width not divisible by 8.
     """
     raw = bytes(raw)
-    if len(raw) < HEADER.size:
-        raise FrameError(f"{len(raw)} bytes, shorter than the {HEADER.size}-byte header")
-    magic, version, hflags, fid, t_us, w, h, n, crc = HEADER.unpack_from(raw)
-    if magic != MAGIC or version != VERSION:
-        raise FrameError(f"bad magic/version {magic!r}/{version}")
-    body = raw[HEADER.size :]
-    expect = 4 * w * h + (8 * w * h if hflags & FLAG_TAPS else 0)
-    if n != expect or len(body) != n:
-        raise FrameError(f"payload of {len(body)} bytes (header says {n}, a {w}x{h} frame "
-                         f"needs {expect})")
-    if zlib.crc32(body) != crc:
-        raise FrameError("CRC-32 mismatch (bytes corrupted in transfer)")
-    words = np.frombuffer(body, dtype="<u4", count=w * h).reshape(h, w)
-    p12 = (words & 0xFFF).astype(np.float32)
-    amp = torch.from_numpy(((words >> 12) & 0xFFF).astype(np.float32))
-    ambient = torch.from_numpy(((words >> 24) & 0xF).astype(np.uint8))
-    flags = torch.from_numpy(((words >> 28) & 0xF).astype(np.uint8))
-    taps = None
-    if hflags & FLAG_TAPS:
-        t = np.frombuffer(body, dtype="<u2", offset=4 * w * h).reshape(4, h, w)
-        taps = torch.from_numpy(t.astype(np.float32))
-    if taps is not None and use_taps:
+    h, w = int(height), int(width)
+    need = frame_bytes(w, h, mode)
+    if len(raw) != need:
+        raise FrameError(f"{len(raw)} bytes, a {w}x{h} {mode!r} frame has {need}")
+    taps = ambient = flags = None
+    limit = (1 << adc_bits) - 1
+    if mode == "quad":
+        q = np.frombuffer(raw, dtype="<u2").reshape(h, w, 4)
+        if int(q.max(initial=0)) > limit:
+            raise FrameError(f"reserved bits set: a quad sample exceeds {adc_bits} bits")
+        taps = torch.from_numpy(np.ascontiguousarray(np.moveaxis(q, -1, 0)).astype(np.float32))
         t4 = taps[None]
+    elif mode == "iq":
+        iq = np.frombuffer(raw, dtype="<i2").reshape(h, w, 2).astype(np.int64)
+        if int(np.abs(iq).max(initial=0)) > limit:
+            raise FrameError(f"I/Q beyond ±{limit} ({adc_bits}-bit taps)")
+        t4 = torch.zeros(1, 4, h, w, dtype=torch.float32)
+        t4[0, 0] = torch.from_numpy(iq[..., 0].astype(np.float32))  # c1 - c2 = I
+        t4[0, 3] = torch.from_numpy(iq[..., 1].astype(np.float32))  # c4 - c3 = Q
+    if mode in ("quad", "iq"):
         amp4, phase4 = tap_amplitude(t4), tap_phase(t4)  # Eqs. 8 and 7
     else:
-        amp4 = amp[None, None]
-        phase4 = torch.from_numpy(p12 * np.float32(_TWO_PI / 4096))[None, None]
+        if mode == "depth2":
+            words = np.frombuffer(raw, dtype="<u2").reshape(h, w)
+            p12, a12 = words & 0xFFF, (words & 0xF000) >> 4
+        else:
+            if mode == "depth8":
+                if w % 8:
+                    raise ValueError(f"decode_frame: 'depth8' needs a width divisible by 8, "
+                                     f"got {w}")
+                g = np.frombuffer(raw, dtype="<u2").reshape(h, w // 8, 2, 8)
+                w0, w1 = g[:, :, 0, :].reshape(h, w), g[:, :, 1, :].reshape(h, w)
+            else:
+                g = np.frombuffer(raw, dtype="<u2").reshape(h, w, 2)
+                w0, w1 = g[..., 0], g[..., 1]
+            a12, p12 = w0 & 0xFFF, w1 & 0xFFF
+            ambient = torch.from_numpy((w0 >> 12).astype(np.uint8))
+            flags = torch.from_numpy((w1 >> 12).astype(np.uint8))
+        amp4 = torch.from_numpy(a12.astype(np.float32))[None, None]
+        phase4 = torch.from_numpy(p12.astype(np.float32) * np.float32(_TWO_PI / 4096))[None, None]
     depth4 = rules.apply(phase_to_depth(phase4, freq_hz), amp4)  # Eq. 1 + §2.2
     return Frame(phase=phase4[0, 0], amplitude=amp4[0, 0], depth=depth4[0, 0],
-                 timestamp=t_us * 1e-6, frame_id=fid, taps=taps, ambient=ambient, flags=flags)
+                 timestamp=float(timestamp), frame_id=int(frame_id), taps=taps,
+                 ambient=ambient, flags=flags, raw=raw)
 
 
 class OPT8241:
@@ -200,20 +434,30 @@ class OPT8241:
         dev: the USB device.
         width, height: frame size in pixels (QVGA 320×240; smaller with an ROI).
         rules: the camera rules applied to the decoded depth.
-        use_taps: compute phase/amplitude/depth from raw taps when frames carry them.
+        mode: frame mode (:data:`FRAME_MODES`); ``"quad"`` (raw taps, assumed layout) is
+            needed for per-tap buckets.
+        adc_bits: significant bits of the correlation samples (12, datasheet).
+        slave: put the OPT9221 in ``slave_mode`` (one frame per external VD_IN sync).
         timeout_s: default frame timeout.
-        registers: register map (see the warning on :data:`REGISTERS`).
+        clock: host clock for the frame timestamps (seconds), as the SDK stamps frames.
     """
 
     what = "TI OPT8241 ToF camera"
 
     def __init__(self, dev, width: int = 320, height: int = 240,
-                 rules: CameraRules = CameraRules(), use_taps: bool = True,
-                 timeout_s: float = 2.0, registers: dict[str, int] | None = None) -> None:
+                 rules: CameraRules = CameraRules(), mode: str = "depth", adc_bits: int = 12,
+                 slave: bool = True, timeout_s: float = 2.0, clock=time.time) -> None:
+        if mode not in FRAME_MODES:
+            raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
+                             f"{list(FRAME_MODES)}")
+        if int(width) < 1 or int(height) < 1 or (mode == "depth8" and int(width) % 8):
+            raise ValueError(f"OPT8241: bad frame size {width}x{height} for mode {mode!r}")
         self.dev, self.width, self.height = dev, int(width), int(height)
-        self.rules, self.use_taps, self.timeout_s = rules, use_taps, float(timeout_s)
-        self.registers = dict(REGISTERS if registers is None else registers)
+        self.rules, self.mode, self.adc_bits = rules, mode, int(adc_bits)
+        self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
+        self.registers = dict(REGISTERS)
         self.pattern_index: int | None = None  # set by acquire(): named in timeout errors
+        self._next_id = 0
 
     @classmethod
     def open(cls, **kwargs) -> OPT8241:
@@ -231,17 +475,9 @@ class OPT8241:
         return cls(dev, **kwargs)
 
     # -- registers ---------------------------------------------------------------------------
-    def _address(self, reg: int | str) -> int:
-        if isinstance(reg, str):
-            if reg not in self.registers:
-                raise ValueError(f"OPT8241: unknown register {reg!r}; "
-                                 f"known {sorted(self.registers)}")
-            return self.registers[reg]
-        return int(reg)
-
-    def write_register(self, reg: int | str, value: int) -> None:
-        address = self._address(reg)
-        rtype, req, wvalue, windex, nbytes = register_request(address, write=True)
+    def write_register(self, address: int, value: int) -> None:
+        """Write a whole register (``slave << 8 | reg``), little endian (VoxelUSBProgrammer)."""
+        rtype, req, wvalue, windex, nbytes = register_request(int(address), write=True)
         if not 0 <= int(value) < 1 << (8 * nbytes):
             raise ValueError(f"OPT8241.write_register: value {value} does not fit the "
                              f"{nbytes}-byte register 0x{address:04x}")
@@ -256,9 +492,9 @@ class OPT8241:
         if n != nbytes:
             raise ProtocolError(name, f"device accepted {n} of {nbytes} bytes")
 
-    def read_register(self, reg: int | str) -> int:
-        address = self._address(reg)
-        rtype, req, wvalue, windex, nbytes = register_request(address, write=False)
+    def read_register(self, address: int) -> int:
+        """Read a whole register (``slave << 8 | reg``)."""
+        rtype, req, wvalue, windex, nbytes = register_request(int(address), write=False)
         name = f"read register 0x{address:04x}"
         try:
             data = bytes(self.dev.ctrl_transfer(rtype, req, wvalue, windex, nbytes, 1000))
@@ -270,65 +506,131 @@ class OPT8241:
             raise ProtocolError(name, f"expected {nbytes} bytes, got {len(data)}")
         return int.from_bytes(data, "little")
 
+    def _field(self, name: str) -> Field:
+        if name not in self.registers:
+            raise ValueError(f"OPT8241: unknown register field {name!r}; known "
+                             f"{sorted(self.registers)}")
+        return self.registers[name]
+
+    def read_field(self, name: str) -> int:
+        """A named parameter (:data:`REGISTERS`)."""
+        f = self._field(name)
+        return f.get(self.read_register(f.address))
+
+    def write_field(self, name: str, value: int) -> None:
+        """Set a named parameter by read-modify-write of its register."""
+        f = self._field(name)
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise TypeError(f"OPT8241.write_field: expected an integer for {name}, got "
+                            f"{value!r}")
+        try:
+            new = f.put(self.read_register(f.address), int(value))
+        except ValueError:
+            raise ValueError(f"OPT8241.write_field: {name}={value} does not fit bits "
+                             f"{f.lsb}..{f.msb}") from None
+        self.write_register(f.address, new)
+
+    # -- modulation frequency and integration time -------------------------------------------
     @property
     def freq_hz(self) -> float:
-        """Modulation frequency in Hz (read from the camera)."""
-        return self.read_register("mod_freq_khz") * 1e3
+        """Modulation frequency in Hz from the PLL registers (module docstring)."""
+        return pll_frequency_hz(*(self.read_field(k) for k in (
+            "mod_m1", "mod_m_frac1", "mod_n1", "mod_ps1", "quad_cnt_max")))
 
-    def set_modulation_frequency(self, freq_hz: float) -> None:
-        """Set the modulation frequency (10–100 MHz, datasheet SBAS704B)."""
-        if not 10e6 <= freq_hz <= 100e6:
-            raise ValueError(f"OPT8241: expected freq_hz in [10e6, 100e6], got {freq_hz}")
-        self.write_register("mod_freq_khz", round(freq_hz / 1e3))
+    def set_modulation_frequency(self, freq_hz: float) -> float:
+        """Program PLL 1 for ``freq_hz`` as the Voxel SDK does; returns the frequency the
+        registers now give (Hz)."""
+        s = pll_settings(freq_hz, self.read_field("quad_cnt_max"))
+        self.write_field("mod_pll_update", 1)
+        try:
+            for k in ("mod_m1", "mod_n1", "mod_m_frac1", "mod_ps1"):
+                self.write_field(k, s[k])
+        finally:
+            self.write_field("mod_pll_update", 0)
+        return self.freq_hz
+
+    def _frame_cycles(self) -> int:
+        return (self.read_field("pix_cnt_max") * self.read_field("quad_cnt_max")
+                * self.read_field("sub_frame_cnt_max"))
 
     @property
-    def integration_time_us(self) -> int:
-        return self.read_register("intg_time_us")
+    def integration_time_us(self) -> float:
+        """``intg_duty_cycle / 63`` of the frame time (torchtof's µs conversion, module
+        docstring)."""
+        return self.read_field("intg_duty_cycle") / 63 * self._frame_cycles() / SYSCLK_MHZ
+
+    def set_integration_time(self, us: float) -> float:
+        """Nearest ``intg_duty_cycle`` (0-63) for ``us`` at the current frame time; returns
+        the integration time it gives (µs)."""
+        frame_us = self._frame_cycles() / SYSCLK_MHZ
+        if isinstance(us, bool) or not isinstance(us, (int, float)) or not math.isfinite(us) \
+                or not 0 <= us <= frame_us:
+            raise ValueError(f"OPT8241: expected integration time in [0, {frame_us:g}] us "
+                             f"(the frame time), got {us!r}")
+        self.write_field("intg_duty_cycle", min(63, round(us / frame_us * 63)))
+        return self.integration_time_us
 
     def frame_counter(self) -> int:
-        """The id the next frame will carry (the camera's frame counter, 24 bits)."""
-        return self.read_register("frame_count")
-
-    def set_integration_time(self, us: int) -> None:
-        if isinstance(us, bool) or not isinstance(us, int) or not 1 <= us < 1 << 24:
-            raise ValueError(f"OPT8241: expected integration time in [1, 2^24) us, got {us!r}")
-        self.write_register("intg_time_us", us)
+        """Frames received since :meth:`start` (host-side, as the SDK numbers frames)."""
+        return self._next_id
 
     # -- streaming ---------------------------------------------------------------------------
+    def configure(self) -> None:
+        """Output format of :attr:`mode`, no block header (bulk device), slave mode."""
+        out, size, arrange = FRAME_MODES[self.mode]
+        self.write_field("tg_dis", 1)
+        self.write_field("output_mode", out)
+        self.write_field("pixel_data_size", size)
+        self.write_field("op_data_arrange_mode", arrange)
+        self.write_field("blk_header_en", 0)
+        self.write_field("slave_mode", int(self.slave))
+
     def start(self) -> None:
+        self.configure()
         self._freq = self.freq_hz
-        self.write_register("stream_enable", 1)
+        self._next_id = 0
+        self.write_field("tg_dis", 0)
 
     def stop(self) -> None:
-        self.write_register("stream_enable", 0)
+        self.write_field("tg_dis", 1)
 
-    def _max_packet(self) -> int:
-        return HEADER.size + 12 * self.width * self.height
+    @property
+    def frame_size(self) -> int:
+        return frame_bytes(self.width, self.height, self.mode)
+
+    def _read(self, timeout_s: float):
+        return self.dev.read(EP_FRAMES, self.frame_size + BULK_EXTRA,
+                             max(1, int(timeout_s * 1000)))
 
     def grab(self, timeout_s: float | None = None) -> Frame:
-        """Read and decode the next frame from bulk endpoint 0x82.
+        """Read and decode the next frame from bulk endpoint 0x82; it gets the next host
+        frame id and the host time.
 
         Raises:
             FrameTimeoutError: nothing arrived (names :attr:`pattern_index` when set).
-            FrameError: the bytes do not decode.
+            FrameError: the bytes do not decode (wrong size, reserved bits).
             DeviceLostError: the camera disappeared.
         """
         import usb.core
 
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
         try:
-            raw = self.dev.read(EP_FRAMES, self._max_packet(), max(1, int(timeout * 1000)))
+            raw = self._read(timeout)
         except usb.core.USBTimeoutError as exc:
             raise FrameTimeoutError(self.pattern_index, timeout) from exc
         except HardwareError:
             raise
         except Exception as exc:
             raise translate_usb_error(exc, self.what, "bulk read") from exc
+        stamp = float(self.clock())
         freq = getattr(self, "_freq", None) or self.freq_hz
         try:
-            return decode_frame(bytes(raw), freq, self.rules, self.use_taps)
+            frame = decode_frame(bytes(raw), self.width, self.height, freq, self.mode,
+                                 self.rules, self._next_id, stamp, self.adc_bits)
         except FrameError as exc:
             raise FrameError(str(exc).removeprefix("corrupt frame: "), self.pattern_index) from exc
+        self._next_id += 1
+        return frame
 
     def flush(self, timeout_s: float = 0.05) -> int:
         """Discard queued frames until none arrives within ``timeout_s``; returns the count."""
@@ -337,7 +639,7 @@ class OPT8241:
         n, t0 = 0, time.monotonic()
         while time.monotonic() - t0 < 10.0:
             try:
-                self.dev.read(EP_FRAMES, self._max_packet(), max(1, int(timeout_s * 1000)))
+                self._read(timeout_s)
             except usb.core.USBTimeoutError:
                 return n
             except Exception as exc:

@@ -61,7 +61,9 @@ class Faults:
         frame_timeout: frames delivered late: the first read for them times out.
         drop: frames rendered but never delivered (a frame-id gap).
         duplicate: frames delivered twice.
-        corrupt: frames with one payload byte flipped (CRC mismatch).
+        extra: frames followed by one spurious, different frame (its words in reverse order).
+        corrupt: frames with bit 14 of their third 16-bit word flipped (a reserved bit in the
+            ``"quad"`` and ``"iq"`` modes; undetectable in the depth modes).
         nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
             (occurrence counts from 0 per command).
         reply_timeout: ``{command: {occurrence}}``: the LightCrafter does not answer.
@@ -74,6 +76,7 @@ class Faults:
     frame_timeout: set[int] = field(default_factory=set)
     drop: set[int] = field(default_factory=set)
     duplicate: set[int] = field(default_factory=set)
+    extra: set[int] = field(default_factory=set)
     corrupt: set[int] = field(default_factory=set)
     nack: dict[str, set[int]] = field(default_factory=dict)
     reply_timeout: dict[str, set[int]] = field(default_factory=dict)
@@ -86,7 +89,7 @@ class Faults:
     def from_dict(cls, d: dict) -> Faults:
         kw = {}
         for k, v in d.items():
-            if k in ("frame_timeout", "drop", "duplicate", "corrupt"):
+            if k in ("frame_timeout", "drop", "duplicate", "extra", "corrupt"):
                 kw[k] = set(v)
             elif k in ("nack", "reply_timeout"):
                 kw[k] = {c: set(o) for c, o in v.items()}
@@ -311,21 +314,34 @@ class FakeLightCrafter(_Gone):
 
 
 class FakeOPT8241(_Gone):
-    """An OPT8241-CDK-EVM: registers over vendor control transfers, frames on bulk IN."""
+    """An OPT8241-CDK-EVM: 24-bit OPT9221 registers (and the 1/2-byte board slaves) behind
+    the vendor control transfers, frames on bulk IN in the format its registers select
+    (``output_mode``, ``pixel_data_size``, ``op_data_arrange_mode``, :mod:`.opt8241`):
+    raw bytes, no header, no frame id. Registers start at the OPT9221.dml defaults with PLL 1
+    set for the configuration's modulation frequency."""
 
     def __init__(self, bench: SimulatedBench) -> None:
         self.bench = bench
-        cfg = bench.config
-        self.regs: dict[int, int] = {
-            opt.REGISTERS["stream_enable"]: 0,
-            opt.REGISTERS["mod_freq_khz"]: round(cfg.freq_hz / 1e3),
-            opt.REGISTERS["intg_time_us"]: 1000,
-            opt.REGISTERS["frame_count"]: 0,
-        }
-        self._fifo: deque[bytes] = deque()
+        self.regs: dict[int, int] = {}
+        defaults = {"mod_n1": 2, "mod_ps1": 1, "mod_m1": 16, "quad_cnt_max": 4,
+                    "sub_frame_cnt_max": 4, "pix_cnt_max": 100000, "intg_duty_cycle": 6,
+                    "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1}
+        defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
+        for name, value in defaults.items():
+            self._set(name, value)
+        self._fifo: deque[tuple[int, bytes]] = deque()
         self._late: set[int] = set()
         self.rendered = 0
         self.delivered = 0
+        self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
+
+    def _set(self, name: str, value: int) -> None:
+        f = opt.REGISTERS[name]
+        self.regs[f.address] = f.put(self.regs.get(f.address, 0), value)
+
+    def field(self, name: str) -> int:
+        f = opt.REGISTERS[name]
+        return f.get(self.regs.get(f.address, 0))
 
     def ctrl_transfer(self, bmRequestType: int, bRequest: int, wValue: int = 0, wIndex: int = 0,
                       data_or_wLength=None, timeout: int | None = None):
@@ -352,6 +368,15 @@ class FakeOPT8241(_Gone):
             raise stall
         return bytearray(self.regs.get(address, 0).to_bytes(nbytes, "little"))
 
+    @property
+    def mode(self) -> str:
+        key = (self.field("output_mode"), self.field("pixel_data_size"),
+               self.field("op_data_arrange_mode"))
+        for name, value in opt.FRAME_MODES.items():
+            if value == key:
+                return name
+        raise ValueError(f"FakeOPT8241: unsupported output format {key}")
+
     def read(self, endpoint: int, size: int, timeout: int | None = None):
         self._alive()
         if endpoint != opt.EP_FRAMES:
@@ -370,15 +395,18 @@ class FakeOPT8241(_Gone):
         if len(packet) > size:
             raise _usb_error("Overflow", 75)
         self.delivered += 1
+        period = self.bench.lightcrafter_usb.state["period_us"] or 0
+        self.time_s = max(ordinal, 0) * period * 1e-6
         return bytearray(packet)
 
     @property
     def freq_hz(self) -> float:
-        return self.regs[opt.REGISTERS["mod_freq_khz"]] * 1e3
+        return opt.pll_frequency_hz(*(self.field(k) for k in (
+            "mod_m1", "mod_m_frac1", "mod_n1", "mod_ps1", "quad_cnt_max")))
 
     def trigger(self, pattern: np.ndarray) -> None:
         """A trigger from the DMD's TRIG_OUT1: render and queue one frame (if streaming)."""
-        if not self.regs[opt.REGISTERS["stream_enable"]]:
+        if self.field("tg_dis"):
             return
         f = self.bench.faults
         ordinal = self.rendered
@@ -387,26 +415,25 @@ class FakeOPT8241(_Gone):
                 Path(f.hang_file).write_text(str(ordinal))
             time.sleep(f.hang_s)
         frame = self.bench.render(pattern, self.freq_hz)
-        fid = self.regs[opt.REGISTERS["frame_count"]]
-        self.regs[opt.REGISTERS["frame_count"]] = (fid + 1) % (1 << 24)
         self.rendered += 1
-        period = self.bench.lightcrafter_usb.state["period_us"] or 0
         taps = frame.taps[0].numpy()
+        # ambient / flags nibbles: simulator choices (TI does not document their meaning)
         sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
         ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
-        packet = opt.encode_frame(frame.phase[0, 0].numpy(), frame.amplitude[0, 0].numpy(), fid,
-                                  ordinal * period, ambient=ambient, flags=sat.astype(np.uint32),
-                                  taps=taps.astype(np.uint16))
+        packet = opt.encode_frame(self.mode, taps.astype(np.int64), ambient=ambient,
+                                  flags=sat.astype(np.uint32))
         if ordinal in f.corrupt:
             b = bytearray(packet)
-            b[opt.HEADER.size + 5] ^= 0x40
+            b[5] ^= 0x40  # bit 14 of the 3rd 16-bit word: beyond 12 bits (quad / IQ modes)
             packet = bytes(b)
         if ordinal in f.frame_timeout:
             self._late.add(ordinal)
         if ordinal not in f.drop:
             self._fifo.append((ordinal, packet))
             if ordinal in f.duplicate:
-                self._fifo.append((-1, packet))
+                self._fifo.append((ordinal, packet))
+        if ordinal in f.extra:
+            self._fifo.append((ordinal, np.frombuffer(packet, "<u2")[::-1].tobytes()))
 
 
 class _SimVideo(VideoPort):
@@ -436,9 +463,9 @@ class SimulatedBench:
     def __init__(self, config: ExperimentConfig | None = None, seed: int = 0,
                  faults: Faults | None = None) -> None:
         cfg = (config or ExperimentConfig()).validate()
-        if cfg.adc_bits is None or cfg.adc_bits > 16:
-            raise ValueError(f"SimulatedBench: the OPT8241 sends integer taps: expected adc_bits "
-                             f"in [1, 16], got {cfg.adc_bits}")
+        if cfg.adc_bits is None or cfg.adc_bits > 12:
+            raise ValueError(f"SimulatedBench: the OPT8241 sends 12-bit samples: expected "
+                             f"adc_bits in [1, 12], got {cfg.adc_bits}")
         self.config, self.seed = cfg, seed
         self.faults = faults or Faults()
         self.vanished = False
@@ -469,7 +496,10 @@ class SimulatedBench:
         return LightCrafter4500(self.lightcrafter_usb, video=self.video, **kwargs)
 
     def camera(self, **kwargs) -> OPT8241:
-        """An :class:`OPT8241` driver on the fake camera (``roi_px`` square frames)."""
+        """An :class:`OPT8241` driver on the fake camera (``roi_px`` square frames, raw-quad
+        mode so that the per-tap buckets exist, the simulated host clock)."""
         p = self.config.roi_px
-        kw = {"width": p, "height": p, "rules": rules_from_config(self.config), **kwargs}
+        kw = {"width": p, "height": p, "rules": rules_from_config(self.config), "mode": "quad",
+              "adc_bits": self.config.adc_bits, "clock": lambda: self.camera_usb.time_s,
+              **kwargs}
         return OPT8241(self.camera_usb, **kw)
