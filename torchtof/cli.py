@@ -76,6 +76,10 @@ def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[st
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    if args.auto:  # scene-adaptive acquisition and reconstruction (torchtof.adaptive)
+        from .adaptive.demo import demo_auto
+
+        return demo_auto(args)
     from tqdm.auto import tqdm
 
     from .experiment import PaperExperiment
@@ -145,6 +149,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         res = bench_tradeoff(quick=args.quick, out=args.out)
         print_tradeoff(res)
+    elif name == "adaptive":
+        from .bench.adaptive import bench_adaptive, print_adaptive
+
+        res = bench_adaptive(realisations=3 if args.quick else 6)
+        print_adaptive(res)
     elif name == "stability":
         from .bench.stability import bench_stability, print_stability
 
@@ -192,10 +201,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--methods", default=None, help="comma-separated subset, e.g. CGI,TVAL3")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", default="demo_out")
+    d.add_argument("--auto", action="store_true",
+                   help="adaptive pipeline vs the fixed one (skip what the scene doesn't need)")
     d.set_defaults(func=cmd_demo)
 
-    b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability")
-    b.add_argument("which", choices=["operators", "recon", "onnx", "tradeoff", "stability"])
+    b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability, "
+                       "adaptive")
+    b.add_argument("which", choices=["operators", "recon", "onnx", "tradeoff", "stability",
+                                     "adaptive"])
     b.add_argument("--n", type=int, nargs="*", default=None)
     b.add_argument("--batch", type=int, default=16)
     b.add_argument("--sr", type=float, default=0.25)
