@@ -152,7 +152,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     elif name == "adaptive":
         from .bench.adaptive import bench_adaptive, print_adaptive
 
-        res = bench_adaptive(realisations=3 if args.quick else 6)
+        res = bench_adaptive(realisations=3 if args.quick else 6, progress=False)
         print_adaptive(res)
     elif name == "stability":
         from .bench.stability import bench_stability, print_stability

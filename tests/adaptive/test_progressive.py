@@ -55,7 +55,7 @@ def test_innovation_runs_to_the_end_on_unpredictable_texture():
     g = torch.Generator().manual_seed(3)
     x = torch.rand(1, 1, N, N, generator=g, dtype=torch.float64)
     y = _buckets(x, 0.01)
-    res = run_progressive({"gated": y}, ProgressiveStop(N, noise_sigma=0.01, tol=0.01))
+    res = run_progressive({"gated": y}, ProgressiveStop(N, noise_sigma=0.01))
     assert res.m == res.m_max
     assert res.reason.startswith("end of record")
 
@@ -108,6 +108,7 @@ def test_call_does_not_modify_buckets():
         ({"patience": 0}, "patience"),
         ({"target": 1.5}, "target"),
         ({"tol": -1.0}, "tol"),
+        ({"snr": -1.0}, "snr"),
         ({"recon": "dip"}, "recon"),
         ({"noise_sigma": -1.0}, "noise_sigma"),
     ],
