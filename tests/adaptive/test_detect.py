@@ -81,3 +81,20 @@ def test_bad_inputs():
         detect_veil(nan, ref, 4)
     with pytest.raises(TypeError, match="dict"):
         detect_veil([1], ref, 4)
+
+
+def test_gate_change_known_answers(gen):
+    from torchtof.adaptive.detect import gate_changes_image
+
+    yg = torch.randn(1, 1, 128, generator=gen, dtype=torch.float64) * 5
+    e = 0.1 * torch.randn(2, 1, 1, 128, generator=gen, dtype=torch.float64)
+    yu = -0.4 * yg + e[0]  # ungated = affine image of gated + noise: the gate changes nothing
+    d_u, d_g = (e[0] - e[1])[..., :32], torch.zeros(1, 1, 32, dtype=torch.float64)
+    t = gate_changes_image(yu, yg, d_u, d_g)
+    assert not t.present and t.slope == pytest.approx(-0.4, abs=0.01)
+    far = torch.zeros_like(yg)
+    far[..., 1:9] = 1.0  # returns beyond the gate add structure the gated buckets lack
+    t2 = gate_changes_image(yu + far, yg, d_u, d_g)
+    assert t2.present and t2.rho > 2 * t.rho
+    with pytest.raises(ValueError, match="one shape"):
+        gate_changes_image(yu[..., :64], yg, d_u, d_g)

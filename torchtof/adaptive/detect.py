@@ -43,8 +43,8 @@ import torch
 
 from .._checks import check_finite, check_tensor
 
-__all__ = ["DarkReference", "VeilEstimate", "FarEstimate", "dark_reference", "detect_veil",
-           "detect_far_background"]
+__all__ = ["DarkReference", "VeilEstimate", "FarEstimate", "GateTest", "dark_reference",
+           "detect_veil", "detect_far_background", "gate_changes_image"]
 
 RAW_KINDS = ("depth", "depth_gated", "intensity")
 
@@ -184,3 +184,65 @@ def detect_far_background(raw: dict[str, torch.Tensor], intensity_sigma: float,
     ratio = dg / (-dd) if dd < 0 else (0.0 if dg <= 0 else float("inf"))
     return FarEstimate(present=bool(sig > k_sigma and ratio < r_min), ratio=ratio,
                        significance=sig)
+
+
+@dataclass(frozen=True)
+class GateTest:
+    """:func:`gate_changes_image`: ``present`` (the gate changes the image beyond noise),
+    ``rho`` (affine residual over its noise), ``slope`` ``a``."""
+
+    present: bool
+    rho: float
+    slope: float
+
+
+def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: torch.Tensor,
+                       d_gated: torch.Tensor, level: float = 0.99) -> GateTest:
+    """Does the depth gate change the image beyond an affine map and the noise?
+
+    Without returns beyond the gate, every pixel that lights up moves both buckets in
+    proportion (``5 − z`` down, ``z`` up, §3.1), so the ungated coefficients are an affine
+    image of the gated ones: ``y_u ≈ a·y_g`` on every non-DC coefficient (orthonormal rows:
+    the offset lives in the DC only). Far returns (background, multipath halo) break it. With
+    ``a`` the least-squares slope over the ``K`` non-DC coefficients and ``σ_r`` the noise of
+    ``y_u − a·y_g`` from repeated measurements ``d = y − y'`` of some coefficients
+    (``σ_r² = ‖d_u − a d_g‖²/(2B)``; both kinds come from the same frames, so their noise is
+    correlated and measured together),
+
+    .. math:: \\rho = \\frac{\\|y_u - a y_g\\|^2}{K \\sigma_r^2},
+
+    and the gate is needed when ``ρ`` exceeds the ``level`` quantile of Fisher's ``F(K, B)``
+    (Snedecor): ``ρ`` is a ratio of two χ² variables over their degrees of freedom under the
+    no-far-return hypothesis (``σ_r²`` is itself estimated from ``B`` values).
+
+    Args:
+        y_depth, y_gated: signed ungated and gated buckets ``(1, 1, m)`` (same patterns).
+        d_depth, d_gated: differences of two measurements of the same ``B`` patterns.
+        level: confidence level of the F test.
+
+    Returns:
+        :class:`GateTest`.
+
+    Raises:
+        ValueError: fewer than 8 coefficients, mismatched shapes.
+    """
+    fn = "gate_changes_image"
+    for name, v in (("y_depth", y_depth), ("y_gated", y_gated), ("d_depth", d_depth),
+                    ("d_gated", d_gated)):
+        check_tensor(v, name, fn)
+        check_finite(v, name, fn)
+    if y_depth.shape != y_gated.shape or y_depth.shape[-1] < 8:
+        raise ValueError(f"{fn}: expected y_depth and y_gated of one shape with >= 8 buckets, "
+                         f"got {tuple(y_depth.shape)} and {tuple(y_gated.shape)}")
+    if d_depth.shape != d_gated.shape:
+        raise ValueError(f"{fn}: expected d_depth and d_gated of one shape, got "
+                         f"{tuple(d_depth.shape)} and {tuple(d_gated.shape)}")
+    yu, yg = y_depth.flatten()[1:].double(), y_gated.flatten()[1:].double()
+    a = float((yu @ yg) / (yg @ yg).clamp_min(1e-300))
+    du, dg = d_depth.flatten().double(), d_gated.flatten().double()
+    s2 = float(((du - a * dg) ** 2).sum() / (2 * du.numel()))
+    k = yu.numel()
+    rho = float(((yu - a * yg) ** 2).sum()) / max(k * s2, 1e-300)
+    from scipy.stats import f as fisher
+
+    return GateTest(present=bool(rho > fisher.ppf(level, k, du.numel())), rho=rho, slope=a)

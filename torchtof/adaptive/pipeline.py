@@ -7,9 +7,11 @@ and the reconstructor run to its own convergence.
 **Adaptive pipeline** (:func:`run_adaptive`):
 
 1. the first DMD pair (all-on, dark) → :func:`~torchtof.adaptive.detect.detect_veil` and
-   :func:`~torchtof.adaptive.detect.detect_far_background`; the gate is kept when a veil or a
-   far background is found and skipped otherwise (ungated buckets, negative images, §3.1);
-   the veil compensation runs only with a veil;
+   :func:`~torchtof.adaptive.detect.detect_far_background`, and the first 128 patterns →
+   :func:`~torchtof.adaptive.detect.gate_changes_image`; the gate is kept when a veil or a
+   far background is found or when it changes the image beyond the noise, and skipped
+   otherwise (ungated buckets, negative images, §3.1; the gate is per-frame processing, so
+   this costs no frames); the veil compensation runs only with a veil;
 2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
    patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` (not the first
    block: its all-on/dark pair is noisier or quieter than the rest);
@@ -38,6 +40,7 @@ from .detect import (
     dark_reference,
     detect_far_background,
     detect_veil,
+    gate_changes_image,
 )
 from .progressive import ProgressiveResult, ProgressiveStop, run_progressive
 from .solvers import solve_at_noise
@@ -214,12 +217,22 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
 
     far = detect_far_background(raw, (sigma_of("intensity") or 1e-12) * cfg.n)
     skipped, stages = [], []
-    gate = veil.present or far.present
+    gate_test = None
+    if sb_rep is not None:  # does the gate change the image of the first patterns?
+        m0 = min(max(2 * block, 128), sb["depth"].shape[-1])
+        d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
+             for k in ("depth", "gated")}
+        gate_test = gate_changes_image(sb["depth"][..., :m0], sb["gated"][..., :m0],
+                                       d["depth"], d["gated"])
+    gate = veil.present or far.present or (gate_test is None or gate_test.present)
     if gate:
-        why = "veil" if veil.present else "far background"
+        why = ("veil" if veil.present else "far background" if far.present else
+               "no repeat to test it" if gate_test is None else
+               f"it changes the image: rho {gate_test.rho:.2f}")
         stages.append(f"depth gate ({why})")
     else:
-        skipped.append("depth gate (no veil, no far background beyond 3 m)")
+        skipped.append(f"depth gate (no veil, no far background, the gate does not change "
+                       f"the image: rho {gate_test.rho:.2f})")
     kind = "gated" if gate else "depth"
     if veil.present:
         stages.append(f"veil compensation (alpha^ {veil.alpha:.2f})")
