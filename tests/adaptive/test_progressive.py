@@ -128,3 +128,11 @@ def test_bad_buckets():
         stop({"gated": torch.full((1, 1, 64), float("nan"))})
     with pytest.raises(ValueError, match="one M"):
         run_progressive({"gated": torch.zeros(1, 1, 64), "depth": torch.zeros(1, 1, 32)}, stop)
+
+
+def test_a_shorter_prefix_starts_a_new_acquisition():
+    y = _buckets(_rect(), 0.01)
+    stop = ProgressiveStop(N, noise_sigma=0.01)
+    first = next(m for m in range(32, 385, 32) if stop({"gated": y[..., :m]}))
+    again = next(m for m in range(32, 385, 32) if stop({"gated": y[..., :m]}))
+    assert first == again

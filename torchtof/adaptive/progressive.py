@@ -227,6 +227,8 @@ class ProgressiveStop:
                              f"got {tuple(y.shape)}")
         check_finite(y, f"buckets[{self.kind!r}]", fn)
         m, bsz = y.shape[-1], self.block
+        if m <= self.last.get("m", 0):  # not a continuation of the last call: a new acquisition
+            self.reset()
         self.last = {"m": m, "reason": None}
         if m < 2 * bsz:
             self._streak = 0
