@@ -81,6 +81,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.depth:  # depth-resolved ghost imaging (torchtof/depth_demo.py)
         from .depth_demo import run_depth_demo
         return run_depth_demo(args)
+    if args.auto:  # scene-adaptive acquisition and reconstruction (torchtof.adaptive)
+        from .adaptive.demo import demo_auto
+
+        return demo_auto(args)
     from tqdm.auto import tqdm
 
     from .experiment import PaperExperiment
@@ -150,6 +154,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         res = bench_tradeoff(quick=args.quick, out=args.out)
         print_tradeoff(res)
+    elif name == "adaptive":
+        from .bench.adaptive import bench_adaptive, print_adaptive
+
+        res = bench_adaptive(realisations=3 if args.quick else 6, progress=False)
+        print_adaptive(res)
     elif name == "stability":
         from .bench.stability import bench_stability, print_stability
 
@@ -199,10 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="demo_out")
     d.add_argument("--depth", nargs="?", const="motorcycle", default=None, metavar="SCENE",
                    help="depth-resolved GI from per-tap buckets on SCENE (default motorcycle)")
+    d.add_argument("--auto", action="store_true",
+                   help="adaptive pipeline vs the fixed one (skip what the scene doesn't need)")
     d.set_defaults(func=cmd_demo)
 
-    b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability")
-    b.add_argument("which", choices=["operators", "recon", "onnx", "tradeoff", "stability"])
+    b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability, "
+                       "adaptive")
+    b.add_argument("which", choices=["operators", "recon", "onnx", "tradeoff", "stability",
+                                     "adaptive"])
     b.add_argument("--n", type=int, nargs="*", default=None)
     b.add_argument("--batch", type=int, default=16)
     b.add_argument("--sr", type=float, default=0.25)

@@ -43,7 +43,7 @@ from .._checks import (
 from ..operators.base import LinearOperator
 from ._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
 
-__all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma"]
+__all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma", "STOP_REASONS"]
 
 #: Spread ``max(b) − min(b)`` that the buckets are scaled to (TVAL3's ``Scaleb`` keeps spreads in
 #: ``[0.5, 1.5]`` and maps larger ones to 1.5; we always map to 1.5, see :func:`tval3`).
@@ -61,6 +61,10 @@ AUTO_TVL2_BETA = 4.0
 #: :func:`bucket_noise_sigma`: fraction of the measurements (from the end) and the quantile used.
 NOISE_TAIL = 0.25
 NOISE_QUANTILE = 0.2
+#: ``TVAL3Result.stop_reason`` codes: index into this tuple (``discrepancy``: Morozov's rule).
+STOP_REASONS = ("tol", "max_outer", "discrepancy", "max_iter")
+#: Morozov's safety factor ``τ`` of the ``discrepancy`` stop: ``‖A x − y‖² ≤ τ M σ²``.
+DISCREPANCY_TAU = 1.0
 _POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
 _N_BACKTRACK = 5  # ftvcs_alp gives up after 5 backtracks
 
@@ -74,12 +78,19 @@ class TVAL3Result(NamedTuple):
         residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)`` (0 for an all-zero ``y``).
         converged: ``(B, C)`` bool, ``True`` where the outer stopping rule was met before
             ``max_iter``.
+        stop_reason: ``(B, C)`` int64 index into :data:`STOP_REASONS` (``"tol"``,
+            ``"max_outer"``, ``"discrepancy"``, ``"max_iter"``); :meth:`reasons` names them.
     """
 
     x: torch.Tensor
     n_iter: torch.Tensor
     residual: torch.Tensor
     converged: torch.Tensor
+    stop_reason: torch.Tensor | None = None
+
+    def reasons(self) -> list[list[str]]:
+        """``stop_reason`` as names, ``[b][c]``."""
+        return [[STOP_REASONS[int(k)] for k in row] for row in self.stop_reason.tolist()]
 
 
 # -- small helpers ----------------------------------------------------------------------------
@@ -292,6 +303,7 @@ def tval3(
     rate_ctn: float = 2.0,
     u_step: str = "bb",
     adaptive: bool = True,
+    discrepancy: float | str | torch.Tensor | None = None,
 ) -> TVAL3Result:
     """TVAL3 reconstruction ``min Σ‖D_i u‖ s.t. A u = y`` (Li, Yin, Jiang, Zhang 2013).
 
@@ -382,6 +394,14 @@ def tval3(
             no ``.item()`` or Python ``if`` on tensor values, so ``torch.onnx.export`` and
             ``torch.jit.trace`` can record it (graph size grows with ``max_iter``). Both give
             the same iterates (converged samples stay frozen in both).
+        discrepancy: ``None`` (default: off, the published stopping rules only) or the noise
+            std ``σ`` of ``y`` (float, ``(B, C)`` tensor, or ``"auto"`` for
+            :func:`bucket_noise_sigma`): Morozov's discrepancy principle (Morozov 1966; for
+            augmented-Lagrangian/Bregman iterations Osher et al. 2005) — at an inner
+            convergence, a sample whose residual satisfies ``‖A x − y‖² ≤ τ M σ²``
+            (``τ =`` :data:`DISCREPANCY_TAU`) stops instead of updating its multipliers, which
+            would only fit the noise. Checked at inner convergences only: the start
+            ``u₀ = Aᵀb`` fits ``y`` exactly for orthonormal rows.
 
     Returns:
         :class:`TVAL3Result` ``(x, n_iter, residual, converged)``.
@@ -441,12 +461,26 @@ def tval3(
         constrained = (torch.zeros_like if tvl2 else torch.ones_like)(spread, dtype=torch.bool)
         beta_f = torch.full_like(spread, float(beta))
 
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, nonneg, adaptive, **opts)
+    bound = None
+    if discrepancy is not None:  # τ M σ² in the scaled units of b (‖A_s u − b‖ = gain ‖Ax − y‖)
+        if isinstance(discrepancy, str):
+            if discrepancy != "auto":
+                raise ValueError(f"{fn}: expected discrepancy None, a number, a tensor or "
+                                 f"'auto', got {discrepancy!r}")
+            sd = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
+        else:
+            sd = _sigma_tensor(discrepancy, y)
+        bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
+    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, nonneg, adaptive, **opts,
+               disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
     residual = (ax - y).norm(dim=-1) / torch.where(zero, torch.ones_like(ynorm), ynorm)
-    return TVAL3Result(x, u.n_iter, residual, u.converged)
+    code = torch.where(u.count > opts["max_outer"], 1, 0)
+    code = torch.where(u.disc, 2, code)
+    code = torch.where(u.converged, code, 3)
+    return TVAL3Result(x, u.n_iter, residual, u.converged, code)
 
 
 def _sigma_tensor(noise_sigma: float | torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -506,6 +540,8 @@ class _Out(NamedTuple):
     x: torch.Tensor
     n_iter: torch.Tensor
     converged: torch.Tensor
+    count: torch.Tensor
+    disc: torch.Tensor
 
 
 def _solve(
@@ -531,6 +567,7 @@ def _solve(
     gamma: float = 0.6,
     gam0: float = 0.9995,
     rate_gam: float = 0.9,
+    disc_bound: torch.Tensor | None = None,
 ) -> _Out:
     """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`)."""
     sq = math.sqrt(inv_s2)
@@ -598,6 +635,7 @@ def _solve(
         n_iter=torch.zeros_like(f, dtype=torch.int64),
         rcd=u,
         done=zero.clone(),
+        disc=torch.zeros_like(zero),
     )
 
     def sd_length(d, rho):
@@ -685,6 +723,10 @@ def _solve(
         count = st["count"] + inner.to(torch.int64)
         rel_out = (u - st["rcd"]).norm(dim=(-2, -1)) / nrm_up
         stop = inner & ((rel_out < tol) | (count > max_outer))
+        if disc_bound is not None:  # discrepancy principle (see tval3)
+            disc = inner & ~stop & (_dot_v(r, r) <= disc_bound)
+            stop = stop | disc
+            out["disc"] = st["disc"] | disc
         outer = inner & ~stop
         out.update(
             count=count,
@@ -735,7 +777,7 @@ def _solve(
         else:
             active = ~st["done"]
             st = {k: _where(active, new[k], st[k]) for k in st}
-    return _Out(st["u"], st["n_iter"], st["done"])
+    return _Out(st["u"], st["n_iter"], st["done"], st["count"], st["disc"])
 
 
 #: Keyword-only options of :func:`tval3` that :class:`TVAL3` accepts, with their defaults.
@@ -747,6 +789,7 @@ _KW_OPTIONS = dict(
     rate_ctn=2.0,
     u_step="bb",
     adaptive=True,
+    discrepancy=None,
 )
 
 
@@ -757,7 +800,8 @@ class TVAL3(nn.Module):
         A: measurement operator (registered as a submodule, so ``.to()`` moves its buffers).
         mu, beta, tol, tol_inner, max_iter, tv, nonneg: as in :func:`tval3`.
         **options: the keyword-only options of :func:`tval3` (``tvl2``, ``noise_sigma``,
-            ``max_outer``, ``ctn_steps``, ``rate_ctn``, ``u_step``, ``adaptive``).
+            ``max_outer``, ``ctn_steps``, ``rate_ctn``, ``u_step``, ``adaptive``,
+            ``discrepancy``).
 
     Attributes:
         last_result: the :class:`TVAL3Result` of the last call (``None`` before the first).

@@ -1,0 +1,39 @@
+import pytest
+import torch
+
+from torchtof.adaptive import noise_from_blocks, noise_from_repeats
+
+
+def test_repeats_recovers_sigma_whatever_the_signal(gen):
+    s = 50.0 * torch.randn(1, 2, 2048, generator=gen)  # strong signal, the same in every repeat
+    y = s + torch.tensor([0.5, 2.0]).reshape(1, 2, 1) * torch.randn(5, 2, 2048, generator=gen)
+    sig = noise_from_repeats(y)
+    assert sig.shape == (2,)
+    assert torch.allclose(sig, torch.tensor([0.5, 2.0]), rtol=0.05)
+
+
+def test_blocks_on_pure_noise_and_with_low_order_signal(gen):
+    y = 0.3 * torch.randn(3, 1, 1024, generator=gen)
+    assert torch.allclose(noise_from_blocks(y, 32), torch.full((3, 1), 0.3), rtol=0.15)
+    y2 = y.clone()
+    y2[..., :256] += 10.0  # signal only in the low orders (first half) is ignored
+    assert torch.equal(noise_from_blocks(y2, 32), noise_from_blocks(y, 32))
+
+
+@pytest.mark.parametrize(
+    ("fn", "arg", "match"),
+    [
+        (noise_from_repeats, torch.zeros(1, 1, 8), "R >= 2"),
+        (noise_from_repeats, torch.zeros(2, 8), "y"),
+        (noise_from_repeats, torch.tensor([[[1.0, float("nan")]], [[0.0, 0.0]]]), "NaN|finite"),
+        (noise_from_blocks, torch.zeros(1, 1, 40), "at least 2\\*block"),
+    ],
+)
+def test_bad_inputs(fn, arg, match):
+    with pytest.raises(ValueError, match=match):
+        fn(arg)
+
+
+def test_blocks_bad_block():
+    with pytest.raises(ValueError, match="block"):
+        noise_from_blocks(torch.zeros(1, 1, 64), 2)

@@ -1,0 +1,88 @@
+import math
+
+import pytest
+import torch
+
+from torchtof import cli
+from torchtof.adaptive import AdaptiveResult, ProgressiveStop, run_adaptive, signed_buckets
+from torchtof.bench.adaptive import _SceneExperiment, flatness_psnr, scene_type
+
+N = 16
+
+
+def _data(scene="sky", scattering=False, realisations=2):
+    exp = _SceneExperiment(scene_type(scene, N), sr=0.375, srs=(0.375,), n=N, roi_px=2 * N,
+                           scattering=scattering)
+    return exp.run(seed=0, realisations=realisations)
+
+
+def test_air_skips_the_gate_and_the_veil_stage():
+    data = _data()
+    res = run_adaptive(data, 0, block=8)
+    assert isinstance(res, AdaptiveResult)
+    assert res.kind == "depth" and res.polarity == "negative"
+    assert any("depth gate" in s for s in res.skipped)
+    assert any("veil compensation" in s for s in res.skipped)
+    assert res.repeat_patterns == 8
+    assert 8 < res.patterns_used <= res.patterns_max + 8
+    assert res.image.shape == (1, 1, N, N)
+    assert res.fixed is not None and res.fixed.patterns_used == data.hadamard.m
+    assert res.fixed.kind == "gated"
+    assert res.time_saved_s == pytest.approx(res.fixed.total_s - res.total_s)
+    # acquisition time is two frames per +-1 pattern at 30 fps
+    assert res.acquisition_s == pytest.approx(2 * res.patterns_used / 30.0)
+    assert "patterns" in res.summary()
+
+
+def test_veil_keeps_the_gate_and_compensates():
+    data = _data(scattering=True)
+    res = run_adaptive(data, 1, block=8, compare_fixed=False)
+    assert res.veil.present and res.kind == "gated"
+    assert any("depth gate" in s for s in res.stages)
+    assert res.fixed is None and res.time_saved_s is None
+
+
+def test_single_realisation_estimates_the_noise_and_custom_stop():
+    data = _data(realisations=1)
+    res = run_adaptive(data, 0, block=8, compare_fixed=False,
+                       stop=ProgressiveStop(N, block=8, rule="change", tol=0.5))
+    assert res.repeat_patterns == 0
+    assert res.progressive.history[-1]["sigma"] > 0
+    with pytest.raises(ValueError, match="r in"):
+        run_adaptive(data, 3)
+
+
+def test_budget_choice_is_recorded():
+    data = _data()
+    res = run_adaptive(data, 0, block=8, time_budget_s=1e-3, compare_fixed=False)
+    assert res.choice is not None and res.method == res.choice.method == "PINV"
+    assert res.solver_stop == "direct"
+
+
+def test_signed_buckets_are_prefix_consistent():
+    data = _data()
+    sb = signed_buckets(data, 0)
+    assert set(sb) == {"depth", "gated", "intensity"}
+    small = signed_buckets(data, 0, 0.125)
+    assert torch.equal(small["gated"], sb["gated"][..., : small["gated"].shape[-1]])
+
+
+def test_flatness_psnr_known_values():
+    img = torch.zeros(1, 1, 4, 4)
+    img[..., ::2, :] = 0.1
+    img[..., 1::2, :] = -0.1  # zero mean, rms 0.1 in gain units of 1 -> 20 dB
+    assert flatness_psnr(img, 1.0) == pytest.approx(20.0, abs=1e-4)
+    assert flatness_psnr(img, -2.0) == pytest.approx(20.0 + 20 * math.log10(2.0), abs=1e-4)
+
+
+def test_cli_demo_auto(tmp_path, capsys):
+    rc = cli.main(["demo", "--auto", "--n", "16", "--scene", "sky", "--out", str(tmp_path)])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "adaptive" in out and "fixed" in out and "skipped" in out
+    assert (tmp_path / "auto.png").is_file() and (tmp_path / "auto.json").is_file()
+
+
+def test_cli_bench_lists_adaptive():
+    args = cli.build_parser().parse_args(["bench", "adaptive", "--quick"])
+    assert args.which == "adaptive"

@@ -1,0 +1,83 @@
+import pytest
+import torch
+
+from torchtof.adaptive import solve_at_noise
+from torchtof.operators import Hadamard
+from torchtof.recon.tval3 import STOP_REASONS, tval3
+
+N = 16
+
+
+def _data(sigma, b=1, seed=0):
+    A = Hadamard(N, sr=0.375)
+    x = torch.zeros(b, 1, N, N, dtype=torch.float64)
+    x[..., 4:12, 3:10] = 1.0
+    y = A(x)
+    g = torch.Generator().manual_seed(seed)
+    return A, x, y + sigma * torch.randn(y.shape, generator=g, dtype=y.dtype)
+
+
+def test_tval3_default_unchanged_and_reports_a_reason():
+    A, _, y = _data(0.01, b=2)
+    ref = tval3(y, A)
+    off = tval3(y, A, discrepancy=None)
+    assert torch.equal(ref.x, off.x) and torch.equal(ref.n_iter, off.n_iter)
+    assert ref.stop_reason.shape == (2, 1) and ref.stop_reason.dtype == torch.int64
+    assert all(r in STOP_REASONS for row in ref.reasons() for r in row)
+    assert "discrepancy" not in sum(ref.reasons(), [])
+
+
+def test_tval3_discrepancy_stops_at_the_noise_level():
+    # the constrained model (mu = 2^8) fits the noise to ||Ax - y|| -> 0; Morozov stops it at
+    # the first inner convergence whose residual is within tau M sigma^2
+    sigma = 0.05
+    A, x, y = _data(sigma)
+    full = tval3(y, A, mu=2**8)
+    early = tval3(y, A, mu=2**8, discrepancy=sigma)
+    assert early.reasons() == [["discrepancy"]]
+    assert int(early.n_iter) < int(full.n_iter)
+    res = (A(early.x) - y).pow(2).sum()
+    assert float(res) <= A.m * sigma**2 * (1 + 1e-9)
+    assert float((A(full.x) - y).norm()) < float(res.sqrt())
+
+
+def test_tval3_auto_discrepancy_and_max_iter_reason():
+    A, _, y = _data(0.05)
+    r = tval3(y, A, mu=2**8, discrepancy="auto")
+    assert r.converged.all()
+    short = tval3(y, A, max_iter=3)
+    assert short.reasons() == [["max_iter"]]
+    with pytest.raises(ValueError, match="discrepancy"):
+        tval3(y, A, discrepancy="sometimes")
+    with pytest.raises(ValueError, match="noise_sigma"):
+        tval3(y, A, discrepancy=-1.0)
+
+
+@pytest.mark.parametrize("method", ["PINV", "TVAL3", "BP"])
+def test_solve_at_noise_reports_iterations_and_reasons(method):
+    sigma = 0.05
+    A, _, y = _data(sigma, b=2)
+    r = solve_at_noise(method, A, y, sigma)
+    assert r.x.shape == (2, 1, N, N)
+    assert len(r.stop_reason) == 2 and len(r.n_iter[0]) == 1
+    expected = {"PINV": {"direct"}, "TVAL3": {"discrepancy", "tol", "max_outer", "max_iter"},
+                "BP": {"tol", "max_iter"}}[method]
+    assert {s for row in r.stop_reason for s in row} <= expected
+    if method == "BP":  # the discrepancy radius is the constraint: every sample within it
+        assert float((A(r.x) - y).norm(dim=-1).max()) <= (A.m**0.5) * sigma * (1 + 1e-3)
+
+
+def test_dip_discrepancy_stops_before_max_iter():
+    sigma = 0.05
+    A, _, y = _data(sigma)
+    r = solve_at_noise("DIP", A, y.float(), 3 * sigma, n_iter=60)  # generous bound: met early
+    assert r.stop_reason == [["discrepancy"]]
+    assert r.n_iter[0][0] < 60
+
+
+def test_solve_at_noise_bad_inputs():
+    A, _, y = _data(0.0)
+    with pytest.raises(ValueError, match="method"):
+        solve_at_noise("CGI", A, y)
+    with pytest.raises(ValueError, match="shape"):
+        solve_at_noise("PINV", A, y[0])

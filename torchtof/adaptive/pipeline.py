@@ -1,0 +1,271 @@
+"""The adaptive pipeline against the fixed one, on a recorded or simulated run.
+
+**Fixed pipeline** (the paper's, DESIGN.md §3): every pattern up to the maximum SR, the 3 m
+depth gate (§3.1), the veil compensation of Eq. 15 (``y/α̂``; ``Dˢ`` cancels in ``y⁺ − y⁻``),
+and the reconstructor run to its own convergence.
+
+**Adaptive pipeline** (:func:`run_adaptive`):
+
+1. the first DMD pair (all-on, dark) → :func:`~torchtof.adaptive.detect.detect_veil` and
+   :func:`~torchtof.adaptive.detect.detect_far_background`, and the first 128 patterns →
+   :func:`~torchtof.adaptive.detect.gate_changes_image`; the gate is kept when a veil or a
+   far background is found or when it changes the image beyond the noise, and skipped
+   otherwise (ungated buckets, negative images, §3.1; the gate is per-frame processing, so
+   this costs no frames); the veil compensation runs only with a veil;
+2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
+   patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` (not the first
+   block: its all-on/dark pair is noisier or quieter than the rest);
+3. progressive acquisition with :class:`~torchtof.adaptive.progressive.ProgressiveStop`
+   (innovation rule at ``σ̂``) on the chosen buckets;
+4. the reconstructor — TVAL3 by default, or the cheapest one meeting a budget
+   (:func:`~torchtof.adaptive.budget.choose_method`) — stopped by the discrepancy principle
+   at ``σ̂`` (:func:`~torchtof.adaptive.solvers.solve_at_noise`).
+
+Time: acquisition is one ToF frame per DMD pattern (two per ±1 row) at ``fps`` frames per
+second (the paper's camera: 30–150 fps); compute is measured wall time.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from .budget import MethodChoice, choose_method
+from .detect import (
+    DarkReference,
+    FarEstimate,
+    VeilEstimate,
+    dark_reference,
+    detect_far_background,
+    detect_veil,
+    gate_changes_image,
+)
+from .progressive import ProgressiveResult, ProgressiveStop, run_progressive
+from .solvers import solve_at_noise
+
+__all__ = ["AdaptiveResult", "run_adaptive", "run_fixed", "signed_buckets"]
+
+DEFAULT_FPS = 30.0
+
+
+@dataclass
+class AdaptiveResult:
+    """What a pipeline run did.
+
+    Attributes:
+        image: reconstruction ``(1, 1, n, n)`` (veil-compensated where that stage ran).
+        kind: buckets used (``"gated"`` or ``"depth"``); ``polarity`` of the image.
+        method: reconstructor; ``n_iter``: its iterations; ``solver_stop``: why it stopped.
+        patterns_used: ±1 patterns measured (repeats included), ``patterns_max`` at max SR,
+            ``repeat_patterns`` of them spent on the noise estimate.
+        acquisition_stop: why acquisition stopped.
+        skipped: stages skipped, each with the reason; ``stages``: stages that ran.
+        veil, far: the detector outputs; ``noise_sigma``: ``σ̂`` of the buckets used.
+        acquisition_s, compute_s: frame time at ``fps`` and measured compute time.
+        fixed: the fixed pipeline's result to compare with (``time_saved_s``).
+    """
+
+    image: torch.Tensor
+    kind: str
+    polarity: str
+    method: str
+    n_iter: int
+    solver_stop: str
+    patterns_used: int
+    patterns_max: int
+    repeat_patterns: int
+    acquisition_stop: str
+    skipped: list[str] = field(default_factory=list)
+    stages: list[str] = field(default_factory=list)
+    veil: VeilEstimate | None = None
+    far: FarEstimate | None = None
+    noise_sigma: float | None = None
+    acquisition_s: float = 0.0
+    compute_s: float = 0.0
+    choice: MethodChoice | None = None
+    progressive: ProgressiveResult | None = None
+    fixed: AdaptiveResult | None = None
+
+    @property
+    def total_s(self) -> float:
+        return self.acquisition_s + self.compute_s
+
+    @property
+    def time_saved_s(self) -> float | None:
+        """Fixed minus adaptive total time (``None`` without a fixed run)."""
+        return None if self.fixed is None else self.fixed.total_s - self.total_s
+
+    def summary(self) -> str:
+        lines = [
+            f"patterns {self.patterns_used}/{self.patterns_max} ({self.repeat_patterns} repeated "
+            f"for the noise level): {self.acquisition_stop}",
+            f"{self.method}: {self.n_iter} iterations, stopped by {self.solver_stop}",
+            f"stages run: {', '.join(self.stages) or '-'}",
+            f"skipped: {'; '.join(self.skipped) or '-'}",
+        ]
+        if self.veil is not None:
+            lines.append(f"veil: {self.veil.present} (alpha^ {self.veil.alpha:.2f}, D^s "
+                         f"{self.veil.ds_m:+.2f} m, dark frame shift {self.veil.shift_m:+.2f} m)")
+        if self.far is not None:
+            lines.append(f"far background: {self.far.present} (R = {self.far.ratio:.2f}, "
+                         f"{self.far.significance:.1f} sigma)")
+        t = f"time {self.total_s:.2f} s (acquisition {self.acquisition_s:.2f} s + compute " \
+            f"{self.compute_s:.3f} s)"
+        if self.fixed is not None:
+            t += f"; fixed pipeline {self.fixed.total_s:.2f} s, saved {self.time_saved_s:.2f} s"
+        lines.append(t)
+        return "\n".join(lines)
+
+
+def signed_buckets(data, r: int, sr: float | None = None) -> dict[str, torch.Tensor]:
+    """The signed orthonormal buckets ``(1, 1, M)`` of realisation ``r`` at ``sr`` (default:
+    the largest) as :class:`ProgressiveStop` takes them."""
+    sr = sr or max(data.config.srs)
+    out = {}
+    for key, kind, gate in (("depth", "depth", False), ("gated", "depth", True),
+                            ("intensity", "intensity", False)):
+        out[key] = data.measurements(sr, kind, gate)[1][r : r + 1]
+    return out
+
+
+def _raw(data, r: int) -> dict[str, torch.Tensor]:
+    return {k: data.buckets[k][r : r + 1, :, :2] for k in ("depth", "depth_gated", "intensity")}
+
+
+_REF_CACHE: dict = {}
+
+
+def _reference(data) -> DarkReference:
+    key = repr(data.config)
+    if key not in _REF_CACHE:
+        _REF_CACHE[key] = dark_reference(data.config)
+    return _REF_CACHE[key]
+
+
+def _frames_s(patterns: int, fps: float) -> float:
+    return 2 * patterns / fps  # one ToF frame per DMD pattern, two patterns per ±1 row
+
+
+def run_fixed(data, r: int = 0, method: str = "TVAL3", fps: float = DEFAULT_FPS,
+              reference: DarkReference | None = None) -> AdaptiveResult:
+    """The fixed pipeline on realisation ``r`` (module docstring)."""
+    sr = max(data.config.srs)
+    t0 = time.perf_counter()
+    veil = detect_veil(_raw(data, r), reference or _reference(data), data.config.roi_px**2)
+    A, y = data.measurements(sr, "depth", True)
+    sol = solve_at_noise(method, A, y[r : r + 1], None, sign=1.0)
+    image = sol.x / veil.alpha  # Eq. 15 compensation (always run in the fixed pipeline)
+    dt = time.perf_counter() - t0
+    m = A.m
+    return AdaptiveResult(
+        image=image, kind="gated", polarity="positive", method=method, n_iter=sol.n_iter[0][0],
+        solver_stop=sol.stop_reason[0][0], patterns_used=m, patterns_max=m, repeat_patterns=0,
+        acquisition_stop="fixed: every pattern up to the maximum SR",
+        stages=["depth gate", "veil compensation"], veil=veil,
+        acquisition_s=_frames_s(m, fps), compute_s=dt)
+
+
+def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
+                 time_budget_s: float | None = None, target_psnr: float | None = None,
+                 fps: float = DEFAULT_FPS, repeat: bool = True,
+                 reference: DarkReference | None = None, stop: ProgressiveStop | None = None,
+                 compare_fixed: bool = True) -> AdaptiveResult:
+    """The adaptive pipeline on realisation ``r`` of a run (module docstring).
+
+    Args:
+        data: :class:`~torchtof.experiment.ExperimentData` (a recorded or simulated run at
+            the maximum SR; smaller SRs are its prefixes). With ``repeat=True`` and more than
+            one realisation, the repeat of the first block is taken from realisation
+            ``r + 1`` (an independent draw of the same patterns).
+        r: realisation.
+        block: patterns per block.
+        method: reconstructor (``None``: TVAL3, or :func:`choose_method` with a budget).
+        time_budget_s, target_psnr: budget for :func:`choose_method`.
+        fps: ToF frames per second for the acquisition time.
+        repeat: measure the first block twice for ``σ̂`` (else estimate it from the blocks).
+        reference: clear set-up dark frame (default: simulated for ``data.config``).
+        stop: a custom :class:`ProgressiveStop` (its ``kind`` is overridden by the gate choice).
+        compare_fixed: also run :func:`run_fixed` and attach it.
+
+    Returns:
+        :class:`AdaptiveResult`.
+
+    Raises:
+        ValueError: ``r`` out of range.
+    """
+    cfg = data.config
+    n_real = data.buckets["depth"].shape[0]
+    if not 0 <= r < n_real:
+        raise ValueError(f"run_adaptive: expected r in [0, {n_real}), got {r}")
+    sr = max(cfg.srs)
+    t0 = time.perf_counter()
+    ref = reference or _reference(data)
+    raw = _raw(data, r)
+    veil = detect_veil(raw, ref, cfg.roi_px**2)
+    sb = signed_buckets(data, r, sr)
+    # noise of the first block: repeated (independent realisation) or from the blocks
+    rep = (r + 1) % n_real if (repeat and n_real > 1) else None
+    sb_rep = signed_buckets(data, rep, sr) if rep is not None else None
+
+    def sigma_of(kind):
+        if sb_rep is None:
+            return None
+        d = sb[kind][..., block : 2 * block] - sb_rep[kind][..., block : 2 * block]
+        return float((d.pow(2).sum() / (2 * block)).sqrt())
+
+    far = detect_far_background(raw, (sigma_of("intensity") or 1e-12) * cfg.n)
+    skipped, stages = [], []
+    gate_test = None
+    if sb_rep is not None:  # does the gate change the image of the first patterns?
+        m0 = min(max(2 * block, 128), sb["depth"].shape[-1])
+        d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
+             for k in ("depth", "gated")}
+        gate_test = gate_changes_image(sb["depth"][..., :m0], sb["gated"][..., :m0],
+                                       d["depth"], d["gated"])
+    gate = veil.present or far.present or (gate_test is None or gate_test.present)
+    if gate:
+        why = ("veil" if veil.present else "far background" if far.present else
+               "no repeat to test it" if gate_test is None else
+               f"it changes the image: rho {gate_test.rho:.2f}")
+        stages.append(f"depth gate ({why})")
+    else:
+        skipped.append(f"depth gate (no veil, no far background, the gate does not change "
+                       f"the image: rho {gate_test.rho:.2f})")
+    kind = "gated" if gate else "depth"
+    if veil.present:
+        stages.append(f"veil compensation (alpha^ {veil.alpha:.2f})")
+    else:
+        skipped.append("veil compensation (no veil)")
+    sigma = sigma_of(kind)
+    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=sigma, order=cfg.order)
+    stopper.kind = kind
+    if stop is None or stop.noise_sigma is None:
+        stopper.noise_sigma = sigma
+    prog = run_progressive(sb, stopper)
+    m = prog.m
+    choice = None
+    if method is None:
+        if time_budget_s is not None or target_psnr is not None:
+            choice = choose_method(cfg.n, m / cfg.n**2, time_budget_s=time_budget_s,
+                                   target_psnr=target_psnr)
+            method = choice.method
+        else:
+            method = "TVAL3"
+    A = data.operator(m / cfg.n**2)
+    sign = 1.0 if gate else -1.0
+    n_iter = choice.n_iter if choice is not None else None
+    sol = solve_at_noise(method, A, sb[kind][..., :m], sigma, n_iter=n_iter, sign=sign)
+    image = sol.x / veil.alpha if veil.present else sol.x
+    dt = time.perf_counter() - t0
+    n_rep = block if rep is not None else 0
+    res = AdaptiveResult(
+        image=image, kind=kind, polarity="positive" if gate else "negative", method=method,
+        n_iter=sol.n_iter[0][0], solver_stop=sol.stop_reason[0][0], patterns_used=m + n_rep,
+        patterns_max=data.hadamard.m, repeat_patterns=n_rep, acquisition_stop=prog.reason,
+        skipped=skipped, stages=stages, veil=veil, far=far, noise_sigma=sigma,
+        acquisition_s=_frames_s(m + n_rep, fps), compute_s=dt, choice=choice, progressive=prog)
+    if compare_fixed:
+        res.fixed = run_fixed(data, r, method="TVAL3", fps=fps, reference=ref)
+    return res
