@@ -6,7 +6,6 @@ the same global batch.
 """
 
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -99,21 +98,16 @@ def test_train_unrolled_errors(monkeypatch):
         train_unrolled(n=16, steps=1, distributed=True)
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_ddp_two_processes_train_the_single_process_model(tmp_path):
     args = "--n 16 --sr 0.25 --n-iter 3 --steps 5 --batch 8 --seed 3 --log-every 0".split()
     out = tmp_path / "ddp.pt"
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
     for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
         env.pop(k, None)
-    port = str(_free_port())
-    launcher = "-m torch.distributed.run --nproc_per_node 2 --master_addr 127.0.0.1".split()
-    cmd = [sys.executable, *launcher, "--master_port", port, "--", str(SCRIPT), *args]
+    # --standalone: the c10d rendezvous picks a free port itself (no bind-then-release race
+    # with other tests running in parallel)
+    launcher = "-m torch.distributed.run --standalone --nproc_per_node 2".split()
+    cmd = [sys.executable, *launcher, "--", str(SCRIPT), *args]
     cmd += ["--out", str(out)]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
