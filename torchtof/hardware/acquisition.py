@@ -38,9 +38,10 @@ Any fault (missing, extra or out-of-order frame, timeout, NACK, corrupt frame) r
 as they are accepted (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``,
 ``frames_taps``, ``frames_id`` (device number 0-255, or host count), ``frames_timestamp``,
 ``buckets_depth``, ``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis
-last for buckets ``(1, C, 2M)``, first for frames, chunked per 24 frames) and then marked in
-``frames_ok`` (1 recorded, 2 provisional, 0 not yet). zarr's local store replaces each chunk
-file atomically, so a killed run keeps every frame recorded before the kill;
+last for buckets ``(1, C, 2M)``, first for frames, chunked per pattern sequence of ≤ 24
+frames) and then marked in ``frames_ok`` (1 recorded, 2 provisional, 0 not yet). zarr's
+local store replaces each chunk file atomically, so a killed run keeps every frame recorded
+before the kill;
 ``resume=True`` continues at the first pattern pair not completely recorded. Needs zarr ≥ 3
 (Python ≥ 3.11): :func:`require_zarr3`. Patterns, order, timing, ROI, frame-id mode, camera
 settings and package versions are store attributes.
