@@ -26,8 +26,9 @@ CLEAN = ExperimentConfig(n=N, roi_px=16, srs=(SR,), shot=None, read_noise_e=0.0)
 NOISY = replace(CLEAN, shot="poisson", read_noise_e=12.0)
 
 
-def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", **kw):
-    bench = SimulatedBench(cfg, seed=seed, faults=Faults(**(faults or {})))
+def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", start=0, **kw):
+    bench = SimulatedBench(cfg, seed=seed, faults=Faults(**(faults or {})),
+                           frame_number_start=start)
     kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3,
           "metadata": {"simulation": {"config": asdict(cfg), "seed": seed}}, **kw}
     return acquire(path, bench.lightcrafter(), bench.camera(mode=mode), **kw), bench
@@ -119,42 +120,58 @@ def test_transient_fault_is_retried_to_the_same_buckets(fault, reference, tmp_pa
     assert len(set(ids.tolist())) == 32  # every recorded frame is a distinct camera frame
 
 
-@pytest.mark.parametrize("faults,error,match,first", [
-    # a sequence is recorded only once all its frames arrived: nothing of sequence 0 is kept
-    ({"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within", 0),
-    ({"corrupt": set(range(3, 99))}, FrameError, r"corrupt frame for pattern \d+: reserved bits",
+@pytest.mark.parametrize("ids,faults,error,match,first", [
+    # device ids: frames are recorded as they arrive; the anchor pair 0-1 comes first, then the
+    # sequence from 2 fails at pattern 3: recorded up to the pair of the failing frame
+    ("device", {"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within",
+     2),
+    ("device", {"corrupt": set(range(3, 99))}, FrameError,
+     r"corrupt frame for pattern \d+: reserved bits", 2),
+    # the camera's spurious frame takes the next number: only the count check sees it
+    ("device", {"extra": set(range(99))}, FrameSequenceError,
+     r"3 frame.s. in the sequence from pattern 0, expected 2", 0),
+    # PAT_START_STOP #0, #1 are the anchor pair's stop/start; the next sequence fails
+    ("device", {"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
+     "PAT_START_STOP: device answered NACK", 2),
+    # count mode: a sequence is recorded only once all its frames arrived
+    ("count", {"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within",
      0),
-    # PAT_START_STOP #0, #1 are the first sequence's stop/start; the second sequence fails
-    ({"extra": set(range(99))}, FrameSequenceError,
+    ("count", {"extra": set(range(99))}, FrameSequenceError,
      "48 frame.s. in the sequence from pattern 0, expected 24", 0),  # one extra per frame
-    ({"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
+    ("count", {"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
      "PAT_START_STOP: device answered NACK", 24),
 ])
-def test_persistent_fault_gives_a_clear_error(faults, error, match, first, tmp_path):
+def test_persistent_fault_gives_a_clear_error(ids, faults, error, match, first, tmp_path):
     with pytest.raises(error, match=match):
-        run(tmp_path / "p.zarr", faults=faults, retries=2)
+        run(tmp_path / "p.zarr", faults=faults, retries=2, frame_ids=ids)
     g = zarr.open_group(str(tmp_path / "p.zarr"), mode="r")
     assert g.attrs["status"] == "interrupted" and g.attrs["retries"] == 3
     ok = g["frames_ok"][:]
-    assert ok[:first].all() and not ok[first:].any()  # nothing from the failing pattern on
-    assert np.isnan(g["buckets_depth"][0, 0, first:]).all()
+    recorded = int(np.flatnonzero(ok != 1)[0])
+    assert recorded - recorded % 2 == first  # resume restarts at the failing pair
+    assert not ok[first + 2:].any()  # nothing after the failing pair (2 = provisional anchor)
+    assert np.isnan(g["buckets_depth"][0, 0, first + 2:]).all()
 
 
-def test_device_vanishing_then_resume(reference, tmp_path):
+@pytest.mark.parametrize("ids,kept,rendered", [
+    ("device", 27, 6),  # every frame that arrived is recorded; resume at the pair of 27: 26
+    ("count", 24, 8),  # the second sequence (24-31) is lost as a whole
+])
+def test_device_vanishing_then_resume(ids, kept, rendered, reference, tmp_path):
     path = tmp_path / "v.zarr"
     with pytest.raises(DeviceLostError, match="--resume"):
-        run(path, faults={"vanish_after_frames": 27})
+        run(path, faults={"vanish_after_frames": 27}, frame_ids=ids)
     g = zarr.open_group(str(path), mode="r")
-    # vanished while frame 27 was in flight: the second sequence (24-31) is lost as a whole
-    assert g["frames_ok"][:].tolist() == [1] * 24 + [0] * 8
+    # vanished while frame 27 was in flight
+    assert g["frames_ok"][:].tolist() == [1] * kept + [0] * (32 - kept)
     with pytest.raises(FileExistsError, match="resume=True"):
-        run(path)
-    res, bench = run(path, resume=True)
-    assert bench.camera_usb.rendered == 8  # resumed at the pair boundary 24
+        run(path, frame_ids=ids)
+    res, bench = run(path, resume=True, frame_ids=ids)
+    assert bench.camera_usb.rendered == rendered
     got = load_buckets(path)[0]
     for kind, ref in reference[2].items():
         assert torch.equal(got[kind], ref), kind
-    again, bench = run(path, resume=True)  # a complete store: nothing left to do
+    again, bench = run(path, resume=True, frame_ids=ids)  # complete: nothing left to do
     assert again.m_acquired == 16 and bench.camera_usb.rendered == 0
 
 
@@ -262,3 +279,92 @@ def test_depth_mode_run_is_the_12_bit_rounding_of_the_pure_simulation(reference,
     assert float((got["depth"] - ref["depth"]).abs().max()) <= 0.25 * pixels
     assert float((got["depth"] - ref["depth"]).abs().mean()) < 0.25
     assert torch.isnan(got["taps"]).all() and res.retries == 0
+
+
+# -- device frame ids (OPT9221 debug_frame_number_en) ------------------------------------------
+def test_device_ids_enable_the_counter_and_wrap_at_256(reference, tmp_path):
+    """The counter starts at 250: ids 250..255, 0..25 across the run, buckets unchanged."""
+    path = tmp_path / "w.zarr"
+    res, bench = run(path, start=250)
+    assert bench.camera_usb.field("debug_frame_number_en") == 1
+    g = zarr.open_group(str(path), mode="r")
+    np.testing.assert_array_equal(g["frames_id"][:], (250 + np.arange(32)) % 256)
+    assert g.attrs["frame_ids"] == "device" and g.attrs["roi"] == [1, 0, 16, 16]
+    for kind, ref in reference[2].items():
+        assert torch.equal(load_buckets(path)[0][kind], ref), kind
+    assert res.retries == 0
+
+
+def test_gap_across_the_wrap_is_a_lost_frame(reference, tmp_path):
+    """Frame 6 (id 255) dropped: id 0 follows id 254 — a gap, not a wrap."""
+    res, bench = run(tmp_path / "g.zarr", start=250, faults={"drop": {5}})
+    assert res.retries == 1
+    for kind, ref in reference[2].items():
+        assert torch.equal(load_buckets(tmp_path / "g.zarr")[0][kind], ref), kind
+
+
+def test_lost_frame_is_seen_at_once_and_reacquired_from_its_pair(reference, tmp_path):
+    """Frame 5 dropped: frames 0-4 are recorded as they arrive, the gap shows on the next
+    frame (id 6 for pattern 5) before anything wrong is recorded, and the run re-acquires
+    from pattern 4 (the pair of 5); the count-mode run records nothing before the count."""
+    seen = []
+    res, bench = run(tmp_path / "d.zarr", faults={"drop": {5}}, on_frame=seen.append)
+    assert seen == [0, 1, 2, 3, 4, 4, 5, *range(6, 32)]
+    assert bench.camera_usb.rendered == 32 + 2 + 18  # sequence 2-23 re-acquired from 4
+    seen.clear()
+    run(tmp_path / "c.zarr", faults={"drop": {5}}, on_frame=seen.append, frame_ids="count")
+    assert seen == list(range(32))  # recorded only after the re-acquired sequence passed
+    for path in ("d.zarr", "c.zarr"):
+        got = load_buckets(tmp_path / path)[0]
+        for kind, ref in reference[2].items():
+            assert torch.equal(got[kind], ref), (path, kind)
+
+
+def test_duplicate_is_dropped_and_a_repeated_id_on_other_bytes_retried(reference, tmp_path):
+    res, _ = run(tmp_path / "a.zarr", faults={"duplicate": {4, 23, 31}})
+    assert (res.duplicates, res.retries) == (3, 0)  # also after a sequence's last frame
+
+    bench = SimulatedBench(CLEAN, faults=Faults(duplicate={7}))
+    fifo = bench.camera_usb._fifo
+
+    class Fifo(type(fifo)):
+        def append(self, item):  # the duplicate of frame 7 arrives with other pixel bytes
+            if item[0] == 7 and any(o == 7 for o, _ in self):
+                b = bytearray(item[1])
+                b[40] ^= 0x01
+                item = (7, bytes(b))
+            super().append(item)
+
+    bench.camera_usb._fifo = Fifo()
+    res = acquire(tmp_path / "b.zarr", bench.lightcrafter(), bench.camera(), n=N, sr=SR,
+                  progress=False)
+    assert (res.duplicates, res.retries) == (0, 1)
+    for kind, ref in reference[2].items():
+        assert torch.equal(load_buckets(tmp_path / "b.zarr")[0][kind], ref), kind
+
+
+def test_count_mode_run_equals_pure_simulation(reference, tmp_path):
+    res, bench = run(tmp_path / "c.zarr", frame_ids="count")
+    assert bench.camera_usb.field("debug_frame_number_en") == 0
+    g = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")
+    np.testing.assert_array_equal(g["frames_id"][:], np.arange(32))  # host numbering
+    for kind, ref in reference[2].items():
+        assert torch.equal(load_buckets(tmp_path / "c.zarr")[0][kind], ref), kind
+
+
+@pytest.mark.parametrize("kw,error,match", [
+    ({"frame_ids": "host"}, ValueError, "frame_ids"),
+    ({"roi": (0, 0, 16, 16)}, ValueError, r"contains pixel \(0, 0\)"),
+    ({"roi": (1, 0, 17, 16)}, ValueError, "does not fit the 16x17 px frame"),
+    ({"roi": "top"}, TypeError, "roi"),
+])
+def test_bad_frame_id_mode_and_roi(kw, error, match, tmp_path):
+    with pytest.raises(error, match=match):
+        run(tmp_path / "b.zarr", **kw)
+
+
+def test_roi_at_pixel_zero_is_allowed_in_count_mode(tmp_path):
+    run(tmp_path / "z.zarr", frame_ids="count", roi=(0, 0, 17, 16))
+    g = zarr.open_group(str(tmp_path / "z.zarr"), mode="r")
+    assert g["frames_depth"].shape == (32, 17, 16)
+    assert (g["frames_depth"][:, 0] == 5.0).all()  # the dark guard row: no photons -> 5 m

@@ -62,12 +62,21 @@ def test_acquire_refuses_existing_store_and_unknown_method(uninterrupted, capsys
         main(["reconstruct", str(uninterrupted), "--method", "nope"])
 
 
-def test_killed_acquisition_resumes_to_the_same_data(uninterrupted, tmp_path):
-    """SIGKILL while the camera renders frame 27 (second pattern sequence): frames 0-23 are
-    recorded, nothing is damaged, and --resume ends with the uninterrupted run's data."""
+@pytest.mark.parametrize("ids,hang,kept", [
+    # device ids: SIGKILL while the host waits for frame 27 (frames 0-26 have arrived, 27 is
+    # in flight): all 27 are recorded
+    ("device", {"hang_at_read": 27}, 27),
+    # count mode: SIGKILL while the camera renders frame 27: the sequence 24-31 in flight is
+    # lost, frames 0-23 are recorded
+    ("count", {"hang_at_frame": 27}, 24),
+])
+def test_killed_acquisition_resumes_to_the_same_data(ids, hang, kept, uninterrupted, tmp_path):
+    """A SIGKILLed run: every frame received (device ids) or every checked sequence (count)
+    is in the store, equal to the uninterrupted run, and --resume ends with its data."""
     path, flag = tmp_path / "killed2.zarr", tmp_path / "hang2"
-    faults = json.dumps({"hang_at_frame": 27, "hang_file": str(flag), "hang_s": 120})
-    proc = subprocess.Popen([sys.executable, "-m", "torchtof.cli", *ARGS, "-o", str(path),
+    faults = json.dumps({**hang, "hang_file": str(flag), "hang_s": 120})
+    args = [*ARGS, "-o", str(path), "--frame-ids", ids]
+    proc = subprocess.Popen([sys.executable, "-m", "torchtof.cli", *args,
                              "--sim-faults", faults], env=_env(), cwd=tmp_path,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -81,9 +90,15 @@ def test_killed_acquisition_resumes_to_the_same_data(uninterrupted, tmp_path):
     assert proc.returncode == -signal.SIGKILL
     g = zarr.open_group(str(path), mode="r")
     assert g.attrs["status"] == "running"
-    assert g["frames_ok"][:].tolist() == [1] * 24 + [0] * 8
-    assert main([*ARGS, "-o", str(path)]) == 1  # exists: needs --resume
-    assert main([*ARGS, "-o", str(path), "--resume"]) == 0
+    assert g["frames_ok"][:].tolist() == [1] * kept + [0] * (32 - kept)
+    ref = zarr.open_group(str(uninterrupted), mode="r")
+    for name in ARRAYS:  # what was recorded before the kill is the uninterrupted run's data
+        np.testing.assert_array_equal(g[name][:kept] if name.startswith("frames") else
+                                      g[name][..., :kept], ref[name][:kept] if
+                                      name.startswith("frames") else ref[name][..., :kept],
+                                      err_msg=name)
+    assert main(args) == 1  # exists: needs --resume
+    assert main([*args, "--resume"]) == 0
     a, b = zarr.open_group(str(path), mode="r"), zarr.open_group(str(uninterrupted), mode="r")
     for name in ARRAYS:
         np.testing.assert_array_equal(a[name][:], b[name][:], err_msg=name)

@@ -307,11 +307,12 @@ def test_fake_camera_streams_the_mode_the_registers_select(mode):
     bench.camera_usb.trigger(pat)
     bench.camera_usb.trigger(pat)
     raw = bytes(bench.camera_usb._fifo[0][1])
-    assert len(raw) == 8 * 8 * opt.FRAME_MODES[mode][1]  # no header: W·H·bytes per pixel
+    # no header: W·H·bytes per pixel (8 x 9: the ROI below the simulator's guard row)
+    assert len(raw) == 8 * 9 * opt.FRAME_MODES[mode][1]
     a, b = cam.grab(0.1), cam.grab(0.1)
     assert (a.frame_id, b.frame_id) == (0, 1) and cam.frame_counter() == 2  # host-side ids
     assert (a.timestamp, b.timestamp) == (0.0, 1e-3)  # the simulated host clock
-    assert a.depth.shape == (8, 8) and (a.taps is not None) == (mode == "quad")
+    assert a.depth.shape == (9, 8) and (a.taps is not None) == (mode == "quad")
     cam.stop()
     assert bench.camera_usb.field("tg_dis") == 1
 
@@ -323,7 +324,7 @@ def test_oversized_transfer_is_a_usb_error():
     with pytest.raises(ProtocolError, match="bulk read: USB error.*Overflow"):
         cam.grab(0.1)
     bench.camera_usb._fifo.append((9, bytes(100)))  # a short transfer: not a frame
-    with pytest.raises(FrameError, match="100 bytes, a 8x8 'quad' frame has 512"):
+    with pytest.raises(FrameError, match="100 bytes, a 8x9 'quad' frame has 576"):
         cam.grab(0.1)
     assert cam.frame_counter() == 0  # neither was numbered
 
@@ -333,3 +334,55 @@ def test_driver_rejects_bad_modes_and_sizes():
         opt.OPT8241(Recorder(), mode="tof")
     with pytest.raises(ValueError, match="bad frame size 12x8 for mode 'depth8'"):
         opt.OPT8241(Recorder(), width=12, height=8, mode="depth8")
+
+
+# -- device frame numbers (OPT9221.dml debug_frame_number_en, bank 3 reg 57 bit 12) ------------
+def test_configure_with_frame_ids_writes_the_counter_bit_byte_exact():
+    """Read-modify-write of 0x5C39: bit 12 set, the register's other bits kept
+    (op_serial_width, bit 10, set here); frm_header_en (0x5C3C bit 1) cleared."""
+    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x000006})
+    opt.OPT8241(dev, frame_ids=True).configure()
+    writes = [e for e in dev.log if e[0] == 0x40]
+    assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x14\x00") in writes
+    hdr = [e[4] for e in writes if e[2:4] == (0x5C, 0x3C)]
+    assert hdr == [b"\x02\x00\x00", b"\x00\x00\x00"]  # blk_header_en, then frm_header_en
+    assert dev.regs[0x5C3C] == 0 and dev.regs[0x5C39] == 0x001400
+    dev = Recorder({0x5C39: 0x001400})
+    opt.OPT8241(dev, frame_ids=False).configure()
+    assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x04\x00") in dev.log  # cleared again
+
+
+@pytest.mark.parametrize("mode,first_word", [("quad", 0), ("iq", 0), ("depth", 0),
+                                             ("depth8", 0), ("depth2", 0)])
+def test_split_frame_id_restores_a_defined_first_byte(mode, first_word):
+    taps = np.full((4, 2, 8), 0x0ABC, dtype=np.int64)
+    taps[1] = 0x0123
+    raw = bytearray(opt.encode_frame(mode, taps))
+    sent_hi = raw[1]
+    raw[0] = 0x2A  # what the OPT9221 sends with debug_frame_number_en = 1
+    fid, data = opt.split_frame_id(bytes(raw))
+    assert fid == 0x2A and data[0] == 0 and data[1] == sent_hi and data[2:] == bytes(raw[2:])
+    out = opt.decode_frame(data, 8, 2, 30e6, mode, WIDE)
+    ref = opt.decode_frame(opt.encode_frame(mode, taps), 8, 2, 30e6, mode, WIDE)
+    same = torch.ones(2, 8, dtype=torch.bool)
+    same[0, 0] = False  # only pixel (0, 0) differs
+    assert torch.equal(out.depth[same], ref.depth[same])
+    assert torch.equal(out.amplitude[same], ref.amplitude[same])
+    if mode == "quad":  # tap c1 of pixel (0, 0): the high byte as sent, low byte 0
+        assert float(out.taps[0, 0, 0]) == 0x0A00 and torch.equal(out.taps[1:], ref.taps[1:])
+    with pytest.raises(FrameError, match="empty transfer"):
+        opt.split_frame_id(b"")
+
+
+def test_driver_takes_the_device_number_from_byte_zero():
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)), frame_number_start=254)
+    cam = bench.camera(frame_ids=True)
+    cam.start()
+    assert bench.camera_usb.field("debug_frame_number_en") == 1
+    pat = np.ones((8, 8), dtype=np.uint8)
+    for _ in range(3):
+        bench.camera_usb.trigger(pat)
+    frames = [cam.grab(0.1) for _ in range(3)]
+    assert [f.frame_id for f in frames] == [254, 255, 0]  # 8 bits: wraps
+    assert [f.raw[0] for f in frames] == [254, 255, 0]  # Frame.raw: the bytes as received
+    assert all(float(f.taps[0, 0, 0]) == 0 for f in frames)  # guard row, low byte restored

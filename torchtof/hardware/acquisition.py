@@ -5,34 +5,53 @@ For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = 
 are loaded in sequences of at most 24 (one 24-bit video frame of bit planes); the DMD paces
 the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern.
 
-**Frame bookkeeping.** The OPT8241's frames carry no id or counter (:mod:`.opt8241`): the
-host numbers them as they arrive, as TI's SDK does. A frame lost inside the camera or on the
-way therefore cannot be recognised by its id, only by the *count*: the frames of a sequence
-are held in memory until all of them (one per pattern) have arrived and no extra frame follows
-within 50 ms; only then are they recorded. A missing frame (the sequence's last grab times
-out), an extra frame, a timeout, NACK or corrupt frame re-acquires the whole sequence
-(``retries`` times, then a clear error); a frame byte-identical to the one before it (a
-duplicated transfer) is discarded. What this cannot see: a lost frame *and* an extra frame in
-the same sequence (they cancel), and a repeated frame that is not byte-identical. Buckets per
-frame (paper Eq. 10, §3.1, DESIGN §2): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
+**Frame ids and checks** (``frame_ids``). The OPT8241's frames carry no header; two modes:
+
+* ``"device"`` (default): the acquisition switches on the OPT9221's
+  ``debug_frame_number_en`` (:mod:`.opt8241`: byte 0 of every frame is the device's 8-bit
+  frame number; that sample of pixel (0, 0) is not a measurement, so the bucket ROI leaves
+  row 0 out). Each frame is checked as it arrives — id = previous + 1 (mod 256): good, record
+  it at once; same id and same bytes: a duplicated transfer, dropped; same id with other
+  bytes, or a gap (a lost frame): re-acquire from that frame's pattern pair — and recorded
+  before the next grab, so a killed run loses at most the frame in flight. The counter's
+  start value is unknown, so after the camera starts and after every retry the first frame
+  is an *anchor*: the first pattern pair is acquired as a sequence of its own, recorded as it
+  arrives but marked provisional (``frames_ok`` 2) until its count check passes (a pair is
+  re-acquired as a whole on resume anyway). As a second check every sequence ends with the
+  count check: no frame may follow the last pattern within 50 ms (a spurious frame the camera
+  makes itself gets the next number and is seen only here; the whole sequence is then
+  re-acquired — if the run is killed in between, that sequence's frames after the spurious
+  one stay recorded shifted: the one case device ids cannot make kill-safe).
+* ``"count"`` (cameras or firmware without the counter): the host numbers frames as TI's SDK
+  does, so a lost frame is seen only by the *count*: the frames of a sequence (≤ 24) are held
+  in memory until all of them (one per pattern) have arrived and no extra frame follows within
+  50 ms, and only then recorded — a killed run loses up to the sequence in flight (≤ 24
+  frames). A frame byte-identical to its predecessor is dropped. Blind to a lost *and* an
+  extra frame in the same sequence, and to a repeated frame that is not byte-identical.
+
+Any fault (missing, extra or out-of-order frame, timeout, NACK, corrupt frame) re-acquires
+(``retries`` times per sequence, then a clear error). Buckets per frame over the ROI ``roi``
+(paper Eq. 10, §3.1, DESIGN §2): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
 ``Σ a`` and the four tap sums (NaN unless the camera sends raw quads).
 
-**Recording** (zarr v3, :func:`acquire`): every frame and its buckets are written as they
-arrive (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``, ``frames_taps``,
-``frames_id``, ``frames_timestamp``, ``buckets_depth``, ``buckets_gated``,
-``buckets_intensity``, ``buckets_taps`` — frame axis last for buckets ``(1, C, 2M)``, first
-for frames, chunked per pattern sequence) and then marked done in ``frames_ok``, once its
-sequence is complete. zarr's local store replaces each chunk file atomically, so a killed run
-loses at most the sequence in flight (≤ 24 frames); ``resume=True`` continues after the last
-complete pattern pair. Needs zarr ≥ 3 (Python ≥ 3.11): :func:`require_zarr3`. Patterns, order,
-timing, camera settings and package versions are store attributes.
+**Recording** (zarr v3, :func:`acquire`): every frame (its ROI) and its buckets are written
+as they are accepted (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``,
+``frames_taps``, ``frames_id`` (device number 0-255, or host count), ``frames_timestamp``,
+``buckets_depth``, ``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis
+last for buckets ``(1, C, 2M)``, first for frames, chunked per pattern sequence of ≤ 24
+frames) and then marked in ``frames_ok`` (1 recorded, 2 provisional, 0 not yet). zarr's
+local store replaces each chunk file atomically, so a killed run keeps every frame recorded
+before the kill;
+``resume=True`` continues at the first pattern pair not completely recorded. Needs zarr ≥ 3
+(Python ≥ 3.11): :func:`require_zarr3`. Patterns, order, timing, ROI, frame-id mode, camera
+settings and package versions are store attributes.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +61,7 @@ from ..bucket import PAPER_GATE_M, depth_bucket, intensity_bucket, tap_buckets
 from ..operators import DMDSplit, Hadamard
 from .errors import (
     DeviceLostError,
+    FrameIdError,
     FrameSequenceError,
     FrameTimeoutError,
     HardwareError,
@@ -53,6 +73,8 @@ __all__ = ["AcquisitionResult", "acquire", "load_buckets", "load_run", "require_
 
 MAX_SEQUENCE = 24  # 1-bit patterns per 24-bit video frame (DLPC350 video-port bit planes)
 _KINDS = ("depth", "gated", "intensity", "taps")
+_FRAME_IDS = ("device", "count")
+_ANCHOR = 2  # frames acquired (and provisional) after a start or retry: one pattern pair
 _FORMAT = "torchtof.acquisition/1"
 
 
@@ -108,6 +130,40 @@ def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
     }
 
 
+def _crop(frame, roi: tuple[int, int, int, int]):
+    """The frame's ROI ``(row, col, height, width)`` (a view, no copy)."""
+    y, x, h, w = roi
+    cut = (..., slice(y, y + h), slice(x, x + w))
+    return replace(frame, phase=frame.phase[cut], amplitude=frame.amplitude[cut],
+                   depth=frame.depth[cut], taps=None if frame.taps is None else frame.taps[cut])
+
+
+def _check_roi(roi, h: int, w: int, device: bool) -> tuple[int, int, int, int]:
+    if roi is None:
+        if h < 2:
+            raise ValueError(f"acquire: a {w}x{h} px frame has no rows below row 0 for the "
+                             "default roi; pass roi=(row, col, height, width)")
+        return (1, 0, h - 1, w)  # row 0 left out: its first pixel carries the frame number
+    try:
+        y, x, rh, rw = (int(v) for v in roi)
+    except (TypeError, ValueError):
+        raise TypeError(f"acquire: expected roi as (row, col, height, width), got {roi!r}") \
+            from None
+    if rh < 1 or rw < 1 or y < 0 or x < 0 or y + rh > h or x + rw > w:
+        raise ValueError(f"acquire: roi {roi!r} does not fit the {w}x{h} px frame")
+    if device and y == 0 and x == 0:
+        raise ValueError(f"acquire: roi {roi!r} contains pixel (0, 0), whose first byte is the "
+                         "device frame number with frame_ids='device'; start it at row 1 or "
+                         "column 1, or use frame_ids='count'")
+    return (y, x, rh, rw)
+
+
+def _recorded(ok: np.ndarray) -> int:
+    """Frames recorded without a gap from the start (``frames_ok == 1``)."""
+    bad = np.flatnonzero(ok != 1)
+    return int(bad[0]) if bad.size else int(ok.shape[0])
+
+
 def require_zarr3():
     """The ``zarr`` module, version 3 or later (the recorder uses the v3 API).
 
@@ -149,7 +205,7 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
             raise FileExistsError(f"acquire: {path} exists; pass resume=True (--resume) to "
                                   "continue it or choose a new path")
         old = group.attrs
-        for key in ("n", "m", "order", "frames"):
+        for key in ("n", "m", "order", "frames", "roi"):
             if old.get(key) != attrs[key]:
                 raise ValueError(f"acquire: cannot resume {path}: it was recorded with "
                                  f"{key}={old.get(key)!r}, this run has {key}={attrs[key]!r}")
@@ -157,8 +213,8 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
             raise ValueError(f"acquire: cannot resume {path}: its patterns differ")
         if tuple(group["frames_depth"].shape[1:]) != (h, w):
             old_hw = tuple(group["frames_depth"].shape[1:])
-            raise ValueError(f"acquire: cannot resume {path}: frames of {old_hw} px, the camera "
-                             f"gives {(h, w)}")
+            raise ValueError(f"acquire: cannot resume {path}: frames of {old_hw} px, this "
+                             f"ROI has {(h, w)}")
         return group, True
     group = zarr.open_group(str(path), mode="w")
     group.create_array("patterns", data=patterns, chunks=(min(f, 256), *patterns.shape[1:]))
@@ -200,6 +256,8 @@ def acquire(
     progress: bool = True,
     metadata: dict | None = None,
     on_frame: Callable[[int], None] | None = None,
+    frame_ids: str = "device",
+    roi: tuple[int, int, int, int] | None = None,
 ) -> AcquisitionResult:
     """Acquire the DMD-split Hadamard buckets of a scene into a zarr store (module docstring).
 
@@ -223,6 +281,12 @@ def acquire(
         progress: show a tqdm progress bar.
         metadata: extra JSON-able store attributes (e.g. the simulated set-up).
         on_frame: called with the frame index after each frame is recorded.
+        frame_ids: ``"device"`` (OPT9221 frame numbers, each frame checked and recorded as it
+            arrives) or ``"count"`` (host numbering, frames recorded per complete sequence;
+            weaker, module docstring).
+        roi: ``(row, col, height, width)`` of the frame that forms the buckets and is
+            recorded; default the whole frame below row 0 (pixel (0, 0) carries the device
+            frame number and is refused in ``"device"`` mode).
 
     Returns:
         :class:`AcquisitionResult`.
@@ -240,29 +304,39 @@ def acquire(
         raise ValueError(f"acquire: expected retries a non-negative int, got {retries!r}")
     if stop is not None and not callable(stop):
         raise TypeError(f"acquire: expected stop to be callable or None, got {type(stop).__name__}")
+    if frame_ids not in _FRAME_IDS:
+        raise ValueError(f"acquire: expected frame_ids in {_FRAME_IDS}, got {frame_ids!r}")
+    device = frame_ids == "device"
+    if device and not hasattr(camera, "frame_ids"):
+        raise TypeError(f"acquire: frame_ids='device' needs a camera with device frame "
+                        f"numbers (OPT8241); {type(camera).__name__} has none: use "
+                        "frame_ids='count'")
     if sr is not None and m is not None:
         sr = None
     hadamard = Hadamard(n, sr=sr, m=m, order=order)
     pats = DMDSplit(hadamard).patterns(torch.float32).to(torch.uint8).numpy()  # (2M, n, n)
     n_frames, m_total = pats.shape[0], hadamard.m
     seq = min(MAX_SEQUENCE, 2 * block)
-    h, w = camera.height, camera.width
+    roi = _check_roi(roi, camera.height, camera.width, device)
+    h, w = roi[2], roi[3]
+    if hasattr(camera, "frame_ids"):
+        camera.frame_ids = device  # written to debug_frame_number_en by camera.start()
     period_us = exposure_us if period_us is None else period_us
     attrs = {
         "format": _FORMAT, "n": n, "m": m_total, "sr": m_total / (n * n), "order": order,
         "frames": n_frames, "frame_order": "interleaved phi+, phi- (DMDSplit)", "block": block,
-        "sequence": seq, "gate_m": gate_m,
+        "sequence": seq, "gate_m": gate_m, "roi": list(roi), "frame_ids": frame_ids,
         "dmd": {"exposure_us": exposure_us, "period_us": period_us, "trigger": "internal",
                 "source": "video", "bitplanes_per_frame": MAX_SEQUENCE},
         "camera": {"freq_hz": camera.freq_hz, "integration_time_us": camera.integration_time_us,
-                   "width": w, "height": h, "rules": vars(camera.rules).copy(),
+                   "width": camera.width, "height": camera.height,
+                   "rules": vars(camera.rules).copy(),
                    "mode": getattr(camera, "mode", None)},
         "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         **(metadata or {}),
     }
     group, resumed = _open_store(store, pats, attrs, (h, w), seq, resume)
-    ok = group["frames_ok"][:]
-    done = int(np.argmin(ok)) if not ok.all() else n_frames
+    done = _recorded(group["frames_ok"][:])
     done -= done % 2  # restart at a pair boundary: y⁺ and y⁻ taken back to back
     buf = {k: torch.from_numpy(group[f"buckets_{k}"][:]) for k in _KINDS}
     if group.attrs.get("status") == "complete":
@@ -280,7 +354,8 @@ def acquire(
         "frames_depth", "frames_amplitude", "frames_phase", "frames_taps", "frames_id",
         "frames_timestamp", "frames_ok", *(f"buckets_{k}" for k in _KINDS))}
 
-    def commit(k: int, frame) -> None:
+    def commit(k: int, frame, ok: int = 1) -> None:
+        frame = _crop(frame, roi)
         b = _frame_buckets(frame, gate_m)
         arrays["frames_depth"][k] = frame.depth.numpy()
         arrays["frames_amplitude"][k] = frame.amplitude.numpy()
@@ -292,21 +367,29 @@ def acquire(
         for kind in _KINDS:
             arrays[f"buckets_{kind}"][..., k] = b[kind][..., 0].numpy()
             buf[kind][..., k] = b[kind][..., 0]
-        arrays["frames_ok"][k] = 1  # last: the frame counts only once everything is written
-        if bar is not None:
+        arrays["frames_ok"][k] = ok  # last: the frame counts only once everything is written
+        if bar is not None and ok == 1:
             bar.update(1)
         if on_frame is not None:
             on_frame(k)
 
     stopped = False
     start_block = done // (2 * block)
+    dev = _DeviceIds(lightcrafter, camera, pats, seq, exposure_us, period_us, retries,
+                     frame_timeout_s, commit, stats, arrays, bar)
     try:
         camera.start()
         for b0 in range(start_block * 2 * block, n_frames, 2 * block):
             b1 = min(b0 + 2 * block, n_frames)
-            for s0 in range(max(b0, done), b1, seq):
-                _acquire_sequence(lightcrafter, camera, pats, s0, min(s0 + seq, b1), exposure_us,
-                                  period_us, retries, frame_timeout_s, commit, stats)
+            s0 = max(b0, done)
+            while s0 < b1:
+                if device:
+                    s0 = dev.sequence(s0, b1)
+                else:
+                    _acquire_sequence(lightcrafter, camera, pats, s0, min(s0 + seq, b1),
+                                      exposure_us, period_us, retries, frame_timeout_s, commit,
+                                      stats)
+                    s0 = min(s0 + seq, b1)
             done = b1
             if stop is not None and b1 < n_frames and stop(_signed(buf, b1)):
                 stopped = True
@@ -324,10 +407,81 @@ def acquire(
                              stats["duplicates"], 0)
 
 
+class _DeviceIds:
+    """``frame_ids="device"``: check each frame's device number as it arrives and record it
+    at once (module docstring)."""
+
+    def __init__(self, lcr, camera, pats, seq, exposure_us, period_us, retries, timeout_s,
+                 commit, stats, arrays, bar) -> None:
+        self.lcr, self.camera, self.pats, self.seq = lcr, camera, pats, seq
+        self.exposure_us, self.period_us = exposure_us, period_us
+        self.retries, self.timeout_s, self.commit, self.stats = retries, timeout_s, commit, stats
+        self.arrays, self.bar = arrays, bar
+        self.expected: int | None = None  # next device frame number; None: not anchored
+
+    def sequence(self, s0: int, b1: int) -> int:
+        """Acquire from pattern ``s0`` (a pair boundary) up to at most ``b1``: one DMD
+        sequence, or the anchor pair when not anchored; returns the next pattern index."""
+        attempt, start = 0, s0
+        while True:
+            anchored = self.expected is not None
+            s1 = min(start + (self.seq if anchored else _ANCHOR), b1)
+            k = start
+            try:
+                self.camera.pattern_index = start
+                self.lcr.show_sequence(self.pats[start:s1], self.exposure_us, self.period_us,
+                                       trigger="internal")
+                last = None
+                while k < s1:
+                    self.camera.pattern_index = k
+                    frame = self.camera.grab(self.timeout_s)
+                    fid = int(frame.frame_id)
+                    if last is not None and fid == last.frame_id:
+                        if _same_bytes(frame, last):  # a duplicated transfer
+                            self.stats["duplicates"] += 1
+                            continue
+                        raise FrameIdError(k, int(self.expected), fid,
+                                           "repeated id on a different frame")
+                    if self.expected is not None and fid != self.expected:
+                        raise FrameIdError(k, self.expected, fid)
+                    self.commit(k, frame, 1 if anchored else 2)
+                    last, self.expected, k = frame, (fid + 1) % 256, k + 1
+                self.camera.pattern_index = None
+                while True:  # second check: no frame may follow the sequence's last pattern
+                    try:
+                        frame = self.camera.grab(min(self.timeout_s, 0.05))
+                    except FrameTimeoutError:
+                        break
+                    if frame.frame_id == last.frame_id and _same_bytes(frame, last):
+                        self.stats["duplicates"] += 1
+                        continue
+                    k = start  # a spurious frame before it may have shifted them all
+                    raise FrameSequenceError(s1 - start, s1 - start + 1, start)
+                if not anchored:  # the count confirms the anchor: the pair is recorded
+                    self.arrays["frames_ok"][start:s1] = 1
+                    if self.bar is not None:
+                        self.bar.update(s1 - start)
+                return s1
+            except DeviceLostError:
+                raise
+            except TransientError:
+                attempt += 1
+                self.stats["retries"] += 1
+                if attempt > self.retries:
+                    raise
+                try:
+                    self.lcr.stop()
+                except TransientError:
+                    pass
+                self.camera.flush()
+                self.expected = None  # re-anchor after the retry
+                start = k - k % 2  # the pair of the failed frame: y+ and y- back to back
+
+
 def _acquire_sequence(lcr, camera, pats, s0, s1, exposure_us, period_us, retries, timeout_s,
                       commit, stats) -> None:
-    """Frames ``s0 … s1−1``: load, start, grab all, check the count (module docstring), then
-    commit; re-acquire the sequence on a transient fault."""
+    """``frame_ids="count"``: frames ``s0 … s1−1``: load, start, grab all, check the count
+    (module docstring), then commit; re-acquire the sequence on a transient fault."""
     attempt = 0
     while True:
         try:
@@ -389,8 +543,7 @@ def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     attrs = dict(group.attrs)
     if attrs.get("format") != _FORMAT:
         raise ValueError(f"load_buckets: {path} is not a torchtof acquisition store")
-    ok = group["frames_ok"][:]
-    f = int(np.argmin(ok)) if not ok.all() else ok.shape[0]
+    f = _recorded(group["frames_ok"][:])
     if attrs.get("status") == "complete":
         f = 2 * int(attrs["m_acquired"])
     f -= f % 2

@@ -65,7 +65,8 @@ def cmd_acquire(args: argparse.Namespace) -> int:
             return 2
         res = acquire(args.output, lcr, cam, n=args.n, sr=args.sr, order=args.order,
                       exposure_us=args.exposure_us, block=args.block, resume=args.resume,
-                      retries=args.retries, progress=not args.no_progress, metadata=metadata)
+                      retries=args.retries, progress=not args.no_progress, metadata=metadata,
+                      frame_ids=args.frame_ids)
     except (HardwareError, FileExistsError) as exc:
         print(f"torchtof acquire: {exc}", file=sys.stderr)
         return 1
@@ -127,6 +128,10 @@ def add_parsers(sub) -> None:
     a.add_argument("--block", type=int, default=12, help="pattern pairs per block")
     a.add_argument("--retries", type=int, default=3)
     a.add_argument("--resume", action="store_true", help="continue an interrupted store")
+    a.add_argument("--frame-ids", default="device", choices=["device", "count"],
+                   help="device: OPT9221 frame numbers, each frame checked and recorded as it "
+                   "arrives (a kill loses at most the frame in flight); count: host numbering, "
+                   "frames recorded per checked sequence (a kill loses up to 24 frames)")
     a.add_argument("--no-progress", action="store_true")
     a.add_argument("--sim-faults", default=None,
                    help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults)")

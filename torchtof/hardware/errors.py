@@ -20,6 +20,7 @@ __all__ = [
     "FrameTimeoutError",
     "FrameError",
     "FrameSequenceError",
+    "FrameIdError",
 ]
 
 #: How to give a non-root user access to the two USB devices (Linux).
@@ -113,12 +114,24 @@ class FrameError(TransientError):
 
 
 class FrameSequenceError(TransientError):
-    """Frames out of sequence: more frames than patterns in a sequence (the OPT8241 frames
-    carry no id, so a lost frame shows as a missing one — a timeout — and an extra frame as
-    this error); the acquisition re-acquires the sequence."""
+    """Frames out of sequence: more frames than patterns in a sequence (the count check of
+    :func:`~torchtof.hardware.acquire`: a lost frame shows as a missing one — a timeout — and
+    an extra frame as this error); the acquisition re-acquires the sequence."""
 
     def __init__(self, expected: int, got: int, pattern_index: int | None = None) -> None:
         self.expected, self.got, self.pattern_index = expected, got, pattern_index
         where = f" in the sequence from pattern {pattern_index}" if pattern_index is not None \
             else ""
         super().__init__(f"{got} frame(s){where}, expected {expected}")
+
+
+class FrameIdError(TransientError):
+    """A device frame id (OPT9221 ``debug_frame_number_en``) that does not follow its
+    predecessor: a gap (frames lost between camera and host) or a repeated id on a frame with
+    different bytes; the acquisition re-acquires from the pattern pair of ``pattern_index``."""
+
+    def __init__(self, pattern_index: int, expected: int, got: int, detail: str = "") -> None:
+        self.pattern_index, self.expected, self.got = pattern_index, expected, got
+        what = detail or f"{(got - expected) % 256} frame(s) lost"
+        super().__init__(f"frame id {got} for pattern {pattern_index}, expected {expected} "
+                         f"({what})")

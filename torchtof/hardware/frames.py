@@ -19,7 +19,8 @@ class Frame:
         amplitude: ``(H, W)`` amplitude in ADC numbers (Eq. 8).
         depth: ``(H, W)`` depth in metres after the camera rules (Eq. 1, paper §2.2).
         timestamp: seconds (OPT8241: host clock when the transfer completed, as the SDK).
-        frame_id: the frame's number (OPT8241: counted on the host, the frames carry none).
+        frame_id: the frame's number (OPT8241: the OPT9221's 8-bit frame number from byte 0
+            with ``frame_ids=True``, else counted on the host).
         taps: optional raw correlation taps ``(4, H, W)`` in the Fig. 1 order (ADC numbers).
         ambient: optional 4-bit ambient code per pixel ``(H, W)``.
         flags: optional 4-bit flags per pixel ``(H, W)`` (meaning not documented by TI).

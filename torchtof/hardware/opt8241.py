@@ -47,9 +47,23 @@ OPT9221 registers are 24 bits wide; a named parameter is a bit field of one regi
   torchtof follows the SDK code. ``slave_mode`` (``0x5881`` bit 0, DML: "waits for external
   sync through VD_IN pin for the start of frames") gives one frame per DMD trigger; that the
   CDK board routes a trigger input to VD_IN is **not confirmed**.
-* There is **no frame-counter register** in the DML. ``debug_frame_number_en`` (``0x5C39``
-  bit 12, DML: "Debug. Replaces first byte of each frame with the current frame number") is
-  listed in :data:`REGISTERS` but not used: it would overwrite pixel (0, 0).
+* **Device frame numbers.** The DML has no frame-counter register, but property 6363
+  ``debug_frame_number_en`` (bank 3 "DE" register 57 → ``0x5C39``, bit 12, default 0,
+  writable; GUI section ``output_block``/group ``mac`` next to ``frm_header_en`` and
+  ``blk_header_en``) reads: "Debug. Replaces first byte of each frame with the current frame
+  number when set to '1'." :meth:`OPT8241.configure` sets it when ``frame_ids=True`` and
+  :meth:`OPT8241.grab` takes byte 0 of the transfer as the frame's id (0-255) and sets that
+  byte to 0 before decoding (:func:`split_frame_id`), so the overwritten sample — the low byte
+  of the first 16-bit word of pixel (row 0, column 0): tap c₁ in ``"quad"``, ``I`` in
+  ``"iq"``, the amplitude word in ``"depth"``/``"depth8"``, the phase word in ``"depth2"`` —
+  has a defined value (its high byte as sent, low byte 0) and is **not a measurement**;
+  :func:`~torchtof.hardware.acquire` leaves row 0 out of the bucket ROI. What the DML does
+  not say and torchtof **assumes**: the number is the low 8 bits of a counter that advances by
+  one per frame the OPT9221 outputs (so a frame lost after the OPT9221 leaves a gap), the
+  byte is byte 0 of the USB transfer (true with ``blk_header_en = frm_header_en = 0``, which
+  :meth:`configure` sets), and its start value is unknown (the acquisition never relies on it).
+  torchtof found no SDK code that sets the bit (a search of the SDK sources, not
+  exhaustive): the feature is documented by the DML only.
 
 **Frames** (``Voxel/USBBulkStreamer.cpp``, ``TI3DToF/ToFFrameGenerator.cpp``,
 ``TintinCDKCamera::_setStreamerFrameSize``): one bulk IN transfer on endpoint 0x82 is one
@@ -57,8 +71,9 @@ frame of exactly ``width · height · bytes_per_pixel`` bytes — no header, no 
 timestamp, no checksum (the SDK asks for 255 extra bytes and drops any transfer of another
 size; the bulk device runs with ``blk_header_en = 0``). The SDK numbers frames on the host
 (``_currentID++`` per complete transfer) and time-stamps them with the host clock in µs;
-:class:`OPT8241` does the same, so a frame lost inside the camera cannot be seen from its id
-(:mod:`~torchtof.hardware.acquisition` checks frame counts per pattern sequence instead).
+:class:`OPT8241` does the same unless ``frame_ids=True`` (device frame numbers, above) — with
+host ids a lost frame cannot be seen from its id (:mod:`~torchtof.hardware.acquisition` then
+checks frame counts per pattern sequence only).
 Pixel layouts, little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
 
 * ``"depth"`` (``output_mode`` 0, ``pixel_data_size`` 4, ``op_data_arrange_mode`` 0): per
@@ -89,7 +104,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -119,6 +134,8 @@ __all__ = [
     "encode_frame",
     "frame_bytes",
     "decode_frame",
+    "FRAME_ID_BYTE",
+    "split_frame_id",
     "OPT8241",
 ]
 
@@ -356,6 +373,24 @@ def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None) -> bytes
     raise ValueError(f"encode_frame: unknown mode {mode!r}; expected one of {list(FRAME_MODES)}")
 
 
+FRAME_ID_BYTE = 0  # byte of a transfer that debug_frame_number_en replaces (OPT9221.dml)
+
+
+def split_frame_id(raw: bytes) -> tuple[int, bytes]:
+    """``(frame number, bytes with the number's byte set to 0)`` of a transfer sent with
+    ``debug_frame_number_en = 1`` (module docstring: byte 0 = low byte of pixel (0, 0)'s first
+    word).
+
+    Example:
+        >>> split_frame_id(bytes([7, 0x0A, 0x34, 0x01]))
+        (7, b'\\x00\\n4\\x01')
+    """
+    raw = bytes(raw)
+    if not raw:
+        raise FrameError("empty transfer: no frame number byte")
+    return raw[FRAME_ID_BYTE], raw[:FRAME_ID_BYTE] + b"\x00" + raw[FRAME_ID_BYTE + 1 :]
+
+
 def frame_bytes(width: int, height: int, mode: str) -> int:
     """Bytes of one frame: ``width · height · pixel_data_size`` (TintinCDKCamera.cpp)."""
     if mode not in FRAME_MODES:
@@ -440,13 +475,16 @@ class OPT8241:
         slave: put the OPT9221 in ``slave_mode`` (one frame per external VD_IN sync).
         timeout_s: default frame timeout.
         clock: host clock for the frame timestamps (seconds), as the SDK stamps frames.
+        frame_ids: enable the OPT9221's ``debug_frame_number_en``: each frame's id is the
+            device's 8-bit frame number from byte 0 (module docstring), else a host count.
     """
 
     what = "TI OPT8241 ToF camera"
 
     def __init__(self, dev, width: int = 320, height: int = 240,
                  rules: CameraRules = CameraRules(), mode: str = "depth", adc_bits: int = 12,
-                 slave: bool = True, timeout_s: float = 2.0, clock=time.time) -> None:
+                 slave: bool = True, timeout_s: float = 2.0, clock=time.time,
+                 frame_ids: bool = False) -> None:
         if mode not in FRAME_MODES:
             raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
                              f"{list(FRAME_MODES)}")
@@ -455,6 +493,7 @@ class OPT8241:
         self.dev, self.width, self.height = dev, int(width), int(height)
         self.rules, self.mode, self.adc_bits = rules, mode, int(adc_bits)
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
+        self.frame_ids = bool(frame_ids)
         self.registers = dict(REGISTERS)
         self.pattern_index: int | None = None  # set by acquire(): named in timeout errors
         self._next_id = 0
@@ -576,13 +615,17 @@ class OPT8241:
 
     # -- streaming ---------------------------------------------------------------------------
     def configure(self) -> None:
-        """Output format of :attr:`mode`, no block header (bulk device), slave mode."""
+        """Output format of :attr:`mode`, no frame or block header (bulk device), slave mode,
+        device frame numbers on/off (:attr:`frame_ids`)."""
         out, size, arrange = FRAME_MODES[self.mode]
         self.write_field("tg_dis", 1)
         self.write_field("output_mode", out)
         self.write_field("pixel_data_size", size)
         self.write_field("op_data_arrange_mode", arrange)
         self.write_field("blk_header_en", 0)
+        if self.frame_ids:  # the number must be byte 0 of the transfer: no frame header
+            self.write_field("frm_header_en", 0)
+        self.write_field("debug_frame_number_en", int(self.frame_ids))
         self.write_field("slave_mode", int(self.slave))
 
     def start(self) -> None:
@@ -603,8 +646,9 @@ class OPT8241:
                              max(1, int(timeout_s * 1000)))
 
     def grab(self, timeout_s: float | None = None) -> Frame:
-        """Read and decode the next frame from bulk endpoint 0x82; it gets the next host
-        frame id and the host time.
+        """Read and decode the next frame from bulk endpoint 0x82; its id is the device's
+        frame number (``frame_ids=True``, :func:`split_frame_id`) or the next host count, its
+        timestamp the host time.
 
         Raises:
             FrameTimeoutError: nothing arrived (names :attr:`pattern_index` when set).
@@ -624,12 +668,16 @@ class OPT8241:
             raise translate_usb_error(exc, self.what, "bulk read") from exc
         stamp = float(self.clock())
         freq = getattr(self, "_freq", None) or self.freq_hz
+        raw = bytes(raw)
         try:
-            frame = decode_frame(bytes(raw), self.width, self.height, freq, self.mode,
-                                 self.rules, self._next_id, stamp, self.adc_bits)
+            fid, data = split_frame_id(raw) if self.frame_ids else (self._next_id, raw)
+            frame = decode_frame(data, self.width, self.height, freq, self.mode,
+                                 self.rules, fid, stamp, self.adc_bits)
         except FrameError as exc:
             raise FrameError(str(exc).removeprefix("corrupt frame: "), self.pattern_index) from exc
         self._next_id += 1
+        if self.frame_ids:
+            frame = replace(frame, raw=raw)  # as received, number included (duplicate check)
         return frame
 
     def flush(self, timeout_s: float = 0.05) -> int:

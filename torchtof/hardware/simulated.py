@@ -11,6 +11,11 @@ the current video frame (or flash image) and raises TRIG_OUT1. :class:`FakeOPT82
 through the displayed pattern with the torchtof sensor model
 (:func:`torchtof.experiment.simulate_frames`, the same code and configuration as
 :class:`~torchtof.experiment.PaperExperiment`) and queues the encoded packet on bulk IN.
+The simulated frame is the ``roi_px × roi_px`` sensor ROI below one dark guard row (row 0,
+all taps 0: the camera sees more than the DMD image, and row 0 is where the OPT9221 writes
+its frame number). With ``debug_frame_number_en`` set, byte 0 of every packet is the low byte
+of a counter that advances once per frame the camera outputs — delivered, dropped or
+spurious — starting at ``frame_number_start`` (:mod:`.opt8241` on what is assumed).
 
 Noise is drawn frame by frame from one generator seeded with ``seed``, so an uninterrupted
 acquisition equals ``PaperExperiment(..., chunk_frames=1).run(seed)`` bucket for bucket.
@@ -61,7 +66,8 @@ class Faults:
         frame_timeout: frames delivered late: the first read for them times out.
         drop: frames rendered but never delivered (a frame-id gap).
         duplicate: frames delivered twice.
-        extra: frames followed by one spurious, different frame (its words in reverse order).
+        extra: frames followed by one spurious, different frame (its words in reverse order),
+            made by the camera itself: it takes the next frame number.
         corrupt: frames with bit 14 of their third 16-bit word flipped (a reserved bit in the
             ``"quad"`` and ``"iq"`` modes; undetectable in the depth modes).
         nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
@@ -71,6 +77,8 @@ class Faults:
             this many frames (the next bulk read fails).
         hang_at_frame: on rendering this frame the camera touches ``hang_file`` and stalls
             for ``hang_s`` (a test kills the process meanwhile).
+        hang_at_read: the same on the bulk read that would deliver this many-th frame (0 =
+            first): every earlier frame has reached the host.
     """
 
     frame_timeout: set[int] = field(default_factory=set)
@@ -82,6 +90,7 @@ class Faults:
     reply_timeout: dict[str, set[int]] = field(default_factory=dict)
     vanish_after_frames: int | None = None
     hang_at_frame: int | None = None
+    hang_at_read: int | None = None
     hang_file: str | None = None
     hang_s: float = 60.0
 
@@ -317,7 +326,8 @@ class FakeOPT8241(_Gone):
     """An OPT8241-CDK-EVM: 24-bit OPT9221 registers (and the 1/2-byte board slaves) behind
     the vendor control transfers, frames on bulk IN in the format its registers select
     (``output_mode``, ``pixel_data_size``, ``op_data_arrange_mode``, :mod:`.opt8241`):
-    raw bytes, no header, no frame id. Registers start at the OPT9221.dml defaults with PLL 1
+    raw bytes, no header; byte 0 the frame number when ``debug_frame_number_en`` is set
+    (module docstring). Registers start at the OPT9221.dml defaults with PLL 1
     set for the configuration's modulation frequency."""
 
     def __init__(self, bench: SimulatedBench) -> None:
@@ -334,6 +344,7 @@ class FakeOPT8241(_Gone):
         self.rendered = 0
         self.delivered = 0
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
+        self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
 
     def _set(self, name: str, value: int) -> None:
         f = opt.REGISTERS[name]
@@ -387,6 +398,10 @@ class FakeOPT8241(_Gone):
         if f.vanish_after_frames is not None and self.delivered >= f.vanish_after_frames:
             self.bench.vanished = True
             self._alive()
+        if f.hang_at_read is not None and self.delivered == f.hang_at_read:
+            if f.hang_file:
+                Path(f.hang_file).write_text(str(self.delivered))
+            time.sleep(f.hang_s)
         ordinal, packet = self._fifo[0]
         if ordinal in self._late:
             self._late.discard(ordinal)
@@ -417,6 +432,7 @@ class FakeOPT8241(_Gone):
         frame = self.bench.render(pattern, self.freq_hz)
         self.rendered += 1
         taps = frame.taps[0].numpy()
+        taps = np.concatenate([np.zeros_like(taps[:, :1]), taps], axis=1)  # dark guard row 0
         # ambient / flags nibbles: simulator choices (TI does not document their meaning)
         sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
         ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
@@ -426,6 +442,7 @@ class FakeOPT8241(_Gone):
             b = bytearray(packet)
             b[5] ^= 0x40  # bit 14 of the 3rd 16-bit word: beyond 12 bits (quad / IQ modes)
             packet = bytes(b)
+        packet = self._numbered(packet)
         if ordinal in f.frame_timeout:
             self._late.add(ordinal)
         if ordinal not in f.drop:
@@ -433,7 +450,16 @@ class FakeOPT8241(_Gone):
             if ordinal in f.duplicate:
                 self._fifo.append((ordinal, packet))
         if ordinal in f.extra:
-            self._fifo.append((ordinal, np.frombuffer(packet, "<u2")[::-1].tobytes()))
+            spurious = np.frombuffer(packet, "<u2")[::-1].tobytes()
+            self._fifo.append((ordinal, self._numbered(spurious)))
+
+    def _numbered(self, packet: bytes) -> bytes:
+        """One more frame out of the OPT9221: its number in byte 0 if enabled (OPT9221.dml
+        ``debug_frame_number_en``)."""
+        number, self.frame_number = self.frame_number, self.frame_number + 1
+        if not self.field("debug_frame_number_en"):
+            return packet
+        return bytes([number & 0xFF]) + packet[1:]
 
 
 class _SimVideo(VideoPort):
@@ -452,6 +478,8 @@ class SimulatedBench:
             camera frame is ``roi_px × roi_px``, the DMD pattern ``n × n``.
         seed: noise seed (one generator, frames drawn in order).
         faults: faults to inject (:class:`Faults`).
+        frame_number_start: the camera's frame counter at power-up (its real start value is
+            not documented; tests move it to exercise the 8-bit wrap).
 
     Example:
         >>> bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)))
@@ -461,13 +489,14 @@ class SimulatedBench:
     """
 
     def __init__(self, config: ExperimentConfig | None = None, seed: int = 0,
-                 faults: Faults | None = None) -> None:
+                 faults: Faults | None = None, frame_number_start: int = 0) -> None:
         cfg = (config or ExperimentConfig()).validate()
         if cfg.adc_bits is None or cfg.adc_bits > 12:
             raise ValueError(f"SimulatedBench: the OPT8241 sends 12-bit samples: expected "
                              f"adc_bits in [1, 12], got {cfg.adc_bits}")
         self.config, self.seed = cfg, seed
         self.faults = faults or Faults()
+        self.frame_number_start = int(frame_number_start)
         self.vanished = False
         self.generator = torch.Generator().manual_seed(seed)
         self.scene = get_scene(cfg.scene, cfg.n, cfg.object_m, dtype=torch.float32)
@@ -496,10 +525,11 @@ class SimulatedBench:
         return LightCrafter4500(self.lightcrafter_usb, video=self.video, **kwargs)
 
     def camera(self, **kwargs) -> OPT8241:
-        """An :class:`OPT8241` driver on the fake camera (``roi_px`` square frames, raw-quad
-        mode so that the per-tap buckets exist, the simulated host clock)."""
+        """An :class:`OPT8241` driver on the fake camera (``roi_px`` wide, ``roi_px + 1``
+        high with the guard row 0, raw-quad mode so that the per-tap buckets exist, the
+        simulated host clock)."""
         p = self.config.roi_px
-        kw = {"width": p, "height": p, "rules": rules_from_config(self.config), "mode": "quad",
+        kw = {"width": p, "height": p + 1, "rules": rules_from_config(self.config), "mode": "quad",
               "adc_bits": self.config.adc_bits, "clock": lambda: self.camera_usb.time_s,
               **kwargs}
         return OPT8241(self.camera_usb, **kw)
