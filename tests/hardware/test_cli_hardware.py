@@ -202,3 +202,31 @@ def test_require_zarr3_passes_with_the_installed_zarr():
     from torchtof.hardware.acquisition import require_zarr3
 
     assert require_zarr3() is zarr and int(zarr.__version__.split(".")[0]) >= 3
+
+
+def test_acquire_auto_stops_where_the_offline_rule_stops(tmp_path, capsys):
+    """``acquire --auto``: the progressive rule (torchtof.adaptive.ProgressiveStop) ends the
+    run early; the recorded prefix equals the pure simulation, and replaying the rule offline
+    on the simulation's gated buckets stops at the same block."""
+    from torchtof.adaptive import ProgressiveStop
+    from torchtof.hardware.cli import AUTO_BLOCK
+
+    path = tmp_path / "auto.zarr"
+    args = ["acquire", "--simulated", "--auto", "--scene", "sky", "--n", "16", "--roi-px", "16",
+            "--sr", "1.0", "--no-progress", "-o", str(path)]
+    assert main(args) == 0
+    assert "--auto: stopped after" in capsys.readouterr().out
+    g = zarr.open_group(str(path), mode="r")
+    m = int(g.attrs["m_acquired"])
+    assert g.attrs["stopped_early"] and m < 256 and m % AUTO_BLOCK == 0
+    assert g.attrs["auto"]["block"] == AUTO_BLOCK and g.attrs["auto"]["kind"] == "gated"
+    # the recorded frames are the pure simulation's first 2m frames (noisy, same seed)
+    ref = PaperExperiment(sr=m / 256, n=16, roi_px=16, srs=(m / 256,), chunk_frames=1)
+    gated = ref.run(seed=0).buckets["depth_gated"]
+    got = torch.from_numpy(g["buckets_gated"][:])[..., : 2 * m]
+    assert torch.equal(got, gated)
+    # the same rule, replayed block by block on y⁺ − y⁻ (÷ n), first says stop at m
+    rule = ProgressiveStop(16, block=AUTO_BLOCK, kind="gated")
+    y = (gated[..., 0::2] - gated[..., 1::2])[:1] / 16
+    first = next(k for k in range(AUTO_BLOCK, m + 1, AUTO_BLOCK) if rule({"gated": y[..., :k]}))
+    assert first == m

@@ -15,6 +15,9 @@ import torch
 
 __all__ = ["add_parsers", "cmd_acquire", "cmd_reconstruct"]
 
+#: ``acquire --auto``: patterns per block of the stopping rule (torchtof.adaptive's default).
+AUTO_BLOCK = 32
+
 
 def _sim_config(args: argparse.Namespace):
     from ..experiment import ExperimentConfig
@@ -63,15 +66,31 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                   "command line has none yet: call torchtof.hardware.acquire(..., ) with "
                   "LightCrafter4500(dev, video=...) from Python.", file=sys.stderr)
             return 2
+        block = args.block or (AUTO_BLOCK if args.auto else 12)
+        rule = stop = None
+        if args.auto:  # progressive acquisition (torchtof.adaptive, README "--auto")
+            from ..adaptive import ProgressiveStop
+
+            rule = ProgressiveStop(args.n, block=block, kind="gated", order=args.order)
+            metadata["auto"] = {"rule": rule.rule, "kind": rule.kind, "block": block,
+                                "min_patterns": rule.min_patterns}
+
+            def stop(buckets: dict, n: int = args.n) -> bool:
+                # the hook passes y⁺ − y⁻; the rule reads orthonormal coefficients (÷ n)
+                return rule({k: v / n for k, v in buckets.items()})
+
         res = acquire(args.output, lcr, cam, n=args.n, sr=args.sr, order=args.order,
-                      exposure_us=args.exposure_us, block=args.block, resume=args.resume,
-                      retries=args.retries, progress=not args.no_progress, metadata=metadata,
-                      frame_ids=args.frame_ids)
+                      exposure_us=args.exposure_us, block=block, stop=stop,
+                      resume=args.resume, retries=args.retries, progress=not args.no_progress,
+                      metadata=metadata, frame_ids=args.frame_ids)
     except (HardwareError, FileExistsError) as exc:
         print(f"torchtof acquire: {exc}", file=sys.stderr)
         return 1
     print(f"recorded {res.m_acquired}/{res.m_planned} pattern pairs to {res.path} "
           f"({res.retries} retries, {res.duplicates} duplicate frames discarded)")
+    if rule is not None and res.stopped_early:
+        print(f"--auto: stopped after {res.m_acquired} of {res.m_planned} patterns "
+              f"({res.m_acquired / res.m_planned:.0%}): {rule.last.get('reason')}")
     return 0
 
 
@@ -125,7 +144,11 @@ def add_parsers(sub) -> None:
     a.add_argument("--noise-free", action="store_true", help="simulation without shot/read noise")
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--exposure-us", type=int, default=10_000)
-    a.add_argument("--block", type=int, default=12, help="pattern pairs per block")
+    a.add_argument("--block", type=int, default=None,
+                   help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
+    a.add_argument("--auto", action="store_true",
+                   help="stop acquiring when new blocks of patterns no longer change the image "
+                   "beyond the noise (torchtof.adaptive.ProgressiveStop on the gated buckets)")
     a.add_argument("--retries", type=int, default=3)
     a.add_argument("--resume", action="store_true", help="continue an interrupted store")
     a.add_argument("--frame-ids", default="device", choices=["device", "count"],
