@@ -89,14 +89,21 @@ def test_cli_bench_lists_adaptive():
 
 
 def test_gate_choice_costs_no_frames():
-    # the stop reads the ungated buckets, so forcing the gate on (every F test rejects) or
+    # a stop on the ungated buckets: forcing the gate on (every F test rejects) or
     # off (none does) changes the buckets reconstructed but not the patterns acquired
     data = _data()
-    on = run_adaptive(data, 0, block=8, compare_fixed=False, gate_level=1e-9)
-    off = run_adaptive(data, 0, block=8, compare_fixed=False, gate_level=1 - 1e-12)
+    kw = dict(block=8, compare_fixed=False, stop_kind="depth")
+    on = run_adaptive(data, 0, gate_level=1e-9, **kw)
+    off = run_adaptive(data, 0, gate_level=1 - 1e-12, **kw)
     assert on.kind == "gated" and off.kind == "depth"
     assert on.stop_kind == off.stop_kind == "depth"
     assert on.patterns_used == off.patterns_used
+
+
+def test_auto_stop_reads_the_chosen_buckets():
+    data = _data(scattering=True)  # veil: gate kept, the stop reads the gated buckets
+    assert run_adaptive(data, 0, block=8, compare_fixed=False).stop_kind == "gated"
+    assert run_adaptive(_data(), 0, block=8, compare_fixed=False).stop_kind == "depth"
 
 
 def test_lower_discrepancy_bound_never_stops_earlier():
