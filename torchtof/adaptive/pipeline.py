@@ -27,9 +27,11 @@ and the reconstructor run to its own convergence.
    95 % lower confidence limit of ``σ²/σ̂²`` (``q = B/χ²_B(0.95)`` = 0.69 for ``B = 32``,
    :func:`~torchtof.adaptive.noise.variance_lower_factor`): ``σ̂²`` from ``B`` repeats is
    ±25 % off, and an over-estimate stopped TVAL3 before it had fitted the signal. ``σ̂``
-   only bounds the residual (``model_sigma=False``): TVAL3 picks its ``mu="auto"`` model
-   from its own tail estimate, as in the fixed pipeline (given ``σ̂``, it picked another
-   model on the small object at ten times the light and lost 1–8 dB per run).
+   also feeds TVAL3's ``mu="auto"`` model choice (``model_sigma=True``, as before).
+   ``model_sigma=False`` (TVAL3's own tail estimate picks the model, as in the fixed
+   pipeline) was better for the small object at ten times the light (calibration seed 10:
+   −0.5 against −2.6 dB) and worse at the paper's light level (grey photo −0.0 against
+   +1.0 dB, 天 behind the sheet −0.6 against +0.1 dB), so it is an option, not the default.
 
 Time: acquisition is one ToF frame per DMD pattern (two per ±1 row) at ``fps`` frames per
 second (the paper's camera: 30–150 fps); compute is measured wall time.
@@ -185,7 +187,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                  reference: DarkReference | None = None, stop: ProgressiveStop | None = None,
                  compare_fixed: bool = True, stop_kind: str = "auto",
                  gate_level: float = 0.99, disc_level: float = 0.05,
-                 model_sigma: bool = False) -> AdaptiveResult:
+                 model_sigma: bool = True) -> AdaptiveResult:
     """The adaptive pipeline on realisation ``r`` of a run (module docstring).
 
     Args:
@@ -208,7 +210,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         gate_level: level of the F test of :func:`gate_changes_image`.
         disc_level: the discrepancy stop uses ``q σ̂²``, the ``1 − disc_level`` lower
             confidence limit of ``σ²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`).
-        model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: no).
+        model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: yes).
 
     Returns:
         :class:`AdaptiveResult`.
