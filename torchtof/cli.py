@@ -155,10 +155,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
         res = bench_tradeoff(quick=args.quick, out=args.out)
         print_tradeoff(res)
     elif name == "adaptive":
-        from .bench.adaptive import bench_adaptive, print_adaptive
+        from .bench.adaptive import (
+            bench_adaptive,
+            bench_adaptive_seeds,
+            parse_seeds,
+            print_adaptive,
+            print_adaptive_seeds,
+        )
 
-        res = bench_adaptive(realisations=3 if args.quick else 6, progress=False)
-        print_adaptive(res)
+        kw = dict(realisations=args.realisations or (3 if args.quick else 6), progress=False)
+        if args.signal_e is not None:
+            kw["signal_e"] = args.signal_e
+        if args.seeds is not None:
+            res = bench_adaptive_seeds(parse_seeds(args.seeds), **kw)
+            print_adaptive_seeds(res)
+        else:
+            res = bench_adaptive(seed=args.seed, **kw)
+            print_adaptive(res)
     elif name == "stability":
         from .bench.stability import bench_stability, print_stability
 
@@ -223,6 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--plot", action="store_true")
     b.add_argument("--out", default="bench_out")
     b.add_argument("--json", default=None, help="write the result as JSON to this path")
+    b.add_argument("--seed", type=int, default=0, help="adaptive: noise seed (default 0)")
+    b.add_argument("--seeds", default=None,
+                   help="adaptive: several seeds, e.g. 0-5 or 0,3,7 (one table per seed)")
+    b.add_argument("--signal-e", type=float, default=None,
+                   help="adaptive: signal electrons (the paper's set-up: 400; 4000 = 10x light)")
+    b.add_argument("--realisations", type=int, default=None,
+                   help="adaptive: noise realisations per scene (default 6, --quick 3)")
     b.set_defaults(func=cmd_bench)
 
     r = sub.add_parser("reproduce", help="regenerate the paper's figures and PSNR table")

@@ -37,3 +37,33 @@ def test_bad_inputs(fn, arg, match):
 def test_blocks_bad_block():
     with pytest.raises(ValueError, match="block"):
         noise_from_blocks(torch.zeros(1, 1, 64), 2)
+
+
+def test_variance_lower_factor_is_the_chi2_quantile():
+    from scipy.stats import chi2
+
+    from torchtof.adaptive import variance_lower_factor
+
+    assert variance_lower_factor(32, 0.05) == pytest.approx(32 / chi2.ppf(0.95, 32))
+    assert variance_lower_factor(32, 0.05) < 1.0 < variance_lower_factor(32, 0.95)
+    assert variance_lower_factor(10**6, 0.05) == pytest.approx(1.0, abs=0.01)  # σ̂ exact
+
+
+def test_variance_lower_factor_covers_the_noise_at_its_level():
+    # seeded: q·σ̂² from B = 32 repeated differences exceeds σ² in about 5 % of the draws
+    from torchtof.adaptive import variance_lower_factor
+
+    g = torch.Generator().manual_seed(3)
+    b, trials, sigma = 32, 20000, 0.7
+    d = sigma * (torch.randn(trials, b, generator=g) - torch.randn(trials, b, generator=g))
+    s2 = d.pow(2).sum(-1) / (2 * b)
+    over = float((variance_lower_factor(b, 0.05) * s2 > sigma**2).double().mean())
+    assert over == pytest.approx(0.05, abs=0.01)
+
+
+@pytest.mark.parametrize(("dof", "level"), [(0, 0.05), (True, 0.05), (8, 0.0), (8, 1.0)])
+def test_variance_lower_factor_rejects_bad_input(dof, level):
+    from torchtof.adaptive import variance_lower_factor
+
+    with pytest.raises(ValueError, match="variance_lower_factor"):
+        variance_lower_factor(dof, level)

@@ -86,3 +86,63 @@ def test_cli_demo_auto(tmp_path, capsys):
 def test_cli_bench_lists_adaptive():
     args = cli.build_parser().parse_args(["bench", "adaptive", "--quick"])
     assert args.which == "adaptive"
+
+
+def test_gate_choice_costs_no_frames():
+    # a stop on the ungated buckets: forcing the gate on (every F test rejects) or
+    # off (none does) changes the buckets reconstructed but not the patterns acquired
+    data = _data()
+    kw = dict(block=8, compare_fixed=False, stop_kind="depth")
+    on = run_adaptive(data, 0, gate_level=1e-9, **kw)
+    off = run_adaptive(data, 0, gate_level=1 - 1e-12, **kw)
+    assert on.kind == "gated" and off.kind == "depth"
+    assert on.stop_kind == off.stop_kind == "depth"
+    assert on.patterns_used == off.patterns_used
+
+
+def test_auto_stop_reads_the_chosen_buckets():
+    data = _data(scattering=True)  # veil: gate kept, the stop reads the gated buckets
+    assert run_adaptive(data, 0, block=8, compare_fixed=False).stop_kind == "gated"
+    assert run_adaptive(_data(), 0, block=8, compare_fixed=False).stop_kind == "depth"
+
+
+def test_lower_discrepancy_bound_never_stops_earlier():
+    # q σ̂² shrinks with disc_level: a tighter Morozov bound can only stop TVAL3 later
+    data = _data()
+    loose = run_adaptive(data, 0, block=8, compare_fixed=False, disc_level=0.9)
+    tight = run_adaptive(data, 0, block=8, compare_fixed=False, disc_level=0.001)
+    assert loose.patterns_used == tight.patterns_used and loose.kind == tight.kind
+    assert tight.n_iter >= loose.n_iter
+
+
+@pytest.mark.parametrize(("kw", "match"), [({"stop_kind": "x"}, "stop_kind"),
+                                           ({"gate_level": 1.0}, "gate_level"),
+                                           ({"disc_level": 0.0}, "disc_level")])
+def test_bad_pipeline_options(kw, match):
+    with pytest.raises(ValueError, match=match):
+        run_adaptive(_data(), 0, block=8, compare_fixed=False, **kw)
+
+
+def test_cli_bench_adaptive_seed_and_light_options():
+    from torchtof.bench.adaptive import parse_seeds
+
+    args = cli.build_parser().parse_args(["bench", "adaptive", "--seeds", "0-5", "--signal-e",
+                                          "4000", "--realisations", "3"])
+    assert parse_seeds(args.seeds) == [0, 1, 2, 3, 4, 5]
+    assert args.signal_e == 4000.0 and args.realisations == 3
+    assert cli.build_parser().parse_args(["bench", "adaptive", "--seed", "7"]).seed == 7
+    assert parse_seeds("0,3,7") == [0, 3, 7] and parse_seeds("2") == [2]
+    for bad in ("5-2", "a", "", "-1"):
+        with pytest.raises(ValueError, match="parse_seeds"):
+            parse_seeds(bad)
+
+
+@pytest.mark.slow  # two small benches (~5 s); the CLI parsing test above is the fast one
+def test_bench_adaptive_seeds_runs_each_seed():
+    from torchtof.bench.adaptive import bench_adaptive_seeds
+
+    res = bench_adaptive_seeds([0, 1], realisations=2, n=N, block=8, scenes=["empty"],
+                               progress=False, signal_e=800.0)
+    assert [r["seed"] for r in res["per_seed"]] == [0, 1]
+    assert all(r["overrides"] == {"signal_e": 800.0} for r in res["per_seed"])
+    assert res["acceptance_dense"] is True  # no dense row: vacuous

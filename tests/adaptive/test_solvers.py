@@ -81,3 +81,33 @@ def test_solve_at_noise_bad_inputs():
         solve_at_noise("CGI", A, y)
     with pytest.raises(ValueError, match="shape"):
         solve_at_noise("PINV", A, y[0])
+
+
+def test_tau_scales_the_discrepancy_bound_only():
+    # tau: Morozov's factor on the bound, ‖Ax − y‖² ≤ τ M σ² = M (√τ σ)²; the μ model keeps σ
+    A, _, y = _data(0.05)
+    res = solve_at_noise("TVAL3", A, y, 0.05, tau=0.5)
+    ref = tval3(y, A, noise_sigma=0.05, discrepancy=0.05 * 0.5**0.5)
+    assert torch.equal(res.x, ref.x) and res.n_iter == ref.n_iter.tolist()
+
+
+def test_model_sigma_false_leaves_the_model_to_tval3():
+    # model_sigma=False: σ only bounds the residual; TVAL3 chooses its model as without σ
+    A, _, y = _data(0.05)
+    res = solve_at_noise("TVAL3", A, y, 0.05, model_sigma=False)
+    ref = tval3(y, A, noise_sigma=None, discrepancy=0.05)
+    assert torch.equal(res.x, ref.x) and res.stop_reason == ref.reasons()
+
+
+def test_smaller_tau_never_stops_earlier():
+    A, _, y = _data(0.05, b=3)
+    loose = solve_at_noise("TVAL3", A, y, 0.05, tau=1.5)
+    tight = solve_at_noise("TVAL3", A, y, 0.05, tau=0.5)
+    assert all(t >= lo for rt, rl in zip(tight.n_iter, loose.n_iter) for t, lo in zip(rt, rl))
+
+
+@pytest.mark.parametrize("tau", [0.0, -1.0, float("nan")])
+def test_bad_tau(tau):
+    A, _, y = _data(0.05)
+    with pytest.raises(ValueError, match="tau"):
+        solve_at_noise("TVAL3", A, y, 0.05, tau=tau)

@@ -9,7 +9,7 @@ from .detect import (
     detect_far_background,
     detect_veil,
 )
-from .noise import noise_from_blocks, noise_from_repeats
+from .noise import noise_from_blocks, noise_from_repeats, variance_lower_factor
 from .pipeline import AdaptiveResult, run_adaptive, run_fixed, signed_buckets
 from .progressive import (
     BUCKET_KINDS,
@@ -42,6 +42,7 @@ __all__ = [
     "detect_veil",
     "noise_from_repeats",
     "noise_from_blocks",
+    "variance_lower_factor",
     "BUCKET_KINDS",
     "PROGRESSIVE_RULES",
     "ProgressiveStop",

@@ -21,7 +21,7 @@ import torch
 
 from .._checks import check_finite, check_rank, check_tensor
 
-__all__ = ["noise_from_repeats", "noise_from_blocks"]
+__all__ = ["noise_from_repeats", "noise_from_blocks", "variance_lower_factor"]
 
 _MAD = NormalDist().inv_cdf(0.75)  # median |z| of a standard normal z
 
@@ -92,3 +92,43 @@ def noise_from_blocks(y: torch.Tensor, block: int = 32) -> torch.Tensor:
     k = m // block
     tail = y[..., (k - k // 2) * block : k * block]
     return tail.abs().median(dim=-1).values / _MAD
+
+
+def variance_lower_factor(dof: int, level: float = 0.05) -> float:
+    r"""Lower confidence factor of a variance estimated from ``dof`` degrees of freedom.
+
+    ``σ̂² = ‖d‖²/(2B)`` from ``B`` repeated differences has ``Bσ̂²/σ² ~ χ²_B``, so
+
+    .. math::
+
+        q = B / \chi^2_{B}(1 - \text{level}), \qquad
+        P(q\,\hat\sigma^2 \le \sigma^2) = 1 - \text{level}
+
+    (the lower confidence limit of ``σ²``; ``χ²_B(p)`` is the ``p`` quantile of ``χ²_B``).
+
+    ``q σ̂²`` is a variance that the noise exceeds with probability ``1 − level``: a
+    discrepancy bound ``‖Ax − y‖² ≤ M q σ̂²`` then stops a solver early (on an over-estimated
+    ``σ̂``) in at most a fraction ``level`` of runs (Morozov's rule with ``τ = q``).
+
+    Args:
+        dof: degrees of freedom ``B ≥ 1`` of the estimate.
+        level: one-sided level in ``(0, 1)``.
+
+    Returns:
+        ``q`` (``< 1`` for ``level < 0.5``; ``→ 1`` as ``dof → ∞``).
+
+    Raises:
+        ValueError: ``dof < 1`` or ``level`` outside ``(0, 1)``.
+
+    Example:
+        >>> round(variance_lower_factor(32), 2)
+        0.69
+    """
+    fn = "variance_lower_factor"
+    if isinstance(dof, bool) or not isinstance(dof, int) or dof < 1:
+        raise ValueError(f"{fn}: expected dof to be an int >= 1, got {dof!r}")
+    if not 0.0 < float(level) < 1.0:
+        raise ValueError(f"{fn}: expected level in (0, 1), got {level!r}")
+    from scipy.stats import chi2
+
+    return dof / float(chi2.ppf(1.0 - float(level), dof))

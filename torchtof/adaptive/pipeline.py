@@ -7,19 +7,31 @@ and the reconstructor run to its own convergence.
 **Adaptive pipeline** (:func:`run_adaptive`):
 
 1. the first DMD pair (all-on, dark) → :func:`~torchtof.adaptive.detect.detect_veil` and
-   :func:`~torchtof.adaptive.detect.detect_far_background`, and the first 128 patterns →
-   :func:`~torchtof.adaptive.detect.gate_changes_image`; the gate is kept when a veil or a
-   far background is found or when it changes the image beyond the noise, and skipped
-   otherwise (ungated buckets, negative images, §3.1; the gate is per-frame processing, so
-   this costs no frames); the veil compensation runs only with a veil;
+   :func:`~torchtof.adaptive.detect.detect_far_background`;
 2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
-   patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` (not the first
-   block: its all-on/dark pair is noisier or quieter than the rest);
-3. progressive acquisition with :class:`~torchtof.adaptive.progressive.ProgressiveStop`
-   (innovation rule at ``σ̂``) on the chosen buckets;
-4. the reconstructor — TVAL3 by default, or the cheapest one meeting a budget
+   patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind
+   (not the first block: its all-on/dark pair is noisier or quieter than the rest);
+3. the gate: kept with a veil or a far background, or when
+   :func:`~torchtof.adaptive.detect.gate_changes_image` (F test, 99 %) finds on the first 128
+   patterns that it changes the image beyond the noise; skipped otherwise (ungated buckets,
+   negative images, §3.1); the veil compensation runs only with a veil;
+4. progressive acquisition with :class:`~torchtof.adaptive.progressive.ProgressiveStop`
+   (innovation rule at ``σ̂``) on the chosen buckets (``stop_kind="auto"``). With a fixed
+   ``stop_kind`` (e.g. ``"depth"``) the stop no longer depends on the gate, which is then
+   decided on all ``m`` patterns acquired (the gate is per-frame processing: it costs no
+   frames). Stopping on the ungated buckets was tried and stops the dense scenes too early
+   for their gated image (grey photo −0.2…−1.3 dB on seeds 0–5, README);
+5. the reconstructor — TVAL3 by default, or the cheapest one meeting a budget
    (:func:`~torchtof.adaptive.budget.choose_method`) — stopped by the discrepancy principle
-   at ``σ̂`` (:func:`~torchtof.adaptive.solvers.solve_at_noise`).
+   (:func:`~torchtof.adaptive.solvers.solve_at_noise`) at ``τ M σ̂²`` with ``τ = q``, the
+   95 % lower confidence limit of ``σ²/σ̂²`` (``q = B/χ²_B(0.95)`` = 0.69 for ``B = 32``,
+   :func:`~torchtof.adaptive.noise.variance_lower_factor`): ``σ̂²`` from ``B`` repeats is
+   ±25 % off, and an over-estimate stopped TVAL3 before it had fitted the signal. ``σ̂``
+   also feeds TVAL3's ``mu="auto"`` model choice (``model_sigma=True``, as before).
+   ``model_sigma=False`` (TVAL3's own tail estimate picks the model, as in the fixed
+   pipeline) was better for the small object at ten times the light (calibration seed 10:
+   −0.5 against −2.6 dB) and worse at the paper's light level (grey photo −0.0 against
+   +1.0 dB, 天 behind the sheet −0.6 against +0.1 dB), so it is an option, not the default.
 
 Time: acquisition is one ToF frame per DMD pattern (two per ±1 row) at ``fps`` frames per
 second (the paper's camera: 30–150 fps); compute is measured wall time.
@@ -42,6 +54,7 @@ from .detect import (
     detect_veil,
     gate_changes_image,
 )
+from .noise import variance_lower_factor
 from .progressive import ProgressiveResult, ProgressiveStop, run_progressive
 from .solvers import solve_at_noise
 
@@ -87,6 +100,7 @@ class AdaptiveResult:
     choice: MethodChoice | None = None
     progressive: ProgressiveResult | None = None
     fixed: AdaptiveResult | None = None
+    stop_kind: str = "depth"
 
     @property
     def total_s(self) -> float:
@@ -171,7 +185,9 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                  time_budget_s: float | None = None, target_psnr: float | None = None,
                  fps: float = DEFAULT_FPS, repeat: bool = True,
                  reference: DarkReference | None = None, stop: ProgressiveStop | None = None,
-                 compare_fixed: bool = True) -> AdaptiveResult:
+                 compare_fixed: bool = True, stop_kind: str = "auto",
+                 gate_level: float = 0.99, disc_level: float = 0.05,
+                 model_sigma: bool = True) -> AdaptiveResult:
     """The adaptive pipeline on realisation ``r`` of a run (module docstring).
 
     Args:
@@ -186,19 +202,32 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         fps: ToF frames per second for the acquisition time.
         repeat: measure the first block twice for ``σ̂`` (else estimate it from the blocks).
         reference: clear set-up dark frame (default: simulated for ``data.config``).
-        stop: a custom :class:`ProgressiveStop` (its ``kind`` is overridden by the gate choice).
+        stop: a custom :class:`ProgressiveStop` (it reads its own ``kind``).
         compare_fixed: also run :func:`run_fixed` and attach it.
+        stop_kind: buckets the default stop reads: ``"auto"`` (default) the kind the gate
+            test on the first 128 patterns chose; a fixed kind (``"depth"``: the ungated
+            buckets whatever the gate) lets the gate be decided on all the patterns acquired.
+        gate_level: level of the F test of :func:`gate_changes_image`.
+        disc_level: the discrepancy stop uses ``q σ̂²``, the ``1 − disc_level`` lower
+            confidence limit of ``σ²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`).
+        model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: yes).
 
     Returns:
         :class:`AdaptiveResult`.
 
     Raises:
-        ValueError: ``r`` out of range.
+        ValueError: ``r`` out of range, unknown ``stop_kind``, a level outside ``(0, 1)``.
     """
     cfg = data.config
     n_real = data.buckets["depth"].shape[0]
     if not 0 <= r < n_real:
         raise ValueError(f"run_adaptive: expected r in [0, {n_real}), got {r}")
+    if stop_kind not in ("auto", "depth", "gated", "intensity"):
+        raise ValueError(f"run_adaptive: expected stop_kind in ('auto', 'depth', 'gated', "
+                         f"'intensity'), got {stop_kind!r}")
+    for name, v in (("gate_level", gate_level), ("disc_level", disc_level)):
+        if not 0.0 < float(v) < 1.0:
+            raise ValueError(f"run_adaptive: expected {name} in (0, 1), got {v!r}")
     sr = max(cfg.srs)
     t0 = time.perf_counter()
     ref = reference or _reference(data)
@@ -217,13 +246,28 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
 
     far = detect_far_background(raw, (sigma_of("intensity") or 1e-12) * cfg.n)
     skipped, stages = [], []
+    auto = stop is None and stop_kind == "auto"
     gate_test = None
-    if sb_rep is not None:  # does the gate change the image of the first patterns?
-        m0 = min(max(2 * block, 128), sb["depth"].shape[-1])
+
+    def test_gate(m_test):  # does the gate change the image of the first m_test patterns?
         d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
              for k in ("depth", "gated")}
-        gate_test = gate_changes_image(sb["depth"][..., :m0], sb["gated"][..., :m0],
-                                       d["depth"], d["gated"])
+        return gate_changes_image(sb["depth"][..., :m_test], sb["gated"][..., :m_test],
+                                  d["depth"], d["gated"], level=gate_level)
+
+    if auto and sb_rep is not None:  # decided before the stop, which reads the chosen kind
+        gate_test = test_gate(min(max(2 * block, 128), sb["depth"].shape[-1]))
+    early_gate = veil.present or far.present or gate_test is None or gate_test.present
+    s_kind = (("gated" if early_gate else "depth") if auto else
+              stop_kind if stop is None else stop.kind)
+    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=sigma_of(s_kind),
+                                      order=cfg.order, kind=s_kind)
+    if stop is not None and stop.noise_sigma is None:
+        stopper.noise_sigma = sigma_of(s_kind)
+    prog = run_progressive(sb, stopper)
+    m = prog.m
+    if not auto and sb_rep is not None:  # the stop did not depend on it: test all m patterns
+        gate_test = test_gate(m)
     gate = veil.present or far.present or (gate_test is None or gate_test.present)
     if gate:
         why = ("veil" if veil.present else "far background" if far.present else
@@ -239,12 +283,9 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     else:
         skipped.append("veil compensation (no veil)")
     sigma = sigma_of(kind)
-    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=sigma, order=cfg.order)
-    stopper.kind = kind
-    if stop is None or stop.noise_sigma is None:
-        stopper.noise_sigma = sigma
-    prog = run_progressive(sb, stopper)
-    m = prog.m
+    # 4. Morozov's bound at the lower confidence limit of σ̂² (χ² with B degrees of freedom):
+    # an over-estimated σ̂ would stop the solver before it fits the signal
+    tau = variance_lower_factor(block, disc_level) if sigma is not None else 1.0
     choice = None
     if method is None:
         if time_budget_s is not None or target_psnr is not None:
@@ -256,7 +297,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     A = data.operator(m / cfg.n**2)
     sign = 1.0 if gate else -1.0
     n_iter = choice.n_iter if choice is not None else None
-    sol = solve_at_noise(method, A, sb[kind][..., :m], sigma, n_iter=n_iter, sign=sign)
+    sol = solve_at_noise(method, A, sb[kind][..., :m], sigma, n_iter=n_iter, sign=sign, tau=tau,
+                         model_sigma=model_sigma)
     image = sol.x / veil.alpha if veil.present else sol.x
     dt = time.perf_counter() - t0
     n_rep = block if rep is not None else 0
@@ -265,7 +307,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         n_iter=sol.n_iter[0][0], solver_stop=sol.stop_reason[0][0], patterns_used=m + n_rep,
         patterns_max=data.hadamard.m, repeat_patterns=n_rep, acquisition_stop=prog.reason,
         skipped=skipped, stages=stages, veil=veil, far=far, noise_sigma=sigma,
-        acquisition_s=_frames_s(m + n_rep, fps), compute_s=dt, choice=choice, progressive=prog)
+        acquisition_s=_frames_s(m + n_rep, fps), compute_s=dt, choice=choice, progressive=prog,
+        stop_kind=stopper.kind)
     if compare_fixed:
         res.fixed = run_fixed(data, r, method="TVAL3", fps=fps, reference=ref)
     return res

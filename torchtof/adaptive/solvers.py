@@ -16,6 +16,10 @@ further only fits the noise. ``σ`` comes from repeated frames
   ``"max_iter"``.
 - **DIP**: :func:`~torchtof.recon.dip.fit_dip` with ``early_stop="discrepancy"`` on the
   calibrated residual; ``"discrepancy"`` or ``"max_iter"``.
+- ``tau`` (Morozov's ``τ`` of the TVAL3 and BP bounds) below 1 uses a lower confidence limit
+  of an estimated ``σ̂²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`), so that
+  an over-estimate does not stop the solver before it fits the signal; ``model_sigma=False``
+  keeps ``σ`` out of TVAL3's ``mu="auto"`` model choice (the residual bound only).
 - **PINV** (``"direct"``) and the unrolled TVAL3 (``"fixed"``) have no iterations to stop.
 """
 
@@ -51,7 +55,8 @@ def _per_sample(v, shape) -> torch.Tensor:
 
 
 def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: int | None = None,
-                   sign: float = 1.0, seed: int = 0) -> SolveResult:
+                   sign: float = 1.0, seed: int = 0, tau: float = TAU,
+                   model_sigma: bool = True) -> SolveResult:
     """Reconstruct ``y`` with ``method`` stopped by the discrepancy principle at ``noise_sigma``.
 
     Args:
@@ -64,6 +69,12 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
         sign: ``-1`` for negative-polarity buckets (the DIP fits ``−y``, see
             :mod:`torchtof.methods`).
         seed: DIP initialisation seed.
+        tau: Morozov's factor of the TVAL3 and BP bounds, ``‖Ax − y‖² ≤ τ M σ²`` (``τ < 1``:
+            a lower confidence limit of ``σ̂²``, see
+            :func:`~torchtof.adaptive.noise.variance_lower_factor`); the DIP keeps its own.
+        model_sigma: TVAL3 only: also give ``noise_sigma`` to its ``mu="auto"`` model choice
+            (``False``: TVAL3 picks the model from its own tail estimate, as without a
+            noise level; only the discrepancy stop uses ``noise_sigma``).
 
     Returns:
         :class:`SolveResult`.
@@ -77,6 +88,8 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
     fn = "solve_at_noise"
     if method not in SOLVERS:
         raise ValueError(f"{fn}: expected method in {SOLVERS}, got {method!r}")
+    if not float(tau) > 0.0:
+        raise ValueError(f"{fn}: expected tau > 0, got {tau!r}")
     if not isinstance(y, torch.Tensor) or y.ndim != 3:
         raise ValueError(f"{fn}: expected y of shape (B, C, M), got "
                          f"{tuple(y.shape) if isinstance(y, torch.Tensor) else type(y)}")
@@ -96,7 +109,8 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
     elif method == "TVAL3":
         kw = {} if n_iter is None else {"max_iter": int(n_iter)}
         with torch.no_grad():
-            res = tval3(y, A, noise_sigma=sig, discrepancy=sig, **kw)
+            disc = None if sig is None else sig * float(tau) ** 0.5  # τ M σ² = M (√τ σ)²
+            res = tval3(y, A, noise_sigma=sig if model_sigma else None, discrepancy=disc, **kw)
         x, iters, reasons = res.x, res.n_iter.tolist(), res.reasons()
     elif method == "BP":
         kw = {} if n_iter is None else {"n_iter": int(n_iter)}
@@ -106,7 +120,7 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
                 res = basis_pursuit(y, A, eps=eps, **kw)
             else:  # per-sample radius: solve the samples one by one (eps is a float)
                 outs = [basis_pursuit(y[i : i + 1, j : j + 1], A,
-                                      eps=float((TAU * m) ** 0.5 * sig[i, j]), **kw)
+                                      eps=float((tau * m) ** 0.5 * sig[i, j]), **kw)
                         for i in range(b) for j in range(c)]
                 res = type(outs[0])(*(torch.cat([o[k] for o in outs]).reshape(
                     (b, c) + tuple(outs[0][k].shape[2:])) for k in range(4)))

@@ -35,7 +35,7 @@ from ..scenes import Scene, get_scene
 from ._timing import print_table
 
 __all__ = ["SCENE_TYPES", "scene_type", "bench_adaptive", "print_adaptive", "flatness_psnr",
-           "bucket_gains"]
+           "bucket_gains", "parse_seeds", "bench_adaptive_seeds", "print_adaptive_seeds"]
 
 #: scene type -> (scene name or builder key, scattering, sparse/dense/... class)
 SCENE_TYPES: dict[str, tuple[str, bool, str]] = {
@@ -105,10 +105,11 @@ def _score(img, truth, polarity, gain):
 
 def bench_adaptive(realisations: int = 4, n: int = 32, sr: float = 0.375, block: int = 32,
                    fps: float = 30.0, seed: int = 0, scenes=None, progress: bool = True,
-                   **overrides) -> dict:
+                   pipeline: dict | None = None, **overrides) -> dict:
     """Run both pipelines over the scene types; rows of per-scene means (module docstring).
-    ``overrides``: :class:`~torchtof.experiment.ExperimentConfig` fields (e.g. a lower
-    ``ambient_e`` for a less noisy set-up)."""
+    ``overrides``: :class:`~torchtof.experiment.ExperimentConfig` fields (e.g.
+    ``signal_e=4000`` for ten times the light); ``pipeline``: keyword arguments of
+    :func:`~torchtof.adaptive.run_adaptive` (e.g. ``{"gate_level": 0.95}``)."""
     from ..adaptive import run_adaptive
 
     t_all = time.perf_counter()
@@ -122,7 +123,7 @@ def bench_adaptive(realisations: int = 4, n: int = 32, sr: float = 0.375, block:
         data = exp.run(seed=seed, realisations=realisations, progress=progress)
         per = []
         for r in range(realisations):
-            res = run_adaptive(data, r, block=block, fps=fps)
+            res = run_adaptive(data, r, block=block, fps=fps, **(pipeline or {}))
             fx = res.fixed
             per.append({
                 "p_ad": res.patterns_used, "p_fx": fx.patterns_used,
@@ -200,3 +201,55 @@ def print_adaptive(res: dict) -> None:
     print(f"acceptance: sparse scenes ≤ 0.5 of the patterns and ΔPSNR ≥ −0.5 dB: "
           f"{'met' if res['acceptance_sparse'] else 'NOT met'}; others ΔPSNR ≥ −0.5 dB: "
           f"{'met' if res['acceptance_dense'] else 'NOT met'}; total {res['total_s']:.0f} s")
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-5"`` → ``[0, 1, 2, 3, 4, 5]``, ``"0,3,7"`` → ``[0, 3, 7]`` (CLI ``--seeds``)."""
+    out: list[int] = []
+    try:
+        for part in str(text).split(","):
+            part = part.strip()
+            if "-" in part[1:]:
+                a, b = part.split("-", 1) if not part.startswith("-") else (part, "")
+                lo, hi = int(a), int(b)
+                if hi < lo:
+                    raise ValueError
+                out.extend(range(lo, hi + 1))
+            else:
+                out.append(int(part))
+    except ValueError:
+        raise ValueError(f"parse_seeds: expected seeds like '0-5' or '0,3,7', "
+                         f"got {text!r}") from None
+    if not out or min(out) < 0:
+        raise ValueError(f"parse_seeds: expected non-negative seeds, got {text!r}")
+    return out
+
+
+def bench_adaptive_seeds(seeds, **kw) -> dict:
+    """:func:`bench_adaptive` once per seed (same keyword arguments); the per-seed results and
+    whether the floor held on every seed."""
+    per = [bench_adaptive(seed=s, **kw) for s in seeds]
+    return {"benchmark": "adaptive-seeds", "seeds": list(seeds), "per_seed": per,
+            "acceptance_sparse": all(r["acceptance_sparse"] for r in per),
+            "acceptance_dense": all(r["acceptance_dense"] for r in per)}
+
+
+def print_adaptive_seeds(res: dict) -> None:
+    """One line per seed and scene: pattern ratio, ΔPSNR, gate runs."""
+    table = []
+    for one in res["per_seed"]:
+        for r in one["rows"]:
+            table.append({"seed": one["seed"], "scene": r["scene"], "class": r["class"],
+                          "ratio": f"{r['pattern_ratio']:.2f}",
+                          "ΔPSNR": f"{r['delta_psnr']:+.2f}",
+                          "iters ad/fx": f"{r['iters_adaptive']:.0f}/{r['iters_fixed']:.0f}",
+                          "gate/veil/far": f"{r['gate']}/{r['veil']}/{r['far']}"})
+    over = "".join(f", {k}={v}" for k, v in res["per_seed"][0].get("overrides", {}).items())
+    print(f"bench adaptive over seeds {res['seeds']}{over}, "
+          f"{res['per_seed'][0]['realisations']} realisations each")
+    print_table(table, list(table[0]))
+    for one in res["per_seed"]:
+        print(f"seed {one['seed']}: sparse {'met' if one['acceptance_sparse'] else 'NOT met'}, "
+              f"others {'met' if one['acceptance_dense'] else 'NOT met'}")
+    print(f"floor on every seed: sparse {'met' if res['acceptance_sparse'] else 'NOT met'}, "
+          f"others {'met' if res['acceptance_dense'] else 'NOT met'}")
