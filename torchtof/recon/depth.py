@@ -54,14 +54,12 @@ from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
 from ._tv import grad2, grad2_adjoint
 from .tval3 import (
-    AUTO_KAPPA,
-    AUTO_MU_MAX,
-    AUTO_POWER,
-    AUTO_TVL2_BETA,
     B_SPREAD,
     _exact_factors,
     _exact_solve,
     _largest_eig_normal,
+    auto_weights,
+    check_buckets,
 )
 
 __all__ = [
@@ -308,13 +306,7 @@ def joint_tv(
         True
     """
     fn = "joint_tv"
-    check_tensor(y, "y", fn)
-    if not isinstance(A, LinearOperator):
-        raise TypeError(f"{fn}: expected A to be a LinearOperator, got {type(A).__name__}")
-    check_shape(y, (None, None, A.m), "y", fn, "(B, C, M)")
-    if y.is_complex() or y.dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"{fn}: expected y of dtype float32 or float64, got {y.dtype}")
-    check_finite(y, "y", fn)
+    check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
     s2 = 1.0 if A.orthonormal_rows else _largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
@@ -340,12 +332,7 @@ def joint_tv(
             sigma = noise_sigma.to(dtype=y.dtype, device=y.device).reshape(-1).expand(y.shape[0])
         else:
             sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", fn, False))
-        sigma_s = (sigma * gain).clamp_min(torch.finfo(y.dtype).tiny)
-        mu_auto = AUTO_KAPPA * sigma_s ** (-AUTO_POWER)
-        constrained = mu_auto > AUTO_MU_MAX
-        mu_b = torch.where(constrained, torch.full_like(mu_auto, AUTO_MU_MAX), mu_auto)
-        beta_b = torch.where(constrained, torch.full_like(mu_b, beta),
-                             torch.full_like(mu_b, AUTO_TVL2_BETA * beta))
+        mu_b, beta_b, constrained = auto_weights(sigma * gain, beta)  # TVAL3's rule
     else:
         mu_b = y.new_full((y.shape[0],), float(mu))
         beta_b = y.new_full((y.shape[0],), float(beta))

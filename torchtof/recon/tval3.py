@@ -285,6 +285,34 @@ def _where(mask: torch.Tensor, new: torch.Tensor, old: torch.Tensor) -> torch.Te
     return torch.where(mask.reshape(mask.shape + (1,) * (new.ndim - mask.ndim)), new, old)
 
 
+def check_buckets(y: torch.Tensor, A: LinearOperator, fn: str) -> None:
+    """The checks of TVAL3-family solvers: ``A`` a :class:`LinearOperator`, ``y`` a finite
+    float32/float64 tensor ``(B, C, A.m)`` (clear ``TypeError``/``ValueError`` naming ``fn``)."""
+    check_tensor(y, "y", fn)
+    if not isinstance(A, LinearOperator):
+        raise TypeError(f"{fn}: expected A to be a LinearOperator, got {type(A).__name__}")
+    check_shape(y, (None, None, A.m), "y", fn, "(B, C, M)")
+    if y.is_complex() or y.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"{fn}: expected y of dtype float32 or float64, got {y.dtype}")
+    check_finite(y, "y", fn)
+
+
+def auto_weights(
+    sigma_s: torch.Tensor, beta: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``mu="auto"``: per-sample ``(μ, β, constrained)`` from the noise std ``σ_s`` of the
+    buckets scaled to spread 1.5 (rule and calibration in :func:`tval3`):
+    ``μ = 0.7 σ_s^−1.3``; above ``2⁸`` the constrained model with ``μ = 2⁸`` and ``β``,
+    else TV-L2 with ``4β``."""
+    mu_auto = AUTO_KAPPA * sigma_s.clamp_min(torch.finfo(sigma_s.dtype).tiny) ** (-AUTO_POWER)
+    constrained = mu_auto > AUTO_MU_MAX
+    mu = torch.where(constrained, torch.full_like(mu_auto, AUTO_MU_MAX), mu_auto)
+    beta_t = torch.where(
+        constrained, torch.full_like(mu, beta), torch.full_like(mu, AUTO_TVL2_BETA * beta)
+    )
+    return mu, beta_t, constrained
+
+
 def tval3(
     y: torch.Tensor,
     A: LinearOperator,
@@ -423,13 +451,7 @@ def tval3(
         (True, torch.Size([1, 1, 8, 8]))
     """
     fn = "tval3"
-    check_tensor(y, "y", fn)
-    if not isinstance(A, LinearOperator):
-        raise TypeError(f"{fn}: expected A to be a LinearOperator, got {type(A).__name__}")
-    check_shape(y, (None, None, A.m), "y", fn, "(B, C, M)")
-    if y.is_complex() or y.dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"{fn}: expected y of dtype float32 or float64, got {y.dtype}")
-    check_finite(y, "y", fn)
+    check_buckets(y, A, fn)
     opts = _check_options(
         fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn_steps, rate_ctn, u_step
     )
@@ -449,13 +471,7 @@ def tval3(
             sigma = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
         else:
             sigma = _sigma_tensor(noise_sigma, y)
-        sigma_s = sigma * gain
-        mu_auto = AUTO_KAPPA * sigma_s.clamp_min(torch.finfo(y.dtype).tiny) ** (-AUTO_POWER)
-        constrained = mu_auto > AUTO_MU_MAX
-        mu_f = torch.where(constrained, torch.full_like(mu_auto, AUTO_MU_MAX), mu_auto)
-        beta_f = torch.where(
-            constrained, torch.full_like(mu_f, beta), torch.full_like(mu_f, AUTO_TVL2_BETA * beta)
-        )
+        mu_f, beta_f, constrained = auto_weights(sigma * gain, beta)
     else:
         mu_f = torch.full_like(spread, float(mu))
         constrained = (torch.zeros_like if tvl2 else torch.ones_like)(spread, dtype=torch.bool)
