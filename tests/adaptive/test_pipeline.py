@@ -131,6 +131,10 @@ def test_cli_bench_adaptive_seed_and_light_options():
     assert parse_seeds(args.seeds) == [0, 1, 2, 3, 4, 5]
     assert args.signal_e == 4000.0 and args.realisations == 3
     assert cli.build_parser().parse_args(["bench", "adaptive", "--seed", "7"]).seed == 7
+    assert cli.build_parser().parse_args(["bench", "adaptive", "--noise", "pairs"]).noise == "pairs"
+    assert cli.build_parser().parse_args(["bench", "adaptive"]).noise is None
+    with pytest.raises(SystemExit):
+        cli.build_parser().parse_args(["bench", "adaptive", "--noise", "frames"])
     assert parse_seeds("0,3,7") == [0, 3, 7] and parse_seeds("2") == [2]
     for bad in ("5-2", "a", "", "-1"):
         with pytest.raises(ValueError, match="parse_seeds"):

@@ -11,6 +11,9 @@ and the reconstructor run to its own convergence.
 2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
    patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind
    (not the first block: its all-on/dark pair is noisier or quieter than the rest);
+   ``noise="pairs"``: no repeats, ``σ̂`` from the pair sums ``(y⁺ + y⁻)/n`` of all pairs so
+   far (:func:`~torchtof.adaptive.noise.noise_from_pair_sums`; biased up 1.0–1.25× on the
+   depth buckets, README), ``τ`` from its effective degrees of freedom;
 3. the gate: kept with a veil or a far background, or when
    :func:`~torchtof.adaptive.detect.gate_changes_image` (F test, 99 %) finds on the first 128
    patterns that it changes the image beyond the noise; skipped otherwise (ungated buckets,
