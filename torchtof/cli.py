@@ -166,6 +166,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         kw = dict(realisations=args.realisations or (3 if args.quick else 6), progress=False)
         if args.signal_e is not None:
             kw["signal_e"] = args.signal_e
+        if args.noise is not None:
+            kw["pipeline"] = {"noise": args.noise}
         if args.seeds is not None:
             res = bench_adaptive_seeds(parse_seeds(args.seeds), **kw)
             print_adaptive_seeds(res)
@@ -241,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adaptive: several seeds, e.g. 0-5 or 0,3,7 (one table per seed)")
     b.add_argument("--signal-e", type=float, default=None,
                    help="adaptive: signal electrons (the paper's set-up: 400; 4000 = 10x light)")
+    b.add_argument("--noise", choices=["repeat", "pairs"], default=None,
+                   help="adaptive: noise estimate of the adaptive pipeline (default: "
+                        "run_adaptive's)")
     b.add_argument("--realisations", type=int, default=None,
                    help="adaptive: noise realisations per scene (default 6, --quick 3)")
     b.set_defaults(func=cmd_bench)

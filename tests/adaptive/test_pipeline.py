@@ -131,6 +131,10 @@ def test_cli_bench_adaptive_seed_and_light_options():
     assert parse_seeds(args.seeds) == [0, 1, 2, 3, 4, 5]
     assert args.signal_e == 4000.0 and args.realisations == 3
     assert cli.build_parser().parse_args(["bench", "adaptive", "--seed", "7"]).seed == 7
+    assert cli.build_parser().parse_args(["bench", "adaptive", "--noise", "pairs"]).noise == "pairs"
+    assert cli.build_parser().parse_args(["bench", "adaptive"]).noise is None
+    with pytest.raises(SystemExit):
+        cli.build_parser().parse_args(["bench", "adaptive", "--noise", "frames"])
     assert parse_seeds("0,3,7") == [0, 3, 7] and parse_seeds("2") == [2]
     for bad in ("5-2", "a", "", "-1"):
         with pytest.raises(ValueError, match="parse_seeds"):
@@ -146,3 +150,19 @@ def test_bench_adaptive_seeds_runs_each_seed():
     assert [r["seed"] for r in res["per_seed"]] == [0, 1]
     assert all(r["overrides"] == {"signal_e": 800.0} for r in res["per_seed"])
     assert res["acceptance_dense"] is True  # no dense row: vacuous
+
+
+def test_pairs_noise_costs_no_patterns_and_matches_the_repeats():
+    data = _data()
+    res = run_adaptive(data, 0, block=8, compare_fixed=False, noise="pairs")
+    assert res.repeat_patterns == 0
+    assert res.patterns_used == res.progressive.m  # no repeated block counted
+    assert res.acquisition_s == pytest.approx(2 * res.patterns_used / 30.0)
+    # sigma of the chosen buckets, against the two realisations' difference over all patterns
+    from torchtof.adaptive import noise_from_repeats
+
+    both = torch.cat([signed_buckets(data, r)[res.kind] for r in (0, 1)])
+    assert 0.8 < res.noise_sigma / float(noise_from_repeats(both)) < 1.5  # pairs: biased up
+    assert res.progressive.history[-1]["sigma"] > 0
+    with pytest.raises(ValueError, match="noise"):
+        run_adaptive(data, 0, noise="frames")

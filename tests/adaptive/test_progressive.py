@@ -136,3 +136,22 @@ def test_a_shorter_prefix_starts_a_new_acquisition():
     first = next(m for m in range(32, 385, 32) if stop({"gated": y[..., :m]}))
     again = next(m for m in range(32, 385, 32) if stop({"gated": y[..., :m]}))
     assert first == again
+
+
+def test_pairs_noise_reads_the_pair_sums_and_needs_them(gen):
+    from torchtof.adaptive import ProgressiveStop
+
+    x = torch.zeros(1, 1, 16, 16)
+    x[..., 4:9, 5:10] = 1.0
+    from torchtof.operators import Hadamard
+
+    y = Hadamard(16, sr=0.5)(x)
+    sums = 2.0 + 0.05 * torch.randn(y.shape, generator=gen)
+    y = y + 0.05 * torch.randn(y.shape, generator=gen)
+    stop = ProgressiveStop(16, block=16, noise_sigma="pairs", kind="gated")
+    stop({"gated": y[..., :32], "gated_sum": sums[..., :32]})
+    assert stop.last["sigma"] == pytest.approx(0.05, rel=0.35)
+    with pytest.raises(ValueError, match="gated_sum"):
+        stop({"gated": y[..., :48]})
+    with pytest.raises(ValueError, match="noise_sigma"):
+        ProgressiveStop(16, noise_sigma="frames")

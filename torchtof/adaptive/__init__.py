@@ -9,7 +9,16 @@ from .detect import (
     detect_far_background,
     detect_veil,
 )
-from .noise import noise_from_blocks, noise_from_repeats, variance_lower_factor
+from .noise import (
+    noise_from_blocks,
+    noise_from_pair_sums,
+    noise_from_pairs,
+    noise_from_repeats,
+    pair_differences,
+    pair_noise_dof,
+    pair_sums,
+    variance_lower_factor,
+)
 from .pipeline import AdaptiveResult, run_adaptive, run_fixed, signed_buckets
 from .progressive import (
     BUCKET_KINDS,
@@ -42,6 +51,11 @@ __all__ = [
     "detect_veil",
     "noise_from_repeats",
     "noise_from_blocks",
+    "noise_from_pairs",
+    "noise_from_pair_sums",
+    "pair_sums",
+    "pair_differences",
+    "pair_noise_dof",
     "variance_lower_factor",
     "BUCKET_KINDS",
     "PROGRESSIVE_RULES",

@@ -11,6 +11,9 @@ and the reconstructor run to its own convergence.
 2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
    patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind
    (not the first block: its all-on/dark pair is noisier or quieter than the rest);
+   ``noise="pairs"``: no repeats, ``σ̂`` from the pair sums ``(y⁺ + y⁻)/n`` of all pairs so
+   far (:func:`~torchtof.adaptive.noise.noise_from_pair_sums`; biased up 1.0–1.25× on the
+   depth buckets, README), ``τ`` from its effective degrees of freedom;
 3. the gate: kept with a veil or a far background, or when
    :func:`~torchtof.adaptive.detect.gate_changes_image` (F test, 99 %) finds on the first 128
    patterns that it changes the image beyond the noise; skipped otherwise (ungated buckets,
@@ -54,7 +57,13 @@ from .detect import (
     detect_veil,
     gate_changes_image,
 )
-from .noise import variance_lower_factor
+from .noise import (
+    noise_from_pair_sums,
+    pair_differences,
+    pair_noise_dof,
+    pair_sums,
+    variance_lower_factor,
+)
 from .progressive import ProgressiveResult, ProgressiveStop, run_progressive
 from .solvers import solve_at_noise
 
@@ -187,7 +196,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                  reference: DarkReference | None = None, stop: ProgressiveStop | None = None,
                  compare_fixed: bool = True, stop_kind: str = "auto",
                  gate_level: float = 0.99, disc_level: float = 0.05,
-                 model_sigma: bool = True) -> AdaptiveResult:
+                 model_sigma: bool = True, noise: str = "repeat") -> AdaptiveResult:
     """The adaptive pipeline on realisation ``r`` of a run (module docstring).
 
     Args:
@@ -211,12 +220,19 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         disc_level: the discrepancy stop uses ``q σ̂²``, the ``1 − disc_level`` lower
             confidence limit of ``σ²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`).
         model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: yes).
+        noise: where ``σ̂`` comes from: ``"repeat"`` (the second block measured twice, with
+            ``repeat=True``) or ``"pairs"`` (the pair sums ``y⁺ + y⁻`` of all pairs measured
+            so far, :func:`~torchtof.adaptive.noise.noise_from_pair_sums`: no extra patterns;
+            ``τ`` from the estimator's effective degrees of freedom ``ν ≈ 0.31 (m − 2)``,
+            :func:`~torchtof.adaptive.noise.pair_noise_dof`; the gate's F test takes the
+            ``K = m_test − 2`` successive differences as its repeats).
 
     Returns:
         :class:`AdaptiveResult`.
 
     Raises:
-        ValueError: ``r`` out of range, unknown ``stop_kind``, a level outside ``(0, 1)``.
+        ValueError: ``r`` out of range, unknown ``stop_kind`` or ``noise``, a level outside
+            ``(0, 1)``.
     """
     cfg = data.config
     n_real = data.buckets["depth"].shape[0]
@@ -225,6 +241,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     if stop_kind not in ("auto", "depth", "gated", "intensity"):
         raise ValueError(f"run_adaptive: expected stop_kind in ('auto', 'depth', 'gated', "
                          f"'intensity'), got {stop_kind!r}")
+    if noise not in ("repeat", "pairs"):
+        raise ValueError(f"run_adaptive: expected noise in ('repeat', 'pairs'), got {noise!r}")
     for name, v in (("gate_level", gate_level), ("disc_level", disc_level)):
         if not 0.0 < float(v) < 1.0:
             raise ValueError(f"run_adaptive: expected {name} in (0, 1), got {v!r}")
@@ -235,10 +253,17 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     veil = detect_veil(raw, ref, cfg.roi_px**2)
     sb = signed_buckets(data, r, sr)
     # noise of the first block: repeated (independent realisation) or from the blocks
-    rep = (r + 1) % n_real if (repeat and n_real > 1) else None
+    pairs = noise == "pairs"
+    rep = (r + 1) % n_real if (repeat and n_real > 1 and not pairs) else None
     sb_rep = signed_buckets(data, rep, sr) if rep is not None else None
+    if pairs:  # the pair sums (y⁺ + y⁻)/n of every kind, read by the stop as "<kind>_sum"
+        n_pat = sb["depth"].shape[-1]
+        for k, key in (("depth", "depth"), ("gated", "depth_gated"), ("intensity", "intensity")):
+            sb[f"{k}_sum"] = pair_sums(data.buckets[key][r : r + 1, :, : 2 * n_pat], cfg.n)
 
-    def sigma_of(kind):
+    def sigma_of(kind, m_est=None):
+        if pairs:
+            return float(noise_from_pair_sums(sb[f"{kind}_sum"][..., : m_est or 2 * block]))
         if sb_rep is None:
             return None
         d = sb[kind][..., block : 2 * block] - sb_rep[kind][..., block : 2 * block]
@@ -250,23 +275,28 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     gate_test = None
 
     def test_gate(m_test):  # does the gate change the image of the first m_test patterns?
-        d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
-             for k in ("depth", "gated")}
+        if pairs:  # successive differences of the pair sums stand in for repeats (var 2σ²)
+            d = {k: pair_differences(sb[f"{k}_sum"][..., :m_test]) for k in ("depth", "gated")}
+        else:
+            d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
+                 for k in ("depth", "gated")}
         return gate_changes_image(sb["depth"][..., :m_test], sb["gated"][..., :m_test],
                                   d["depth"], d["gated"], level=gate_level)
 
-    if auto and sb_rep is not None:  # decided before the stop, which reads the chosen kind
+    has_noise = pairs or sb_rep is not None
+    if auto and has_noise:  # decided before the stop, which reads the chosen kind
         gate_test = test_gate(min(max(2 * block, 128), sb["depth"].shape[-1]))
     early_gate = veil.present or far.present or gate_test is None or gate_test.present
     s_kind = (("gated" if early_gate else "depth") if auto else
               stop_kind if stop is None else stop.kind)
-    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=sigma_of(s_kind),
+    s_sigma = "pairs" if pairs else sigma_of(s_kind)
+    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=s_sigma,
                                       order=cfg.order, kind=s_kind)
     if stop is not None and stop.noise_sigma is None:
-        stopper.noise_sigma = sigma_of(s_kind)
+        stopper.noise_sigma = s_sigma
     prog = run_progressive(sb, stopper)
     m = prog.m
-    if not auto and sb_rep is not None:  # the stop did not depend on it: test all m patterns
+    if not auto and has_noise:  # the stop did not depend on it: test all m patterns
         gate_test = test_gate(m)
     gate = veil.present or far.present or (gate_test is None or gate_test.present)
     if gate:
@@ -282,10 +312,12 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         stages.append(f"veil compensation (alpha^ {veil.alpha:.2f})")
     else:
         skipped.append("veil compensation (no veil)")
-    sigma = sigma_of(kind)
+    sigma = sigma_of(kind, m)
     # 4. Morozov's bound at the lower confidence limit of σ̂² (χ² with B degrees of freedom):
     # an over-estimated σ̂ would stop the solver before it fits the signal
-    tau = variance_lower_factor(block, disc_level) if sigma is not None else 1.0
+    # pairs: K = m − 2 differences (the all-on pair skipped), MAD: ν ≈ 0.31 K (pair_noise_dof)
+    dof = pair_noise_dof(m - 2) if pairs else block
+    tau = variance_lower_factor(dof, disc_level) if sigma is not None else 1.0
     choice = None
     if method is None:
         if time_budget_s is not None or target_psnr is not None:

@@ -50,8 +50,12 @@ the pseudo-inverse image, so the rules read coefficients.
   so the rule stops late rather than early; it needs the DC row measured first.
 
 ``σ`` is ``noise_sigma`` when the caller knows it (repeated frames:
-:func:`~torchtof.adaptive.noise.noise_from_repeats`), otherwise estimated from the
-high-order half of the blocks measured so far (:func:`~torchtof.adaptive.noise.noise_from_blocks`).
+:func:`~torchtof.adaptive.noise.noise_from_repeats`); with ``noise_sigma="pairs"`` it is
+re-estimated after every block from the pair sums of all pairs so far, read from
+``buckets[kind + "_sum"]`` (:func:`~torchtof.adaptive.noise.pair_sums`,
+:func:`~torchtof.adaptive.noise.noise_from_pair_sums`: free, no repeated patterns);
+otherwise (``None``) it is estimated from the high-order half of the blocks measured so far
+(:func:`~torchtof.adaptive.noise.noise_from_blocks`).
 
 **Defaults** ``block=32``, ``snr=1``, ``z=2``, ``patience=1``, ``min_patterns=128`` (SR 12.5 %
 at n = 32: from 64 coefficients the TV prediction of a small object is still poor, and one
@@ -66,7 +70,7 @@ from dataclasses import dataclass, field
 import torch
 
 from .._checks import check_finite, check_positive, check_tensor
-from .noise import noise_from_blocks
+from .noise import noise_from_blocks, noise_from_pair_sums
 
 __all__ = ["PROGRESSIVE_RULES", "BUCKET_KINDS", "ProgressiveStop", "ProgressiveResult",
            "block_statistics", "run_progressive"]
@@ -137,7 +141,8 @@ class ProgressiveStop:
         tol: ``"change"``: stop when ``r_b < tol``.
         patience: consecutive explained (``"innovation"``) or small (``"change"``) blocks.
         target: ``"energy"``: captured fraction of the energy bound, in ``(0, 1]``.
-        noise_sigma: known noise std of the buckets (``None``: estimated from the blocks).
+        noise_sigma: known noise std of the buckets; ``"pairs"``: estimated from the pair
+            sums ``buckets[kind + "_sum"]`` after every block; ``None``: from the blocks.
         min_patterns: never stop before this many patterns (at least two blocks).
         recon: cheap reconstruction of ``"innovation"``: ``"tv"`` (TVAL3) or ``"pinv"``.
         order: Hadamard order of the patterns.
@@ -183,7 +188,11 @@ class ProgressiveStop:
             raise ValueError(f"{fn}: expected patience to be an int >= 1, got {patience!r}")
         if not 0.0 < float(target) <= 1.0:
             raise ValueError(f"{fn}: expected target in (0, 1], got {target}")
-        if noise_sigma is not None and not isinstance(noise_sigma, torch.Tensor):
+        if isinstance(noise_sigma, str):
+            if noise_sigma != "pairs":
+                raise ValueError(f"{fn}: expected noise_sigma to be a number, a tensor, 'pairs' "
+                                 f"or None, got {noise_sigma!r}")
+        elif noise_sigma is not None and not isinstance(noise_sigma, torch.Tensor):
             check_positive(noise_sigma, "noise_sigma", fn, strict=False)
         if isinstance(min_patterns, bool) or not isinstance(min_patterns, int) or min_patterns < 0:
             raise ValueError(f"{fn}: expected min_patterns to be an int >= 0, got {min_patterns!r}")
@@ -196,9 +205,16 @@ class ProgressiveStop:
         self._streak = 0
         self._cache: tuple | None = None  # (kind, m, first-bucket checksum, x̂)
 
-    def _sigma(self, y: torch.Tensor) -> torch.Tensor:
+    def _sigma(self, y: torch.Tensor, buckets: dict) -> torch.Tensor:
         if self.noise_sigma is None:
             return noise_from_blocks(y, self.block)
+        if isinstance(self.noise_sigma, str):  # "pairs": from the pair sums so far
+            key = f"{self.kind}_sum"
+            if key not in buckets or buckets[key].shape != y.shape:
+                raise ValueError(f"ProgressiveStop: noise_sigma='pairs' needs buckets[{key!r}] "
+                                 f"of shape {tuple(y.shape)}, got "
+                                 f"{tuple(buckets[key].shape) if key in buckets else None}")
+            return noise_from_pair_sums(buckets[key].to(y.dtype)).clamp_min(1e-300)
         return torch.as_tensor(self.noise_sigma, dtype=y.dtype).expand(y.shape[:-1])
 
     def _image(self, y: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
@@ -234,7 +250,7 @@ class ProgressiveStop:
             self._streak = 0
             return False
         y = y.to(torch.float64)
-        sigma = self._sigma(y)
+        sigma = self._sigma(y, buckets)
         self.last["sigma"] = float(sigma.max())
         if self.rule == "innovation":
             from ..operators import Hadamard
