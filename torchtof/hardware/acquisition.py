@@ -59,6 +59,7 @@ import torch
 
 from ..bucket import PAPER_GATE_M, depth_bucket, intensity_bucket, tap_buckets
 from ..operators import DMDSplit, Hadamard
+from ..operators.split import combine_split
 from .errors import (
     DeviceLostError,
     FrameIdError,
@@ -109,11 +110,9 @@ def _versions() -> dict[str, str]:
 
 def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
     """Signed Hadamard buckets ``y = y⁺ − y⁻`` ``(1, C, m)`` of the first ``frames`` frames."""
-    out = {}
-    for k in ("depth", "gated", "intensity"):
-        y = buf[k][..., :frames].reshape(1, 1, -1, 2)
-        out[k] = y[..., 0] - y[..., 1]
-    return out
+    # combine_split with n = 1: the hook's contract is y⁺ − y⁻, not divided by n
+    return {k: combine_split(buf[k][..., :frames].reshape(1, 1, -1), 1)
+            for k in ("depth", "gated", "intensity")}
 
 
 def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:

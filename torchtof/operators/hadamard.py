@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 
 from .base import LinearOperator
-from .fwht import fwht2, fwht_kron, kron_factors, sylvester
+from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
 from .patterns import _check_n_order, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
@@ -43,7 +43,7 @@ def _transform(x: torch.Tensor, h: Transform) -> torch.Tensor:
     if isinstance(h, tuple):
         n1, n2 = x.shape[-2], x.shape[-1]
         return fwht_kron(x.reshape(*x.shape[:-2], n1 * n2), h).reshape(x.shape)
-    return h @ x @ h
+    return fwht2_matmul(x, h)
 
 
 def _to_float(h: Transform) -> Transform:
@@ -147,15 +147,13 @@ class Hadamard(LinearOperator):
             return hs
         return self.h.to(dtype=like.dtype, device=like.device)
 
-    _h = transform_spec
-
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "Hadamard.forward")
-        return hadamard_forward(x, self.index, self._h(x))
+        return hadamard_forward(x, self.index, self.transform_spec(x))
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "Hadamard.adjoint")
-        return hadamard_adjoint(y, self.index, self.n, self._h(y))
+        return hadamard_adjoint(y, self.index, self.n, self.transform_spec(y))
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
