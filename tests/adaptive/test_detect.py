@@ -122,3 +122,32 @@ def test_gate_test_finds_a_weak_spread_halo_beyond_the_gate():
         false += gate_changes_image(yu, yg, d_u, d_g).present
     assert hits >= 0.9 * trials
     assert false <= 0.04 * trials
+
+
+def test_gate_test_on_pair_differences_needs_their_degrees_of_freedom():
+    # seeded statistics: no far return (ungated = affine image of gated + noise) and the
+    # noise measured by successive differences of pair sums (lag-one correlation -1/2).
+    # With the plain count K as the F test's denominator dof the 99 % test keeps the gate
+    # on noise about twice as often as it should; with nu = pair_noise_dof(K, robust=False)
+    # the false-keep rate is the nominal 1 %
+    from torchtof.adaptive import pair_differences, pair_noise_dof
+    from torchtof.adaptive.detect import gate_changes_image
+
+    g = torch.Generator().manual_seed(0)
+    trials, k = 3000, 127
+    sig = 3 * torch.randn(trials, k, generator=g, dtype=torch.float64)
+    yg = sig + torch.randn(trials, k, generator=g, dtype=torch.float64)
+    yu = -0.5 * sig + torch.randn(trials, k, generator=g, dtype=torch.float64)
+    zero = torch.zeros(trials, 1, dtype=torch.float64)  # the DC coefficient (not tested)
+    yg, yu = torch.cat([zero, yg], 1)[:, None, None], torch.cat([zero, yu], 1)[:, None, None]
+    du = pair_differences(torch.randn(trials, 1, k, generator=g, dtype=torch.float64))
+    dg = pair_differences(torch.randn(trials, 1, k, generator=g, dtype=torch.float64))
+    nu = pair_noise_dof(du.shape[-1], robust=False)
+    plain = sum(gate_changes_image(yu[i], yg[i], du[i : i + 1], dg[i : i + 1]).present
+                for i in range(trials)) / trials
+    right = sum(gate_changes_image(yu[i], yg[i], du[i : i + 1], dg[i : i + 1], dof=nu).present
+                for i in range(trials)) / trials
+    assert 0.005 <= right <= 0.016  # binomial sd at 1 %: 0.18 %
+    assert plain >= 0.016 and plain > 1.5 * right
+    with pytest.raises(ValueError, match="dof"):
+        gate_changes_image(yu[0], yg[0], du[:1], dg[:1], dof=0)

@@ -204,6 +204,7 @@ def test_stop_hook_after_two_blocks(reference, tmp_path):
         y = full[kind].reshape(1, 1, -1, 2)
         signed = y[..., 0] - y[..., 1]
         assert torch.equal(calls[1][key], signed[..., :6]), key
+        assert torch.equal(calls[1][f"{key}_sum"], (y[..., 0] + y[..., 1])[..., :6]), key
     g = zarr.open_group(str(path), mode="r")
     assert (g.attrs["m_acquired"], g.attrs["stopped_early"]) == (6, True)
     data = load_run(path)

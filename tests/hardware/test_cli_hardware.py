@@ -227,8 +227,11 @@ def test_acquire_auto_stops_where_the_offline_rule_stops(tmp_path, capsys):
     gated = ref.run(seed=0).buckets["depth_gated"]
     got = torch.from_numpy(g["buckets_gated"][:])[..., : 2 * m]
     assert torch.equal(got, gated)
-    # the same rule, replayed block by block on y⁺ − y⁻ (÷ n), first says stop at m
-    rule = ProgressiveStop(16, block=AUTO_BLOCK, kind="gated")
+    assert g.attrs["auto"]["noise"] == "pairs"
+    # the same rule, replayed block by block on y⁺ − y⁻ and y⁺ + y⁻ (÷ n), first says stop at m
+    rule = ProgressiveStop(16, block=AUTO_BLOCK, kind="gated", noise_sigma="pairs")
     y = (gated[..., 0::2] - gated[..., 1::2])[:1] / 16
-    first = next(k for k in range(AUTO_BLOCK, m + 1, AUTO_BLOCK) if rule({"gated": y[..., :k]}))
+    s = (gated[..., 0::2] + gated[..., 1::2])[:1] / 16
+    first = next(k for k in range(AUTO_BLOCK, m + 1, AUTO_BLOCK)
+                 if rule({"gated": y[..., :k], "gated_sum": s[..., :k]}))
     assert first == m

@@ -197,7 +197,8 @@ class GateTest:
 
 
 def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: torch.Tensor,
-                       d_gated: torch.Tensor, level: float = 0.99) -> GateTest:
+                       d_gated: torch.Tensor, level: float = 0.99,
+                       dof: int | None = None) -> GateTest:
     """Does the depth gate change the image beyond an affine map and the noise?
 
     Without returns beyond the gate, every pixel that lights up moves both buckets in
@@ -213,20 +214,27 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
 
     and the gate is needed when ``ρ`` exceeds the ``level`` quantile of Fisher's ``F(K, B)``
     (Snedecor): ``ρ`` is a ratio of two χ² variables over their degrees of freedom under the
-    no-far-return hypothesis (``σ_r²`` is itself estimated from ``B`` values).
+    no-far-return hypothesis (``σ_r²`` is itself estimated from ``B`` values). Differences
+    that are not independent (successive differences of pair sums share a sum: lag-one
+    correlation −1/2) carry fewer degrees of freedom than values: pass them as ``dof``
+    (:func:`~torchtof.adaptive.noise.pair_noise_dof` with ``robust=False``), else the F
+    quantile is too small and the gate is kept on noise.
 
     Args:
         y_depth, y_gated: signed ungated and gated buckets ``(1, 1, m)`` (same patterns).
         d_depth, d_gated: differences of two measurements of the same ``B`` patterns.
         level: confidence level of the F test.
+        dof: degrees of freedom of ``σ_r²`` (default: the number of differences ``B``).
 
     Returns:
         :class:`GateTest`.
 
     Raises:
-        ValueError: fewer than 8 coefficients, mismatched shapes.
+        ValueError: fewer than 8 coefficients, mismatched shapes, ``dof < 1``.
     """
     fn = "gate_changes_image"
+    if dof is not None and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
+        raise ValueError(f"{fn}: expected dof to be an int >= 1 or None, got {dof!r}")
     for name, v in (("y_depth", y_depth), ("y_gated", y_gated), ("d_depth", d_depth),
                     ("d_gated", d_gated)):
         check_tensor(v, name, fn)
@@ -245,4 +253,6 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
     rho = float(((yu - a * yg) ** 2).sum()) / max(k * s2, 1e-300)
     from scipy.stats import f as fisher
 
-    return GateTest(present=bool(rho > fisher.ppf(level, k, du.numel())), rho=rho, slope=a)
+    return GateTest(present=bool(rho > fisher.ppf(level, k, dof or du.numel())), rho=rho,
+                    slope=a)
+

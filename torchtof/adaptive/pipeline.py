@@ -8,15 +8,21 @@ and the reconstructor run to its own convergence.
 
 1. the first DMD pair (all-on, dark) → :func:`~torchtof.adaptive.detect.detect_veil` and
    :func:`~torchtof.adaptive.detect.detect_far_background`;
-2. the noise level: the second block is measured twice (``repeat=True``, ``block`` extra
-   patterns, counted in ``patterns_used``) and ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind
-   (not the first block: its all-on/dark pair is noisier or quieter than the rest);
-   ``noise="pairs"``: no repeats, ``σ̂`` from the pair sums ``(y⁺ + y⁻)/n`` of all pairs so
-   far (:func:`~torchtof.adaptive.noise.noise_from_pair_sums`; biased up 1.0–1.25× on the
-   depth buckets, README), ``τ`` from its effective degrees of freedom;
+2. the noise level (``noise="pairs"``, the default): no extra patterns, ``σ̂`` from the pair
+   sums ``(y⁺ + y⁻)/n`` of all pairs so far
+   (:func:`~torchtof.adaptive.noise.noise_from_pair_sums`; biased up 1.0–1.25× on the depth
+   buckets, README), re-estimated after every block, ``τ`` from its effective degrees of
+   freedom. ``noise="repeat"``: the second block is measured twice (``repeat=True``,
+   ``block`` extra patterns, counted in ``patterns_used``) and
+   ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind (not the first block: its all-on/dark pair
+   is noisier or quieter than the rest). The pair sums are the default since the
+   per-seed benchmark (README): with repeats the 32 extra patterns alone put the paper's
+   character over half the patterns on 5 of 7 seeds;
 3. the gate: kept with a veil or a far background, or when
-   :func:`~torchtof.adaptive.detect.gate_changes_image` (F test, 99 %) finds on the first 128
-   patterns that it changes the image beyond the noise; skipped otherwise (ungated buckets,
+   :func:`~torchtof.adaptive.detect.gate_changes_image` (F test, 99 %; with pair sums the
+   successive differences stand in for repeats, on their ``ν ≈ 0.67 K`` degrees of freedom)
+   finds on the first 128 patterns that it changes the image beyond the noise; skipped
+   otherwise (ungated buckets,
    negative images, §3.1); the veil compensation runs only with a veil;
 4. progressive acquisition with :class:`~torchtof.adaptive.progressive.ProgressiveStop`
    (innovation rule at ``σ̂``) on the chosen buckets (``stop_kind="auto"``). With a fixed
@@ -196,7 +202,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                  reference: DarkReference | None = None, stop: ProgressiveStop | None = None,
                  compare_fixed: bool = True, stop_kind: str = "auto",
                  gate_level: float = 0.99, disc_level: float = 0.05,
-                 model_sigma: bool = True, noise: str = "repeat") -> AdaptiveResult:
+                 model_sigma: bool = True, noise: str = "pairs") -> AdaptiveResult:
     """The adaptive pipeline on realisation ``r`` of a run (module docstring).
 
     Args:
@@ -209,7 +215,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         method: reconstructor (``None``: TVAL3, or :func:`choose_method` with a budget).
         time_budget_s, target_psnr: budget for :func:`choose_method`.
         fps: ToF frames per second for the acquisition time.
-        repeat: measure the first block twice for ``σ̂`` (else estimate it from the blocks).
+        repeat: with ``noise="repeat"``, measure the second block twice for ``σ̂`` (else
+            estimate it from the blocks).
         reference: clear set-up dark frame (default: simulated for ``data.config``).
         stop: a custom :class:`ProgressiveStop` (it reads its own ``kind``).
         compare_fixed: also run :func:`run_fixed` and attach it.
@@ -220,12 +227,13 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         disc_level: the discrepancy stop uses ``q σ̂²``, the ``1 − disc_level`` lower
             confidence limit of ``σ²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`).
         model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: yes).
-        noise: where ``σ̂`` comes from: ``"repeat"`` (the second block measured twice, with
-            ``repeat=True``) or ``"pairs"`` (the pair sums ``y⁺ + y⁻`` of all pairs measured
-            so far, :func:`~torchtof.adaptive.noise.noise_from_pair_sums`: no extra patterns;
+        noise: where ``σ̂`` comes from: ``"pairs"`` (default: the pair sums ``y⁺ + y⁻`` of
+            all pairs measured so far, :func:`~torchtof.adaptive.noise.noise_from_pair_sums`: no extra patterns;
             ``τ`` from the estimator's effective degrees of freedom ``ν ≈ 0.31 (m − 2)``,
             :func:`~torchtof.adaptive.noise.pair_noise_dof`; the gate's F test takes the
-            ``K = m_test − 2`` successive differences as its repeats).
+            ``K = m_test − 2`` successive differences as its repeats, on their
+            ``ν ≈ 0.67 K`` degrees of freedom) or ``"repeat"`` (the second block measured
+            twice, with ``repeat=True``).
 
     Returns:
         :class:`AdaptiveResult`.
@@ -277,11 +285,14 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     def test_gate(m_test):  # does the gate change the image of the first m_test patterns?
         if pairs:  # successive differences of the pair sums stand in for repeats (var 2σ²)
             d = {k: pair_differences(sb[f"{k}_sum"][..., :m_test]) for k in ("depth", "gated")}
+            # correlated differences (lag-one −1/2): their mean square has ν ≈ 0.67 K dof
+            g_dof = pair_noise_dof(d["depth"].shape[-1], robust=False)
         else:
             d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
                  for k in ("depth", "gated")}
+            g_dof = None
         return gate_changes_image(sb["depth"][..., :m_test], sb["gated"][..., :m_test],
-                                  d["depth"], d["gated"], level=gate_level)
+                                  d["depth"], d["gated"], level=gate_level, dof=g_dof)
 
     has_noise = pairs or sb_rep is not None
     if auto and has_noise:  # decided before the stop, which reads the chosen kind

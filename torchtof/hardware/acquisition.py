@@ -109,10 +109,17 @@ def _versions() -> dict[str, str]:
 
 
 def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
-    """Signed Hadamard buckets ``y = y⁺ − y⁻`` ``(1, C, m)`` of the first ``frames`` frames."""
-    # combine_split with n = 1: the hook's contract is y⁺ − y⁻, not divided by n
-    return {k: combine_split(buf[k][..., :frames].reshape(1, 1, -1), 1)
-            for k in ("depth", "gated", "intensity")}
+    """Signed Hadamard buckets ``y = y⁺ − y⁻`` ``(1, C, m)`` of the first ``frames`` frames,
+    and their pair sums ``y⁺ + y⁻`` as ``"<kind>_sum"`` (the free noise estimate of
+    :func:`torchtof.adaptive.noise_from_pair_sums`)."""
+    # combine_split / pair_sums with n = 1: the hook's contract is y± sums, not divided by n
+    from ..adaptive.noise import pair_sums
+
+    out = {}
+    for k in ("depth", "gated", "intensity"):
+        raw = buf[k][..., :frames].reshape(1, 1, -1)
+        out[k], out[f"{k}_sum"] = combine_split(raw, 1), pair_sums(raw, 1)
+    return out
 
 
 def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
@@ -271,7 +278,8 @@ def acquire(
         block: ±1 patterns (pairs) per block; ``stop`` is asked after each block but the last.
         stop: optional ``stop(y) -> bool`` called after each block with the signed buckets
             measured so far, ``{"depth", "gated", "intensity"}`` each ``y⁺ − y⁻`` of shape
-            ``(1, 1, m_so_far)`` in pattern order (not divided by ``n``); ``True`` ends the
+            ``(1, 1, m_so_far)`` in pattern order (not divided by ``n``), and
+            ``"<kind>_sum"`` the pair sums ``y⁺ + y⁻`` (noise level); ``True`` ends the
             acquisition, the store records ``m_acquired`` and ``stopped_early``.
         resume: continue an interrupted store (same patterns and settings).
         retries: re-acquisitions allowed per pattern sequence for transient faults.

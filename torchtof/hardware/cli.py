@@ -71,12 +71,14 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         if args.auto:  # progressive acquisition (torchtof.adaptive, README "--auto")
             from ..adaptive import ProgressiveStop
 
-            rule = ProgressiveStop(args.n, block=block, kind="gated", order=args.order)
+            # σ̂ from the pair sums y⁺ + y⁻ of the blocks so far: no repeated patterns
+            rule = ProgressiveStop(args.n, block=block, kind="gated", order=args.order,
+                                   noise_sigma="pairs")
             metadata["auto"] = {"rule": rule.rule, "kind": rule.kind, "block": block,
-                                "min_patterns": rule.min_patterns}
+                                "min_patterns": rule.min_patterns, "noise": "pairs"}
 
             def stop(buckets: dict, n: int = args.n) -> bool:
-                # the hook passes y⁺ − y⁻; the rule reads orthonormal coefficients (÷ n)
+                # the hook passes y⁺ ∓ y⁻; the rule reads orthonormal coefficients (÷ n)
                 return rule({k: v / n for k, v in buckets.items()})
 
         res = acquire(args.output, lcr, cam, n=args.n, sr=args.sr, order=args.order,
