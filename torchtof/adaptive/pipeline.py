@@ -228,7 +228,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
             confidence limit of ``σ²`` (:func:`~torchtof.adaptive.noise.variance_lower_factor`).
         model_sigma: also give ``σ̂`` to TVAL3's ``mu="auto"`` model choice (default: yes).
         noise: where ``σ̂`` comes from: ``"pairs"`` (default: the pair sums ``y⁺ + y⁻`` of
-            all pairs measured so far, :func:`~torchtof.adaptive.noise.noise_from_pair_sums`: no extra patterns;
+            all pairs measured so far, :func:`~torchtof.adaptive.noise.noise_from_pair_sums`:
+            no extra patterns;
             ``τ`` from the estimator's effective degrees of freedom ``ν ≈ 0.31 (m − 2)``,
             :func:`~torchtof.adaptive.noise.pair_noise_dof`; the gate's F test takes the
             ``K = m_test − 2`` successive differences as its repeats, on their

@@ -179,7 +179,8 @@ def bench_adaptive(realisations: int = 4, n: int = 32, sr: float = 0.375, block:
     ok_dense = all(r["delta_psnr"] >= -0.5 for r in rows if r["class"] != "sparse")
     return {"benchmark": "adaptive", "n": n, "sr": sr, "block": block, "fps": fps,
             "realisations": realisations,
-            "empty_realisations": empty_realisations or 4 * realisations, "seed": seed, "gains": gains, "overrides": overrides,
+            "empty_realisations": empty_realisations or 4 * realisations, "seed": seed,
+            "gains": gains, "overrides": overrides,
             "threads": torch.get_num_threads(),
             "rows": rows, "runs": runs, "acceptance_sparse": ok_sparse,
             "acceptance_dense": ok_dense, "total_s": time.perf_counter() - t_all}
