@@ -160,6 +160,9 @@ def test_bench_adaptive_seeds_runs_each_seed():
     assert [r["seed"] for r in res["per_seed"]] == [0, 1]
     assert all(r["overrides"] == {"signal_e": 800.0} for r in res["per_seed"])
     assert res["acceptance_dense"] is True  # no dense row: vacuous
+    # the flat-truth row takes 4x the realisations (heavy-tailed per-run MSE)
+    assert all(r["empty_realisations"] == 8 and len(r["runs"][0]["runs"]) == 8
+               for r in res["per_seed"])
 
 
 def test_pairs_noise_costs_no_patterns_and_matches_the_repeats():
