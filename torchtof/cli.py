@@ -247,7 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adaptive: noise estimate of the adaptive pipeline (default: "
                         "run_adaptive's)")
     b.add_argument("--realisations", type=int, default=None,
-                   help="adaptive: noise realisations per scene (default 6, --quick 3)")
+                   help="adaptive: noise realisations per scene (default 6, --quick 3; the "
+                        "empty field 4x)")
     b.set_defaults(func=cmd_bench)
 
     r = sub.add_parser("reproduce", help="regenerate the paper's figures and PSNR table")
