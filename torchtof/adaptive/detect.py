@@ -255,4 +255,3 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
 
     return GateTest(present=bool(rho > fisher.ppf(level, k, dof or du.numel())), rho=rho,
                     slope=a)
-
