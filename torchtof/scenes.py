@@ -95,6 +95,15 @@ def _check_n(n: object, func: str, lo: int = 8) -> int:
     return n
 
 
+def _check_depth_range(near_m, far_m, func: str) -> tuple[float, float]:
+    """Positive ``near_m < far_m`` (metres), as floats; else a ``ValueError`` naming ``func``."""
+    lo = check_positive(near_m, "near_m", func)
+    hi = check_positive(far_m, "far_m", func)
+    if hi <= lo:
+        raise ValueError(f"{func}: expected far_m > near_m, got near_m={near_m}, far_m={far_m}")
+    return lo, hi
+
+
 def _to_tensor(a: np.ndarray, dtype: torch.dtype | None, device) -> torch.Tensor:
     t = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64)
     return t.to(dtype=dtype or torch.float32, device=device)[None, None]
@@ -329,10 +338,7 @@ def slanted_plane(
     """
     func = "slanted_plane"
     _check_n(n, func)
-    lo = check_positive(near_m, "near_m", func)
-    hi = check_positive(far_m, "far_m", func)
-    if hi <= lo:
-        raise ValueError(f"{func}: expected far_m > near_m, got near_m={near_m}, far_m={far_m}")
+    lo, hi = _check_depth_range(near_m, far_m, func)
     if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)):
         raise TypeError(f"{func}: expected angle_deg to be a number, got {angle_deg!r}")
     a = np.deg2rad(float(angle_deg))
@@ -509,10 +515,7 @@ def motorcycle_depth(
 
     func = "motorcycle_depth"
     _check_n(n, func)
-    lo = check_positive(near_m, "near_m", func)
-    hi = check_positive(far_m, "far_m", func)
-    if hi <= lo:
-        raise ValueError(f"{func}: expected far_m > near_m, got near_m={near_m}, far_m={far_m}")
+    lo, hi = _check_depth_range(near_m, far_m, func)
     disp = np.asarray(skimage.data.stereo_motorcycle()[2], dtype=np.float64)
     invalid = ~np.isfinite(disp) | (disp <= 0)
     idx = distance_transform_edt(invalid, return_distances=False, return_indices=True)
