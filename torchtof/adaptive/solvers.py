@@ -30,9 +30,12 @@ from dataclasses import dataclass
 
 import torch
 
+from ..recon import registry
+
 __all__ = ["SolveResult", "solve_at_noise", "SOLVERS"]
 
-SOLVERS = ("PINV", "BP", "TVAL3", "Unrolled", "DIP")
+#: registry labels of the solvers that :func:`solve_at_noise` stops at the noise level.
+SOLVERS = tuple(registry.get(k).label for k in ("pinv", "bp", "tval3", "unrolled", "dip"))
 #: Morozov's safety factor ``τ`` (the same as TVAL3's and the DIP's).
 TAU = 1.0
 
