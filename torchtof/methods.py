@@ -124,7 +124,7 @@ def evaluate(
 ) -> tuple[list[dict], dict[str, torch.Tensor]]:
     """Run and score ``methods`` at ``sr``; returns (rows, images) — rows hold mean ± std over
     the realisations and the wall time of the whole batch. ``options[name]`` are constructor
-    keyword arguments of that method (e.g. ``{"DIP": {"n_iter": 100}}``)."""
+    keyword arguments of that method (e.g. ``{"DIP": {"max_iter": 100}}``)."""
     rows, images = [], {}
     polarity = data.polarity(gate, kind)
     for name in methods:

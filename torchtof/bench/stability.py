@@ -699,7 +699,7 @@ def _metric_cases() -> list[Case]:
 #: Fast DIP settings for the matrix (the fit is the cost; the numerics are those of 300 steps).
 # zeta=0: with the TV term, 20-step float32 and float64 fits on tiny fully sampled scenes
 # diverge chaotically (0.02–6 dB apart); the matrix tests arithmetic, not the prior
-DIP_FAST = {"n_iter": 20, "zeta": 0.0}
+DIP_FAST = {"max_iter": 20, "zeta": 0.0}
 #: Iteration cap of basis pursuit in the matrix (the ill-conditioned rows never converge).
 BP_FAST = {"n_iter": 300}
 

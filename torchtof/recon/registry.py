@@ -96,10 +96,10 @@ _SPECS = (
           fixed_budget={"adaptive": False},
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
-          differentiable=True, exportable=True, budget="n_iter",
+          differentiable=True, exportable=True, budget="n_layers",
           summary="unrolled TVAL3, K layers with learned per-layer scalars"),
     # a DIP budget is a cap: ES-WMV still stops the fit earlier
-    _spec("dip", "DIP", dip, DIP, iterative=True, budget="n_iter", per_sample=True,
+    _spec("dip", "DIP", dip, DIP, iterative=True, budget="max_iter", per_sample=True,
           positive_prior=True,
           summary="deep image prior: an untrained U-Net fitted to y (paper Eq. 12)"),
     _spec("joint_tv", "JointTV", joint_tv, JointTV, iterative=True, budget="n_iter",
