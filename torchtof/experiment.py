@@ -43,6 +43,7 @@ import torch
 
 from ._checks import check_in_range, check_positive
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
+from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
 from .operators import DMDSplit, Hadamard
 from .operators.patterns import num_patterns
 from .scenes import Scene, get_scene
@@ -67,8 +68,6 @@ __all__ = [
     "stray_light",
 ]
 
-#: The paper's sampling rates (Figs. 5, 7–13).
-PAPER_SRS: tuple[float, ...] = (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375)
 
 #: PSNR (dB) the paper reports (DESIGN.md §3): (case, SR) -> {method: dB}.
 PAPER_PSNR: dict[tuple[str, float], dict[str, float]] = {

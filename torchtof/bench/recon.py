@@ -50,23 +50,8 @@ def make_reconstructor(method: str, A: Hadamard, budget):
     """The reconstructor ``method`` on ``A`` at work ``budget`` (``None``: its default)."""
     from .. import recon
 
-    if method == "PINV":
-        return recon.PseudoInverse(A), False
-    if method == "BP":  # noise-aware BPDN (eps from the estimated noise level)
-        if budget is None:
-            return recon.BasisPursuit(A, eps="auto"), False
-        return recon.BasisPursuit(A, eps="auto", n_iter=budget, adaptive=False), False
-    if method == "TVAL3":
-        if budget is None:
-            return recon.TVAL3(A), False
-        return recon.TVAL3(A, max_iter=budget, adaptive=False), False
-    if method == "Unrolled":
-        if budget is None:
-            return recon.UnrolledTVAL3(A), False
-        return recon.UnrolledTVAL3(A, n_iter=budget), False
-    if method == "DIP":
-        return (recon.DIP(A) if budget is None else recon.DIP(A, n_iter=budget)), True
-    raise ValueError(f"make_reconstructor: unknown method {method!r}")
+    spec = recon.get(method)  # ValueError for an unknown method
+    return spec.build(A, **spec.budget_options(budget)), spec.per_sample
 
 
 def _images(scenes, n: int) -> tuple[torch.Tensor, list[bool]]:
