@@ -10,12 +10,10 @@ import pytest
 import torch
 
 from torchtof.operators import Hadamard, PatternOperator, random_binary_patterns
-from torchtof.recon._tv import grad2, grad2_adjoint
+from torchtof.recon.tv import grad2, grad2_adjoint
 from torchtof.recon.tval3 import (
     TVAL3,
     TVAL3Result,
-    _exact_factors,
-    _exact_solve,
     bucket_noise_sigma,
     tval3,
 )
@@ -284,27 +282,6 @@ def test_noise_free_rectangles_40db(u_step):
     res = tval3(A(x), A, u_step=u_step)  # defaults, mu="auto"
     assert _psnr(res.x, x) >= 40.0
     assert bool(res.converged) and float(res.residual) < 1e-3
-
-
-def test_exact_solve_matches_dense():
-    """(D^T D + rho A^T A) u = r with a per-sample rho: Hadamard (constant image in the row
-    space), zero-mean rows (constant in the null space) and 0/1 patterns (neither)."""
-    zero_mean = PatternOperator(Hadamard(8).patterns(torch.float64)[1:21] / 8)
-    binary = PatternOperator(
-        random_binary_patterns(20, 8, generator=torch.Generator().manual_seed(3))
-    )
-    like = torch.zeros(1, dtype=torch.float64)
-    for A, dc in ((Hadamard(8, sr=0.25), True), (zero_mean, False), (binary, True)):
-        f = _exact_factors(A, like)
-        assert f.has_dc == dc
-        r = torch.randn(2, 1, 8, 8, dtype=torch.float64)
-        if not dc:  # M is singular on constants: solvable for zero-mean r, zero-mean answer
-            r = r - r.mean(dim=(-2, -1), keepdim=True)
-        rho = torch.tensor([[0.5], [7.0]], dtype=torch.float64)
-        u, au = _exact_solve(r, rho, A.forward, A.adjoint, f, 1.0)
-        lhs = grad2_adjoint(grad2(u)) + rho[..., None, None] * A.adjoint(A(u))
-        torch.testing.assert_close(lhs, r, rtol=1e-9, atol=1e-9)
-        torch.testing.assert_close(au, A(u), rtol=1e-9, atol=1e-9)
 
 
 def test_general_operator_scale_a():

@@ -27,7 +27,7 @@ from torch import nn
 
 from .._checks import check_finite, check_positive, check_shape, check_tensor
 from ..operators.base import LinearOperator
-from ._tv import tv_norm
+from .tv import tv_norm
 from .tval3 import bucket_noise_sigma
 from .unet import UNet
 

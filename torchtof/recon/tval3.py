@@ -25,7 +25,6 @@ relative change drops below ``tol_inner``, then updating the multipliers
 from __future__ import annotations
 
 import math
-import weakref
 from statistics import NormalDist
 from typing import NamedTuple
 
@@ -41,7 +40,7 @@ from .._checks import (
     is_tracing,
 )
 from ..operators.base import LinearOperator
-from ._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
+from .tv import exact_factors, exact_solve, grad2, grad2_adjoint, largest_eig_normal, shrink
 
 __all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma", "STOP_REASONS"]
 
@@ -65,7 +64,6 @@ NOISE_QUANTILE = 0.2
 STOP_REASONS = ("tol", "max_outer", "discrepancy", "max_iter")
 #: Morozov's safety factor ``τ`` of the ``discrepancy`` stop: ``‖A x − y‖² ≤ τ M σ²``.
 DISCREPANCY_TAU = 1.0
-_POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
 _N_BACKTRACK = 5  # ftvcs_alp gives up after 5 backtracks
 
 
@@ -174,107 +172,7 @@ def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.
     return q / NormalDist().inv_cdf((1.0 + quantile) / 2)  # q-quantile of |z|, z ~ N(0, 1)
 
 
-# -- exact u-step: (D^T D + rho A^T A) u = r by Woodbury around the FFT-diagonal D^T D ----------
-
-#: Per-operator caches (keyed weakly by the operator object): exact-step factors and ``s₂``.
-_EXACT_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-_S2_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-class _ExactFactors(NamedTuple):
-    kinv: torch.Tensor  # 1 / eig(K) on the rfft2 grid, K = DᵀD + P₀
-    lam: torch.Tensor  # eigenvalues of S = A K⁻¹ Aᵀ, (m,)
-    v: torch.Tensor  # eigenvectors of S, (m, m)
-    av: torch.Tensor  # aᵀ V, (m,)
-    a: torch.Tensor  # A e₀, e₀ = 1/n (the unit constant image), (m,)
-    has_dc: bool  # a ≠ 0: the constant image is not in the null space of A
-
-
-def _exact_factors(A: LinearOperator, like: torch.Tensor) -> _ExactFactors:
-    """Cached factors of :func:`_exact_solve`, computed once per operator in float64.
-
-    ``K = DᵀD + P₀`` (periodic Laplacian plus the projector on constants: FFT-diagonal and
-    SPD); ``S = A K⁻¹ Aᵀ = V diag(lam) Vᵀ`` (``m × m``, from ``m`` adjoints, FFT solves and
-    forwards, then ``eigh``); ``a = A e₀``.
-    """
-    per_op = _EXACT_CACHE.setdefault(A, {})
-    key = (like.dtype, like.device)
-    if key not in per_op:
-        n, m = A.n, A.m
-        with torch.no_grad():
-            dt = torch.float64
-            eig = laplacian_eigs(n, n, dtype=dt, device=like.device)[:, : n // 2 + 1]
-            eig[0, 0] = 1.0
-            kinv = 1.0 / eig
-            eye = torch.eye(m, dtype=dt, device=like.device).reshape(m, 1, m)
-            rows = A.adjoint(eye)  # row i of A as an image
-            cols = torch.fft.irfft2(torch.fft.rfft2(rows) * kinv, s=(n, n))
-            s = A(cols).reshape(m, m)
-            lam, v = torch.linalg.eigh((s + s.T) / 2)
-            a = A(torch.full((1, 1, n, n), 1.0 / n, dtype=dt, device=like.device)).reshape(m)
-            out = [t.to(like.dtype) for t in (kinv, lam.clamp_min(0), v, a @ v, a)]
-            has_dc = bool(a.abs().max() > 1e-9 * rows.abs().max())
-        per_op[key] = _ExactFactors(*out, has_dc=has_dc)
-    return per_op[key]
-
-
-def _exact_solve(
-    r: torch.Tensor,
-    rho: torch.Tensor,
-    fwd,
-    adj,
-    factors: _ExactFactors,
-    inv_s2: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Solve ``(DᵀD + ρ AᵀA) u = r`` per sample; return ``(u, A u)``.
-
-    Woodbury identity with ``U = [Aᵀ, e₀]``, ``E = diag(ρ I, −1)`` around ``K = DᵀD + P₀``
-    (Hager 1989): the capacitance ``[[I/ρ + S, a], [aᵀ, 0]]`` is solved through the cached
-    eigendecomposition of ``S`` (so each sample may have its own ``ρ``) and a scalar border.
-    Without a constant component in the row space (``a = 0``) the border drops and ``u`` is
-    the zero-mean solution. ``inv_s2`` is TVAL3's ``ScaleA`` factor (``A ← A/√s2``).
-    """
-    kinv, lam, v, av, a, has_dc = factors
-    n = r.shape[-1]
-    lam = lam * inv_s2
-    av = av * math.sqrt(inv_s2)
-    z = torch.fft.irfft2(torch.fft.rfft2(r) * kinv, s=(n, n))
-    p = fwd(z)
-    dinv = 1.0 / (1.0 / rho[..., None] + lam)  # (B, C, m)
-    pv = p @ v
-    if has_dc:
-        q = z.sum(dim=(-2, -1)) / n
-        t = (_dot_v(av * dinv, pv) - q) / _dot_v(av * av, dinv)
-        xv = (pv - t[..., None] * av) * dinv
-    else:
-        t = torch.zeros_like(rho)
-        xv = pv * dinv
-    x = xv @ v.T
-    u = z - torch.fft.irfft2(torch.fft.rfft2(adj(x)) * kinv, s=(n, n)) - _i(t) / n
-    au = p - (xv * lam) @ v.T - t[..., None] * (a * math.sqrt(inv_s2))
-    return u, au
-
-
 # -- the solver --------------------------------------------------------------------------------
-
-
-def _largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
-    """Largest eigenvalue ``s₂`` of ``AᵀA`` by power iteration from a fixed start (TVAL3's
-    ``ScaleA`` calls ``eigs``), cached per operator object."""
-    if A in _S2_CACHE:
-        return _S2_CACHE[A]
-    n = A.n
-    with torch.no_grad():
-        k = torch.arange(n * n, dtype=torch.float64, device=like.device)
-        x = (1.0 + 0.5 * torch.cos(k * 2.399963)).reshape(1, 1, n, n)  # deterministic start
-        s = 0.0
-        for _ in range(_POWER_STEPS):
-            x = x / x.norm()
-            z = A.normal(x)
-            s = float((z * x).sum())
-            x = z
-    _S2_CACHE[A] = s
-    return s
 
 
 def _where(mask: torch.Tensor, new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
@@ -457,7 +355,7 @@ def tval3(
     )
 
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
-    s2 = 1.0 if A.orthonormal_rows else _largest_eig_normal(A, y)
+    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     spread = y.amax(dim=-1) - y.amin(dim=-1)
     spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
@@ -599,7 +497,7 @@ def _solve(
 
     exact = u_step == "exact"
     if exact:
-        factors = _exact_factors(A, b)
+        factors = exact_factors(A, b)
     eps = torch.finfo(torch.float64).eps  # MATLAB eps in max(sy, eps)
     tiny = torch.finfo(b.dtype).tiny
     alphas = gamma ** torch.arange(_N_BACKTRACK + 1, dtype=b.dtype, device=b.device)
@@ -667,7 +565,7 @@ def _solve(
         rho = mu / bet
         if exact:
             rhs = grad2_adjoint(w) + _i(rho) * atb + dts
-            u, au = _exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
+            u, au = exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
             if nonneg:
                 u = u.clamp_min(0)
                 au = fwd(u)
@@ -867,7 +765,7 @@ class TVAL3(nn.Module):
         )
         self.A = A
         if not A.orthonormal_rows:  # ScaleA's s₂, cached now so that tracing never computes it
-            _largest_eig_normal(A, torch.zeros(1))
+            largest_eig_normal(A, torch.zeros(1))
         self.options = dict(
             mu=mu,
             beta=beta,
