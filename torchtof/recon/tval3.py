@@ -40,13 +40,23 @@ from .._checks import (
     is_tracing,
 )
 from ..operators.base import LinearOperator
-from .tv import exact_factors, exact_solve, grad2, grad2_adjoint, largest_eig_normal, shrink
+from .tv import (
+    BOUNDARIES,
+    exact_factors,
+    exact_solve,
+    grad2,
+    grad2_adjoint,
+    largest_eig_normal,
+    shrink,
+)
 
 __all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma", "STOP_REASONS"]
 
 #: Spread ``max(b) − min(b)`` that the buckets are scaled to (TVAL3's ``Scaleb`` keeps spreads in
 #: ``[0.5, 1.5]`` and maps larger ones to 1.5; we always map to 1.5, see :func:`tval3`).
 B_SPREAD = 1.5
+#: Published ``Scaleb`` lifts spreads below this to it (operators without orthonormal rows).
+B_SPREAD_MIN = 0.5
 #: ``mu="auto"``: TV-L2 weight ``μ = AUTO_KAPPA · σ_s^(−AUTO_POWER)``, ``σ_s`` the noise std of the
 #: buckets scaled to spread 1.5 (calibration: see :func:`tval3`).
 AUTO_KAPPA = 0.7
@@ -76,19 +86,22 @@ class TVAL3Result(NamedTuple):
         residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)`` (0 for an all-zero ``y``).
         converged: ``(B, C)`` bool, ``True`` where the outer stopping rule was met before
             ``max_iter``.
-        stop_reason: ``(B, C)`` int64 index into :data:`STOP_REASONS` (``"tol"``,
-            ``"max_outer"``, ``"discrepancy"``, ``"max_iter"``); :meth:`reasons` names them.
+        stop_reason: per sample names ``[b][c]`` from :data:`STOP_REASONS` (``"tol"``,
+            ``"max_outer"``, ``"discrepancy"``, ``"max_iter"``); empty while tracing.
+        stop_code: the same as a ``(B, C)`` int64 index into :data:`STOP_REASONS` (a tensor:
+            it survives tracing and export).
     """
 
     x: torch.Tensor
     n_iter: torch.Tensor
     residual: torch.Tensor
     converged: torch.Tensor
-    stop_reason: torch.Tensor | None = None
+    stop_reason: tuple = ()
+    stop_code: torch.Tensor | None = None
 
     def reasons(self) -> list[list[str]]:
-        """``stop_reason`` as names, ``[b][c]``."""
-        return [[STOP_REASONS[int(k)] for k in row] for row in self.stop_reason.tolist()]
+        """``stop_reason`` as lists, ``[b][c]``."""
+        return [list(r) for r in self.stop_reason]
 
 
 # -- small helpers ----------------------------------------------------------------------------
@@ -222,8 +235,10 @@ def tval3(
     tv: str = "isotropic",
     nonneg: bool = False,
     *,
+    boundary: str = "periodic",
+    bounds: tuple[float | None, float | None] | None = None,
     tvl2: bool = False,
-    noise_sigma: float | torch.Tensor | None = None,
+    noise_sigma: float | str | torch.Tensor | None = None,
     max_outer: int = 10,
     ctn_steps: int = 0,
     rate_ctn: float = 2.0,
@@ -354,19 +369,32 @@ def tval3(
         fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn_steps, rate_ctn, u_step
     )
 
+    _check_boundary(boundary, fn)
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     spread = y.amax(dim=-1) - y.amin(dim=-1)
     spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
     zero = spread == 0
-    gain = B_SPREAD / torch.where(zero, torch.ones_like(spread), spread)  # b = gain·y
+    safe = torch.where(zero, torch.ones_like(spread), spread)
+    if A.orthonormal_rows:
+        gain = B_SPREAD / safe  # b = gain·y, spread 1.5 (scale-invariant, see above)
+    else:  # published Scaleb on the ScaleA-scaled buckets y/√s2
+        sq = math.sqrt(inv_s2)
+        s_scaled = safe * sq
+        g = torch.where(s_scaled < B_SPREAD_MIN, B_SPREAD_MIN / s_scaled,
+                        torch.where(s_scaled > B_SPREAD, B_SPREAD / s_scaled,
+                                    torch.ones_like(s_scaled)))
+        gain = g * sq
     b = y * gain[..., None]
+    lo, hi = _box(nonneg, bounds, fn)
+    scale = gain / math.sqrt(inv_s2)  # u = x · gain/√s2
+    box = (None if lo is None else lo * scale, None if hi is None else hi * scale)
 
     # Model and weights per sample.
     if mu == "auto":
-        if noise_sigma is None:
-            sigma = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
+        if noise_sigma is None or isinstance(noise_sigma, str):
+            sigma = _estimate_sigma(y, A, noise_sigma, fn)
         else:
             sigma = _sigma_tensor(noise_sigma, y)
         mu_f, beta_f, constrained = auto_weights(sigma * gain, beta)
@@ -385,8 +413,8 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, nonneg, adaptive, **opts,
-               disc_bound=bound)
+    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+               boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
@@ -394,7 +422,50 @@ def tval3(
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
     code = torch.where(u.converged, code, 3)
-    return TVAL3Result(x, u.n_iter, residual, u.converged, code)
+    return TVAL3Result(x, u.n_iter, residual, u.converged, stop_names(code), code)
+
+
+def stop_names(code: torch.Tensor) -> tuple:
+    """``(B, C)`` stop codes -> ``stop_reason`` names ``[b][c]`` (one host read, after the
+    solve; empty while tracing, where the codes stay a graph output)."""
+    if is_tracing() or code.device.type == "meta":
+        return ()
+    return tuple(tuple(STOP_REASONS[k] for k in row) for row in code.tolist())
+
+
+def _check_boundary(boundary: str, fn: str) -> None:
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
+
+
+def _box(nonneg: bool, bounds, fn: str) -> tuple[float | None, float | None]:
+    """``(lo, hi)`` from ``nonneg`` and ``bounds`` (validated; ``nonneg`` is ``lo ≥ 0``)."""
+    if not isinstance(nonneg, bool):
+        raise TypeError(f"{fn}: expected nonneg to be a bool, got {type(nonneg).__name__}")
+    lo = hi = None
+    if bounds is not None:
+        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
+        lo, hi = (None if v is None else float(v) for v in bounds)
+        for name, v in (("lo", lo), ("hi", hi)):
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f"{fn}: expected bounds {name} finite or None, got {v}")
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
+    if nonneg:
+        lo = 0.0 if lo is None else max(lo, 0.0)
+        if hi is not None and hi <= lo:
+            raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
+    return lo, hi
+
+
+def _estimate_sigma(y: torch.Tensor, A: LinearOperator, name: str | None, fn: str
+                    ) -> torch.Tensor:
+    """The named noise estimator (``None`` and ``"auto"``: :func:`bucket_noise_sigma`)."""
+    if name not in (None, "auto", "tail"):
+        raise ValueError(f"{fn}: expected noise_sigma a number, a tensor, None or one of "
+                         f"('auto', 'tail'), got {name!r}")
+    return _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
 
 
 def _sigma_tensor(noise_sigma: float | torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -466,9 +537,10 @@ def _solve(
     constrained: torch.Tensor,
     zero: torch.Tensor,
     inv_s2: float,
-    nonneg: bool,
+    box: tuple,
     adaptive: bool,
     *,
+    boundary: str,
     tol: float,
     tol_inner: float,
     max_iter: int,
@@ -496,8 +568,14 @@ def _solve(
             return A.adjoint(r) * sq
 
     exact = u_step == "exact"
+    lo_s, hi_s = box  # per-sample bounds in the scaled units of u, (B, C) tensors or None
+    bounded = lo_s is not None or hi_s is not None
+
+    def _project(u):
+        return u.clamp(min=None if lo_s is None else _i(lo_s),
+                       max=None if hi_s is None else _i(hi_s))
     if exact:
-        factors = exact_factors(A, b)
+        factors = exact_factors(A, b, boundary)
     eps = torch.finfo(torch.float64).eps  # MATLAB eps in max(sy, eps)
     tiny = torch.finfo(b.dtype).tiny
     alphas = gamma ** torch.arange(_N_BACKTRACK + 1, dtype=b.dtype, device=b.device)
@@ -516,7 +594,7 @@ def _solve(
     mu_dlt = torch.where(constrained, torch.ones_like(mu_f), zeros)  # 0: TV-L2 (δ ≡ 0)
     atb = adj(b)
     u = atb
-    du = grad2(u)
+    du = grad2(u, boundary)
     sig = torch.zeros_like(du)
     dlt = torch.zeros_like(b)
     w = shrink_w(du, sig, bet)
@@ -524,7 +602,7 @@ def _solve(
     au = fwd(u)
     g = adj(au) - atb
     v = du - w
-    g2 = grad2_adjoint(v)
+    g2 = grad2_adjoint(v, boundary)
     f = objective(lam1, v, au - b, sig, dlt, bet, mu)
     st = dict(
         u=u,
@@ -553,7 +631,7 @@ def _solve(
     )
 
     def sd_length(d, rho):
-        dd_ = grad2(d)
+        dd_ = grad2(d, boundary)
         ad = fwd(d)
         return _dot_i(d, d) / (_dot_f(dd_, dd_) + rho * _dot_v(ad, ad)).clamp_min(tiny)
 
@@ -564,26 +642,23 @@ def _solve(
         up, gp, g2p, aup, dup = st["u"], st["g"], st["g2"], st["au"], st["du"]
         rho = mu / bet
         if exact:
-            rhs = grad2_adjoint(w) + _i(rho) * atb + dts
+            rhs = grad2_adjoint(w, boundary) + _i(rho) * atb + dts
             u, au = exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
-            if nonneg:
-                u = u.clamp_min(0)
+            if bounded:
+                u = _project(u)
                 au = fwd(u)
-            du = grad2(u)
+            du = grad2(u, boundary)
             g = gp  # AᵀAu − Aᵀb is only needed at a multiplier update (computed there)
         else:
             # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
-            tau_sd = None
-            if (not adaptive) or bool((first & active).any()):
-                tau_sd = sd_length(d, rho)
-                tau = torch.where(first, tau_sd, st["tau_bb"])
-            else:
-                tau = st["tau_bb"]
+            # (both lengths always computed: choosing by mask needs no host read)
+            tau_sd = sd_length(d, rho)
+            tau = torch.where(first, tau_sd, st["tau_bb"])
             # 2. trial step
             u1 = up - _i(tau) * d
-            if nonneg:
-                u1 = u1.clamp_min(0)
-            du1 = grad2(u1)
+            if bounded:
+                u1 = _project(u1)
+            du1 = grad2(u1, boundary)
             au1 = fwd(u1)
             g1 = adj(au1) - atb
             # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
@@ -601,23 +676,20 @@ def _solve(
             au = aup + alpha[..., None] * dAu
             g = gp + _i(alpha) * (g1 - gp)
             gam = torch.where(fallback, gam * rate_gam, gam)
-            if (not adaptive) or bool((fallback & active).any()):
-                # five failed backtracks: steepest-descent step from up (ftvcs_alp)
-                if tau_sd is None:
-                    tau_sd = sd_length(d, rho)
-                usd = up - _i(tau_sd) * d
-                if nonneg:
-                    usd = usd.clamp_min(0)
-                ausd = fwd(usd)
-                u = _where(fallback, usd, u)
-                du = _where(fallback, grad2(usd), du)
-                au = _where(fallback, ausd, au)
-                g = _where(fallback, adj(ausd) - atb, g)
+            # five failed backtracks: steepest-descent step from up (ftvcs_alp)
+            usd = up - _i(tau_sd) * d
+            if bounded:
+                usd = _project(usd)
+            ausd = fwd(usd)
+            u = _where(fallback, usd, u)
+            du = _where(fallback, grad2(usd, boundary), du)
+            au = _where(fallback, ausd, au)
+            g = _where(fallback, adj(ausd) - atb, g)
         # 4. shrinkage w-step at the new u
         w = shrink_w(du, sig, bet)
         lam1 = _tv_of_w(w, isotropic)
         v = du - w
-        g2 = grad2_adjoint(v)
+        g2 = grad2_adjoint(v, boundary)
         r = au - b
         s = u - up
         ss = _dot_i(s, s)
@@ -649,53 +721,54 @@ def _solve(
             done=st["done"] | stop,
             n_iter=st["n_iter"] + 1,
         )
-        if (not adaptive) or bool(outer.any()):
-            # multiplier update, continuation, reset of the nonmonotone reference
-            if exact:
-                g = adj(au) - atb
-                d = g2 + _i(rho) * g - dts
-            else:
-                d = out["d"]
-            sig_o = sig - _f(bet) * v
-            dlt_o = dlt - (mu * mu_dlt)[..., None] * r
-            bet_o = torch.minimum(bet * rate_ctn, beta_f)
-            mu_o = torch.minimum(mu * rate_ctn, mu_f)
-            ratio = _i(bet / bet_o)
-            # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
-            dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
-            d_o = g2 + _i(mu_o / bet_o) * g - dts_o
+        # masked by ``outer``: no host read
+        # multiplier update, continuation, reset of the nonmonotone reference
+        if exact:
+            g = adj(au) - atb
+            d = g2 + _i(rho) * g - dts
+        else:
+            d = out["d"]
+        sig_o = sig - _f(bet) * v
+        dlt_o = dlt - (mu * mu_dlt)[..., None] * r
+        bet_o = torch.minimum(bet * rate_ctn, beta_f)
+        mu_o = torch.minimum(mu * rate_ctn, mu_f)
+        ratio = _i(bet / bet_o)
+        # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
+        dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
+        d_o = g2 + _i(mu_o / bet_o) * g - dts_o
+        out.update(
+            sig=_where(outer, sig_o, sig),
+            dlt=_where(outer, dlt_o, dlt),
+            bet=torch.where(outer, bet_o, bet),
+            mu=torch.where(outer, mu_o, mu),
+            dts=_where(outer, dts_o, dts),
+            d=_where(outer, d_o, out["d"]),
+        )
+        if not exact:
+            f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
             out.update(
-                sig=_where(outer, sig_o, sig),
-                dlt=_where(outer, dlt_o, dlt),
-                bet=torch.where(outer, bet_o, bet),
-                mu=torch.where(outer, mu_o, mu),
-                dts=_where(outer, dts_o, dts),
-                d=_where(outer, d_o, out["d"]),
+                f=torch.where(outer, f_o, out["f"]),
+                cref=torch.where(outer, f_o, out["cref"]),
+                q=torch.where(outer, torch.ones_like(f_o), out["q"]),
+                gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
             )
-            if not exact:
-                f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
-                out.update(
-                    f=torch.where(outer, f_o, out["f"]),
-                    cref=torch.where(outer, f_o, out["cref"]),
-                    q=torch.where(outer, torch.ones_like(f_o), out["q"]),
-                    gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
-                )
         return out
 
     for _ in range(max_iter):
+        # adaptive: the one host read per iteration (converged samples are frozen, so the
+        # read only decides whether another iteration can change anything)
         if adaptive and bool(st["done"].all()):
             break
         new = step(st)
-        if adaptive and not bool(st["done"].any()):
-            st = new
-        else:
-            active = ~st["done"]
-            st = {k: _where(active, new[k], st[k]) for k in st}
+        active = ~st["done"]
+        st = {k: _where(active, new[k], st[k]) for k in st}
     return _Out(st["u"], st["n_iter"], st["done"], st["count"], st["disc"])
 
 
 #: Keyword-only options of :func:`tval3` that :class:`TVAL3` accepts, with their defaults.
 _KW_OPTIONS = dict(
+    boundary="periodic",
+    bounds=None,
     tvl2=False,
     noise_sigma=None,
     max_outer=10,
@@ -713,12 +786,10 @@ class TVAL3(nn.Module):
     Args:
         A: measurement operator (registered as a submodule, so ``.to()`` moves its buffers).
         mu, beta, tol, tol_inner, max_iter, tv, nonneg: as in :func:`tval3`.
-        **options: the keyword-only options of :func:`tval3` (``tvl2``, ``noise_sigma``,
+        **options: the keyword-only options of :func:`tval3` (``boundary``, ``bounds``,
+            ``tvl2``, ``noise_sigma``,
             ``max_outer``, ``ctn_steps``, ``rate_ctn``, ``u_step``, ``adaptive``,
             ``discrepancy``).
-
-    Attributes:
-        last_result: the :class:`TVAL3Result` of the last call (``None`` before the first).
 
     Shape:
         ``(B, C, M) -> (B, C, n, n)``.
@@ -763,6 +834,8 @@ class TVAL3(nn.Module):
             opts["rate_ctn"],
             opts["u_step"],
         )
+        _check_boundary(opts["boundary"], "TVAL3")
+        _box(nonneg, opts["bounds"], "TVAL3")
         self.A = A
         if not A.orthonormal_rows:  # ScaleA's s₂, cached now so that tracing never computes it
             largest_eig_normal(A, torch.zeros(1))
@@ -776,12 +849,10 @@ class TVAL3(nn.Module):
             nonneg=nonneg,
             **opts,
         )
-        self.last_result: TVAL3Result | None = None
 
     def solve(self, y: torch.Tensor) -> TVAL3Result:
-        """Run :func:`tval3` and keep the result in :attr:`last_result`."""
-        self.last_result = tval3(y, self.A, **self.options)
-        return self.last_result
+        """Run :func:`tval3`: the :class:`TVAL3Result` (no state is kept between calls)."""
+        return tval3(y, self.A, **self.options)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.solve(y).x
