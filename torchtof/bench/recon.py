@@ -99,14 +99,14 @@ def sweep(ns=(32, 64, 128), srs=(0.0625, 0.125, 0.25, 0.375), scenes=SCENES, kno
                         x_hat = torch.cat([rec(y[i : i + 1]).detach() for i in range(len(y))])
                     else:
                         with torch.no_grad():
-                            x_hat = rec(y)
+                            res = rec.solve(y) if hasattr(rec, "solve") else None
+                            x_hat = rec(y) if res is None else res.x
                     dt = (time.perf_counter() - t0) / len(y)
                     s = compare(x_hat, x, "positive")
                     rmse = depth_rmse(x_hat, x)
                     iters = None
-                    last = getattr(rec, "last_result", None)
-                    if last is not None and hasattr(last, "n_iter"):
-                        iters = float(torch.as_tensor(last.n_iter).float().mean())
+                    if not per_sample and res is not None and hasattr(res, "n_iter"):
+                        iters = float(torch.as_tensor(res.n_iter).float().mean())
                     for i, name in enumerate(scenes):
                         rows.append({
                             "n": n, "sr": sr, "method": method, "budget": budget,
