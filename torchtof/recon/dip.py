@@ -420,7 +420,7 @@ def fit_dip(
     losses = []
     steps = range(n_iter)
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         steps = tqdm(steps, desc=func)
     t = 0

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from ..experiment import PAPER_SRS
+from ...experiment import PAPER_SRS
 from .recon import KNOBS, pareto, plot_sweep, print_recon, sweep
 
 __all__ = ["bench_tradeoff", "print_tradeoff", "recommend"]
@@ -64,7 +64,7 @@ def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out") -> dict:
 def print_tradeoff(res: dict) -> None:
     print_recon(res)
     print("\nwhich method for which budget (best scene- and SR-averaged PSNR within the budget):")
-    from ._timing import print_table
+    from ...report import print_table
 
     print_table([{**r, "psnr": "-" if r["psnr"] is None else f"{r['psnr']:.2f}"}
                  for r in res["recommend"]], ["n", "budget_s", "method", "psnr", "time_s"])
