@@ -7,6 +7,9 @@ they run too) and builds the graph of imports between its modules.
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -183,3 +186,59 @@ def test_no_private_name_imported_from_another_module(case, request):
     if case in PENDING:
         request.applymarker(pytest.mark.xfail(reason=PENDING[case]))
     raise AssertionError(f"{case[0]} imports the private {case[1]}.{case[2]}")
+
+
+# -- the core install: `import torchtof` needs none of the extras ---------------------------
+#: Modules of the extras (pyproject.toml): onnx, hardware, plot.
+EXTRA_MODULES = ("onnx", "onnxruntime", "onnxscript", "usb", "zarr", "tqdm", "matplotlib")
+
+_BLOCKED = """
+import sys
+BLOCK = {blocked!r}
+class _Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCK:
+            raise ImportError(f"{{name}} is blocked in this process")
+sys.meta_path.insert(0, _Block())
+{body}
+"""
+
+
+def _run_blocked(body: str, blocked=EXTRA_MODULES) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT.parent))
+    code = _BLOCKED.format(blocked=tuple(blocked), body=body)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=env, timeout=120)
+
+
+def test_blocker_blocks():
+    res = _run_blocked("import onnx")
+    assert res.returncode != 0 and "onnx is blocked" in res.stderr
+
+
+def test_import_torchtof_with_core_dependencies_only():
+    """``import torchtof`` (and the CLI parser, the adaptive and hardware packages, the
+    progress bars) work with every extra blocked, no extra module gets imported, and each
+    feature that needs an extra raises an ImportError naming it."""
+    res = _run_blocked(
+        "import torchtof, torchtof.recon, torchtof.adaptive, torchtof.hardware, torchtof.cli\n"
+        "from torchtof._optional import progress_bar, require\n"
+        "torchtof.cli.build_parser()\n"
+        "bar = progress_bar(total=2)\n"
+        "bar.update(2); bar.close()\n"
+        "assert sum(progress_bar(range(3))) == 3\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in BLOCK))\n"
+        "from torchtof.hardware.acquisition import require_zarr3\n"
+        "for feature in (lambda: __import__('torchtof.onnx'), require_zarr3,\n"
+        "                lambda: require('matplotlib', 'a figure')):\n"
+        "    try:\n"
+        "        feature()\n"
+        "    except ImportError as exc:\n"
+        "        print(exc)\n"
+    )
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0] == "[]"
+    assert len(lines) == 4
+    for line, extra in zip(lines[1:], ("onnx", "hardware", "plot"), strict=True):
+        assert f"pip install 'torchtof[{extra}]'" in line, line

@@ -181,7 +181,7 @@ def require_zarr3():
 
     hint = ("torchtof acquire/reconstruct record runs with zarr>=3, which needs Python>=3.11 "
             f"(this is Python {sys.version_info.major}.{sys.version_info.minor}): "
-            "pip install 'zarr>=3'")
+            "pip install 'torchtof[hardware]'")
     try:
         import zarr
     except ImportError as exc:
