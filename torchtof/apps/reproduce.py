@@ -7,7 +7,7 @@ reconstructor at SR 6.25 … 37.5 %), a PSNR-vs-SR plot (mean ± std over the no
 realisations), rows of a CSV, a Markdown table beside the paper's numbers, and the paper's
 claims marked held / not held by our numbers. Beyond the paper: depth maps and
 depth-RMSE-vs-SR curves of depth-resolved ghost imaging from the per-tap buckets
-(:func:`torchtof.depth_demo.depth_curves`).
+(:func:`torchtof.apps.depth_demo.depth_curves`).
 """
 
 from __future__ import annotations

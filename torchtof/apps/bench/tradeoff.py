@@ -1,6 +1,6 @@
 """``torchtof bench tradeoff``: run time against error over the paper's sampling rates.
 
-The same engine as ``bench recon`` (:func:`torchtof.bench.recon.sweep`), on the paper's SRs
+The same engine as ``bench recon`` (:func:`torchtof.apps.bench.recon.sweep`), on the paper's SRs
 (6.25 … 37.5 %) and the depth scenes (metres, so the depth RMSE is physical) plus the 天
 object; each reconstructor is swept over its work knob. Writes ``tradeoff.json`` and
 ``tradeoff.png`` (time on a log axis, the Pareto front dashed) and prints which method to use
