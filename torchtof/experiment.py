@@ -365,7 +365,7 @@ class PaperExperiment:
         chunks = range(0, n_frames, cfg.chunk_frames)
         bar = None
         if progress:
-            from tqdm.auto import tqdm
+            from ._optional import progress_bar as tqdm
 
             bar = tqdm(total=realisations * len(chunks), desc="simulating ToF frames",
                        leave=False)

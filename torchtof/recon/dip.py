@@ -449,7 +449,7 @@ def fit_dip(
     losses = []
     steps = range(max_iter)
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         steps = tqdm(steps, desc=func)
     t, reason = 0, "max_iter"

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import torch
 
-from ..metrics import compare, depth_rmse
-from ..operators import Hadamard
-from ..scenes import get_scene
-from ._timing import print_table
+from ...metrics import compare, depth_rmse
+from ...operators import Hadamard
+from ...report import print_table
+from ...scenes import get_scene
 
 __all__ = ["KNOBS", "QUICK_KNOBS", "make_reconstructor", "sweep", "pareto", "bench_recon",
            "print_recon", "plot_sweep"]
@@ -48,7 +48,7 @@ SCENES = ("sky", "steps", "motorcycle", "binary:horse", "skimage:camera")
 
 def make_reconstructor(method: str, A: Hadamard, budget):
     """The reconstructor ``method`` on ``A`` at work ``budget`` (``None``: its default)."""
-    from .. import recon
+    from ... import recon
 
     spec = recon.get(method)  # ValueError for an unknown method
     return spec.build(A, **spec.budget_options(budget)), spec.per_sample
@@ -67,7 +67,7 @@ def _images(scenes, n: int) -> tuple[torch.Tensor, list[bool]]:
 def sweep(ns=(32, 64, 128), srs=(0.0625, 0.125, 0.25, 0.375), scenes=SCENES, knobs=None,
           noise: float = 0.01, seed: int = 0, progress: bool = True) -> list[dict]:
     """Every (n, SR, method, budget) point, per scene; returns a list of row dicts."""
-    from tqdm.auto import tqdm
+    from ..._optional import progress_bar as tqdm
 
     knobs = knobs or KNOBS
     rows = []
