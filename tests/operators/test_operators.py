@@ -8,6 +8,7 @@ from torchtof.operators import (
     PatternOperator,
     combine_split,
     hadamard_patterns,
+    sylvester,
 )
 
 from .registry import OPERATORS
@@ -202,3 +203,24 @@ def test_auto_method_by_size():
     assert Hadamard(32, sr=0.25).method == "matmul"
     assert Hadamard(64, sr=0.25).method == "kron"
     assert Hadamard(256, m=10).method == "kron"
+
+
+def test_sylvester_result_is_not_shared_with_operators():
+    # H_8 written into must not reach the cache behind Hadamard buffers: an operator built
+    # before and one built after must both still have ±1 rows with A Aᵀ = I.
+    before = Hadamard(8, m=64, method="matmul")
+    h = sylvester(8)
+    h[h < 0] = 0
+    h2 = sylvester(8)
+    assert torch.equal(h2.abs(), torch.ones(8, 8))  # a fresh ±1 matrix again
+    after = Hadamard(8, m=64, method="matmul")
+    eye = torch.eye(64, dtype=torch.float64)
+    for op in (before, after):
+        assert torch.equal(op.h.abs(), torch.ones(8, 8))
+        a = op.matrix()
+        torch.testing.assert_close(a @ a.T, eye, rtol=0, atol=1e-12)
+    # the kron path's factors come from the same cache
+    hk = sylvester(16)
+    hk.zero_()
+    a = Hadamard(64, m=16, method="kron").matrix()
+    torch.testing.assert_close(a @ a.T, torch.eye(16, dtype=torch.float64), rtol=0, atol=1e-12)
