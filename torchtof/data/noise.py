@@ -34,7 +34,7 @@ from ..operators.split import DMDSplit, combine_split
 __all__ = ["NoiseRecipe", "noisy_buckets", "training_noise", "TRAIN_LEVELS"]
 
 #: Gaussian levels (fraction of the measurement spread) drawn log-uniformly for training.
-TRAIN_LEVELS = (0.002, 0.1)
+TRAIN_LEVELS = (0.002, 0.06)
 
 
 class NoiseRecipe(NamedTuple):
@@ -111,7 +111,7 @@ def training_noise(
 ) -> NoiseRecipe:
     """Draw a sample's noise recipe: clean with probability ``p_clean``; else a Gaussian level
     log-uniform in ``levels`` and, with probability ``p_shot``, shot noise at ``photons``
-    log-uniform in ``[0.03, 30]`` per pixel with stray light uniform in ``[0, 2]``.
+    log-uniform in ``[3, 300]`` per pixel with stray light uniform in ``[0, 2]``.
 
     Example:
         >>> r = training_noise(torch.Generator().manual_seed(0))
@@ -127,5 +127,5 @@ def training_noise(
     lo, hi = levels
     level = math.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * u())
     if u() < p_shot:
-        return NoiseRecipe(level, math.exp(math.log(0.03) + math.log(1000.0) * u()), 2 * u())
+        return NoiseRecipe(level, math.exp(math.log(3.0) + math.log(100.0) * u()), 2 * u())
     return NoiseRecipe(level)
