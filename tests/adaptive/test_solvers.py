@@ -22,7 +22,7 @@ def test_tval3_default_unchanged_and_reports_a_reason():
     ref = tval3(y, A)
     off = tval3(y, A, discrepancy=None)
     assert torch.equal(ref.x, off.x) and torch.equal(ref.n_iter, off.n_iter)
-    assert ref.stop_reason.shape == (2, 1) and ref.stop_reason.dtype == torch.int64
+    assert ref.stop_code.shape == (2, 1) and ref.stop_code.dtype == torch.int64
     assert all(r in STOP_REASONS for row in ref.reasons() for r in row)
     assert "discrepancy" not in sum(ref.reasons(), [])
 

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from torchtof.operators import Hadamard, PatternOperator
-from torchtof.recon._tv import tv_norm
 from torchtof.recon.dip import (
     DIP,
     ZETA_KAPPA,
@@ -21,6 +20,7 @@ from torchtof.recon.dip import (
     dip_input,
     fit_dip,
 )
+from torchtof.recon.tv import tv_norm
 from torchtof.recon.unet import UNet
 
 N = 16

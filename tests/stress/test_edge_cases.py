@@ -24,7 +24,6 @@ import math
 import pytest
 import torch
 
-from torchtof.bench.stability import BP_FAST, DIP_FAST, illcond_patterns, scene
 from torchtof.bucket import depth_bucket
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator
 from torchtof.sensor import (
@@ -34,6 +33,7 @@ from torchtof.sensor import (
     tap_phase,
     unambiguous_range,
 )
+from torchtof.testing.stability import BP_FAST, DIP_FAST, illcond_patterns, scene
 
 F32, F64 = torch.float32, torch.float64
 HALF = (torch.float16, torch.bfloat16)

@@ -29,7 +29,7 @@ from torch import nn
 from .._checks import check_finite, check_positive, check_shape, check_tensor, unchecked
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from ._tv import tv_norm
+from .tv import tv_norm
 from .base import ReconResult, relative_residual, renamed_option
 from .noise import tail_noise_sigma
 from .unet import UNet
@@ -449,7 +449,7 @@ def fit_dip(
     losses = []
     steps = range(max_iter)
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         steps = tqdm(steps, desc=func)
     t, reason = 0, "max_iter"

@@ -216,3 +216,7 @@ def train_unrolled(
         if created:
             dist.destroy_process_group()
     return TrainResult(model=model, losses=losses)
+
+
+#: Public name of the torchrun/DDP set-up, shared with :mod:`torchtof.recon.learned_train`.
+dist_setup = _dist_setup

@@ -34,7 +34,7 @@ linearly, ``D(u − s p) = Du − s Dp``). ``c_k → ∞`` gives TVAL3's steepes
 
 Initialisation: TVAL3's published defaults ``μ = 2⁸``, ``β = 2⁵``, ``t = 1/β``, ``α = 1``
 (``ftvcs_al_opts.m``) and ``c = 4``, the mean eigenvalue of the periodic ``DᵀD``
-(:func:`~torchtof.recon._tv.laplacian_eigs`), so the untrained network is K iterations of
+(:func:`~torchtof.recon.tv.laplacian_eigs`), so the untrained network is K iterations of
 TVAL3's splitting with a preconditioned exact-line-search step (at ``n = 64``, 37.5 % SR,
 noise-free, it is 0.9 dB closer to converged TVAL3 than the unpreconditioned step, and it
 trains 1.6 dB better at 1 % noise).
@@ -68,7 +68,7 @@ from torch import nn
 from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
-from ._tv import grad2, grad2_adjoint, shrink
+from .tv import grad2, grad2_adjoint, shrink
 from .base import ReconResult, direct_result, renamed_option
 
 __all__ = [

@@ -1,4 +1,4 @@
-"""``torchtof bench stability``: the numerical stress matrix of every public module.
+"""The numerical stress matrix of every public module (``torchtof bench stability``, tests).
 
 Rows are ``(module, edge case)``, columns the dtypes float16, bfloat16, float32, float64.
 Every cell builds its inputs in float64, rounds them to the column's dtype and runs the
@@ -74,6 +74,8 @@ from functools import partial
 
 import torch
 
+from .._optional import progress_bar
+
 __all__ = [
     "DTYPES",
     "TOLERANCES",
@@ -87,7 +89,6 @@ __all__ = [
     "stability_cases",
     "evaluate_case",
     "bench_stability",
-    "print_stability",
 ]
 
 F16, BF16, F32, F64 = torch.float16, torch.bfloat16, torch.float32, torch.float64
@@ -847,11 +848,12 @@ def stability_cases() -> list[Case]:
             + _recon_cases() + _experiment_cases())
 
 
-def bench_stability(cases: list[Case] | None = None) -> dict:
+def bench_stability(cases: list[Case] | None = None, progress: bool = False) -> dict:
     """Build the stress matrix (module docstring): one row per case, one cell per dtype.
 
     Args:
         cases: rows to run (default: :func:`stability_cases`).
+        progress: show a progress bar over the rows (stderr).
 
     Returns:
         JSON-able dict: ``rows`` (see :func:`evaluate_case`), ``counts`` per dtype and status,
@@ -866,7 +868,9 @@ def bench_stability(cases: list[Case] | None = None) -> dict:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny problems: two contending threads are ~10x slower
     try:
-        rows = [evaluate_case(c) for c in (stability_cases() if cases is None else cases)]
+        todo = stability_cases() if cases is None else cases
+        bar = progress_bar(todo, desc="stability rows", disable=not progress, leave=False)
+        rows = [evaluate_case(c) for c in bar]
     finally:
         torch.set_num_threads(threads)
     counts = {
@@ -886,39 +890,3 @@ def bench_stability(cases: list[Case] | None = None) -> dict:
         "time_s": time.perf_counter() - t0,
         "torch": torch.__version__,
     }
-
-
-def print_stability(result: dict) -> None:
-    """Print the matrix: one code per cell, numbered notes for every error, n/r, n/a and FAIL."""
-    dts = result["dtypes"]
-    notes: dict[str, int] = {}
-    table = []
-    for r in result["rows"]:
-        line = [r["module"], r["edge"]]
-        for d in dts:
-            cell = r["cells"][d]
-            code = cell["status"]
-            if code != "ok":
-                key = f"{code}: {cell['detail']}"
-                code = f"{code}[{notes.setdefault(key, len(notes) + 1)}]"
-            line.append(code)
-        table.append(line)
-    head = ["module", "edge case", *dts]
-    widths = [max(len(row[i]) for row in [head, *table]) for i in range(len(head))]
-    print(f"numerical stress matrix: {len(table)} rows x {len(dts)} dtypes, "
-          f"torch {result['torch']}, {result['time_s']:.1f} s")
-    print("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)))
-    print("  ".join("-" * w for w in widths))
-    for row in table:
-        print("  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip())
-    print("\ncounts:")
-    for d in dts:
-        print(f"  {d:9s} " + ", ".join(f"{v} {k}" for k, v in result["counts"][d].items()))
-    if notes:
-        print("\nnotes:")
-        for key, num in notes.items():
-            print(f"  [{num}] {key}")
-    print("\ntolerances (against float64 on the same rounded inputs):")
-    for fam, t in result["tolerances"].items():
-        vals = ", ".join(f"{d} {t[d]:g}" for d in dts if d in t)
-        print(f"  {fam:16s} {t['metric']:5s} {vals or '-'}")
