@@ -175,3 +175,35 @@ def test_joint_tv_fixed_iterations_no_sync_per_iteration():
         return lambda: joint_tv(y, A, n_iter=k, adaptive=False)
 
     assert _per_extra_iterations(make, 5) == 0
+
+
+# -- check_finite: skipped where it cannot or must not read the data --------------------------
+
+
+def test_check_finite_skips_meta_tensors_and_unchecked_blocks():
+    from torchtof._checks import check_finite, unchecked
+
+    check_finite(torch.empty(3, device="meta"), "x", "f")  # no data: nothing to read
+    bad = torch.tensor([1.0, float("nan")])
+    with pytest.raises(ValueError, match=r"f: x contains non-finite values \(1 NaN, 0 Inf\)"):
+        check_finite(bad, "x", "f")
+    with count_syncs() as n, unchecked(), unchecked():
+        check_finite(bad, "x", "f")
+    assert n[0] == 0
+    with pytest.raises(ValueError):  # the state is restored after (nested) blocks
+        check_finite(bad, "x", "f")
+
+
+@pytest.mark.slow  # dynamo's start-up; test_compile's fast case covers the operators' checks
+def test_check_finite_skipped_under_compile():
+    import torch._dynamo
+
+    from torchtof._checks import check_finite
+
+    def f(x):
+        check_finite(x, "x", "f")
+        return x * 2
+
+    torch._dynamo.reset()
+    g = torch.compile(f, fullgraph=True, backend="eager")  # a host sync would break the graph
+    assert torch.equal(g(torch.ones(3)), torch.full((3,), 2.0))

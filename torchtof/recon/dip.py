@@ -248,6 +248,7 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
     Returns:
         ``ζ`` as a Python float.
     """
+    y = y.detach()
     sigma = float(tail_noise_sigma(y)) if noise_sigma is None else float(noise_sigma)
     ratio = sigma / max(float(y.std(unbiased=False)), torch.finfo(y.dtype).tiny)
     return min(max(ZETA_KAPPA * ratio, ZETA_MIN), ZETA_MAX)
