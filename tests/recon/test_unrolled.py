@@ -219,7 +219,8 @@ def test_gradcheck_float64():
 
 
 def test_a_few_training_steps_reduce_the_loss():
-    res = train_unrolled(n=16, sr=0.25, n_layers=3, steps=40, batch_size=8, noise_level=(0.01, 0.01))
+    res = train_unrolled(n=16, sr=0.25, n_layers=3, steps=40, batch_size=8,
+                         noise_level=(0.01, 0.01))
     A = res.model.A
     from torchtof.recon.synthetic import synthetic_scenes
 
