@@ -33,7 +33,8 @@ from .metrics import compare
 from .recon import registry
 from .recon.registry import ReconSpec
 
-__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores"]
+__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores",
+           "scores"]
 
 
 @dataclass
@@ -104,7 +105,9 @@ def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: s
     return _build(spec, data, sr, gate, kind, **options)
 
 
-def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+def scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+    """Mean ± std PSNR and SSIM of the images ``img (R, C, n, n)`` against the run's object
+    with the buckets' ``polarity`` (:func:`torchtof.metrics.compare`)."""
     x = data.x.to(img.dtype).expand(img.shape[0], -1, -1, -1)
     s = compare(img, x, polarity)
     p, q = s["psnr"], s["ssim"]
@@ -115,7 +118,7 @@ def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str,
 
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
     """Scores of the raw ToF depth image (negative polarity: near = small depth)."""
-    return _scores(data.raw_tof_image, data, "negative")
+    return scores(data.raw_tof_image, data, "negative")
 
 
 def evaluate(
@@ -141,5 +144,5 @@ def evaluate(
         img = img.detach()
         images[name] = img
         rows.append({"method": name, "sr": sr, "gate": gate, "time_s": dt,
-                     **_scores(img, data, polarity)})
+                     **scores(img, data, polarity)})
     return rows, images
