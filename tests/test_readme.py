@@ -40,3 +40,18 @@ def test_every_readme_python_snippet_runs():
 @pytest.mark.parametrize("name", ["DESIGN.md", "STYLE.md", "domain-notes"])
 def test_readme_cites_nothing_that_does_not_ship(name):
     assert name not in README.read_text(encoding="utf-8")
+
+
+def test_generated_readme_tables_match_their_json():
+    import importlib.util
+
+    path = README.parent / "docs" / "build.py"
+    spec = importlib.util.spec_from_file_location("docs_build", path)
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    text = README.read_text(encoding="utf-8")
+    assert "<!-- generated:" in text
+    assert build.stale_blocks(text) == [], "README tables drifted: run python docs/build.py"
+    # the check is not vacuous: a changed number is caught
+    edited = text.replace("<!-- generated:demo -->\n", "<!-- generated:demo -->\n| x |\n", 1)
+    assert build.stale_blocks(edited) == ["demo"]
