@@ -237,7 +237,7 @@ def dinv_dip(P: Problem, iters: int):
     chans = 64
     gen = dinv.models.ConvDecoder(img_size=(1, P.n, P.n), in_size=(4, 4), channels=chans)
     model = dinv.models.DeepImagePrior(
-        gen, learning_rate=1e-2, iterations=iters, verbose=False, input_size=[chans, 4, 4]
+        gen, img_size=[chans, 4, 4], learning_rate=1e-2, iterations=iters, verbose=False
     )
     return model(P.y, physics)
 
@@ -624,8 +624,8 @@ def main(argv=None) -> int:
     for n in a.n:
         for level in a.noise:
             for order in a.orders:
-                for scene in a.scenes:
-                    for sr in a.sr:
+                for sr in a.sr:  # SR outside scenes: a cut-short run still spans the scenes
+                    for scene in a.scenes:
                         P = Problem(scene, n, sr, order, level, a.seed)
                         t0 = time.perf_counter()
                         res = run_cell(P, a.repeats, a.dip, set(a.only) if a.only else None)
