@@ -530,6 +530,35 @@ def method_means(data: dict) -> str:
     return "\n".join(lines)
 
 
+def winners(data: dict) -> str:
+    """Scene × SR grid per (n, noise, order): gap of the torchtof default to the best tuned
+    peer in dB, and that peer."""
+    groups: dict = {}
+    for c in data["cells"]:
+        groups.setdefault((c["n"], c["level"], c["order"]), []).append(c)
+    out = []
+    for (n, level, order), cells in sorted(groups.items()):
+        srs = sorted({c["sr"] for c in cells})
+        scenes = list(dict.fromkeys(c["scene"] for c in sorted(cells, key=_cell_key)))
+        out.append(f"n = {n}, noise {100 * level:g} %, {order} rows: torchtof "
+                   f"{cells[0]['headline']['default'].split()[-1]} − best tuned peer, dB")
+        out.append("")
+        out.append("| scene | " + " | ".join(f"SR {100 * s:g} %" for s in srs) + " |")
+        out.append("|---|" + "---|" * len(srs))
+        for sc in scenes:
+            row = []
+            for s in srs:
+                c = next((c for c in cells if c["scene"] == sc and c["sr"] == s), None)
+                if c is None:
+                    row.append("—")
+                else:
+                    h = c["headline"]
+                    row.append(f"{h['gap_db']:+.2f} ({h['best_peer']})")
+            out.append(f"| {sc} | " + " | ".join(row) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
 def merge(runs: list[dict]) -> dict:
     """One document from several runs (cells concatenated; each run's header kept)."""
     if len(runs) == 1:
@@ -602,6 +631,8 @@ def main(argv=None) -> int:
         print(markdown(data))
         print()
         print(method_means(data))
+        print()
+        print(winners(data))
         plot(data, a.png or a.report[0].with_suffix(".png"))
         if a.out is not None:
             a.out.write_text(json.dumps(data, indent=1))
