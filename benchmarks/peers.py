@@ -442,7 +442,7 @@ def run_cell(P: Problem, repeats: int, dip: bool, only: set | None = None) -> di
     times = {k: [next(t["time_s"] for t in r["trace"] if t["param"] == r["param"])]
              for k, r in res.items()}
     for _ in range(repeats):
-        for name, (peer, fn, grid, _r) in table.items():
+        for name, (_peer, fn, grid, _r) in table.items():
             p = res[name]["param"]
             t0 = time.perf_counter()
             try:
