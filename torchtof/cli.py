@@ -152,6 +152,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    from .recon.learned_train import main as train_main  # options: learned_train.add_arguments
+
+    return train_main(args)
+
+
 # ---------------------------------------------------------------------------------------------
 # parser
 # ---------------------------------------------------------------------------------------------
@@ -256,6 +262,13 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("-o", "--output", default=None,
                    help="the .onnx file (default OUT/MODEL_nN_srSR.onnx)")
     e.set_defaults(func=cmd_export)
+
+    t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)")
+    t.add_argument("--model", choices=["learned"], default="learned")
+    from .recon.learned_train import add_arguments as add_train_arguments
+
+    add_train_arguments(t)
+    t.set_defaults(func=cmd_train)
 
     from .hardware.cli import add_parsers as add_hardware_parsers  # acquire, reconstruct
 

@@ -211,7 +211,7 @@ def _build_unrolled(n, sr, batch, seed, n_iter):
     A = Hadamard(n, sr=sr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # raised below instead
-        net = UnrolledTVAL3(A, n_iter=n_iter, pretrained=True)
+        net = UnrolledTVAL3(A, n_layers=n_iter, pretrained=True)
     if net.weights_file is None:
         raise ValueError(
             f"MODELS['unrolled_tval3']: no shipped weights for n={n}, sr={sr}, K={n_iter}; "
@@ -228,7 +228,7 @@ def _build_depth_resolved(n, sr, batch, seed, n_iter):
     A = Hadamard(n, sr=sr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # no shipped weights: TVAL3 defaults
-        net = UnrolledTVAL3(A, n_iter=n_iter, pretrained=True)
+        net = UnrolledTVAL3(A, n_layers=n_iter, pretrained=True)
     refl = 0.3 + 0.7 * _scenes(n, batch, seed)
     depth = 1.0 + 3.0 * synthetic_scenes(n, seed=seed + 1, step=0, indices=range(batch))
     taps = correlation_taps(phasor_from_depth(400.0 * refl, depth, MODULATION_HZ), offset=2600.0)
@@ -256,16 +256,16 @@ def _build_unet(n, sr, batch, seed, n_iter):
     with torch.random.fork_rng():
         torch.manual_seed(0)
         net = default_unet(n).eval()
-    return net, (dip_input(A, y),)
+    return net, (dip_input(y, A),)
 
 
 def _build_dip(n, sr, batch, seed, n_iter):
     """The U-Net of :func:`fit_dip` fitted for ``n_iter`` steps to the buckets of scene 0 of
     seed 0 (fixed, whatever ``seed``); inputs: :func:`dip_input` of the buckets."""
     A, y0 = _dip_data(n, sr, 1, 0)
-    net = fit_dip(A, y0, n_iter=n_iter, seed=0).unet
+    net = fit_dip(y0, A, max_iter=n_iter, seed=0).unet
     _, y = _dip_data(n, sr, batch, seed)
-    return net, (dip_input(A, y),)
+    return net, (dip_input(y, A),)
 
 
 _IMG = "(batch, 1, n, n)"

@@ -155,7 +155,7 @@ def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
     out.mkdir(parents=True, exist_ok=True)
     r = realisations if realisations is not None else (2 if quick else 5)
     # --quick: 100 DIP steps instead of the default schedule (the DIP fits dominate the time)
-    options = {"DIP": {"n_iter": 100}} if quick else {}
+    options = {"DIP": {"max_iter": 100}} if quick else {}
     t0 = time.perf_counter()
     table: dict[str, list[dict]] = {}
     raw: dict[str, dict] = {}

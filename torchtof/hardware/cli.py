@@ -96,13 +96,13 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
 
 def _method_name(name: str) -> str:
-    from ..methods import METHODS
+    from ..recon import registry
 
-    table = {k.lower(): k for k in METHODS}
-    if name.lower() not in table:
+    try:
+        return registry.get(name).label
+    except ValueError:
         raise SystemExit(f"torchtof reconstruct: unknown method {name!r}; choose from "
-                         f"{sorted(METHODS)}")
-    return table[name.lower()]
+                         f"{sorted(s.label for s in registry.specs())}") from None
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:

@@ -700,7 +700,7 @@ def _metric_cases() -> list[Case]:
 #: Fast DIP settings for the matrix (the fit is the cost; the numerics are those of 300 steps).
 # zeta=0: with the TV term, 20-step float32 and float64 fits on tiny fully sampled scenes
 # diverge chaotically (0.02–6 dB apart); the matrix tests arithmetic, not the prior
-DIP_FAST = {"n_iter": 20, "zeta": 0.0}
+DIP_FAST = {"max_iter": 20, "zeta": 0.0}
 #: Iteration cap of basis pursuit in the matrix (the ill-conditioned rows never converge).
 BP_FAST = {"n_iter": 300}
 
@@ -711,48 +711,23 @@ def _recon_makers() -> dict[str, tuple[bool, str, Callable]]:
     Imports are lazy, so a reconstructor that fails to import fails its own rows only.
     """
 
-    def corr(cls):
-        def make(A):
-            from ..recon import correlation
+    def make(name, **options):
+        def build(A):
+            from ..recon import registry
 
-            return getattr(correlation, cls)(A)
+            return registry.get(name).module(A, **options)
 
-        return make
-
-    def pinv(A):
-        from ..recon.pinv import PseudoInverse
-
-        return PseudoInverse(A)
-
-    def tval3(A):
-        from ..recon.tval3 import TVAL3
-
-        return TVAL3(A)
-
-    def bp(A):
-        from ..recon.bp import BasisPursuit
-
-        return BasisPursuit(A, **BP_FAST)
-
-    def unrolled(A):
-        from ..recon.unrolled import UnrolledTVAL3
-
-        return UnrolledTVAL3(A, pretrained=False)
-
-    def dip(A):
-        from ..recon.dip import DIP
-
-        return DIP(A, **DIP_FAST)
+        return build
 
     return {
-        "CGI": (True, "recon_direct", corr("CGI")),
-        "TGI": (True, "recon_direct", corr("TGI")),
-        "DGI": (True, "recon_direct", corr("DGI")),
-        "PseudoInverse": (False, "recon_direct", pinv),
-        "TVAL3": (False, "recon_iterative", tval3),
-        "BasisPursuit": (False, "recon_iterative", bp),
-        "UnrolledTVAL3": (False, "recon_iterative", unrolled),
-        "DIP": (False, "recon_dip", dip),
+        "CGI": (True, "recon_direct", make("CGI")),
+        "TGI": (True, "recon_direct", make("TGI")),
+        "DGI": (True, "recon_direct", make("DGI")),
+        "PseudoInverse": (False, "recon_direct", make("pinv")),
+        "TVAL3": (False, "recon_iterative", make("tval3")),
+        "BasisPursuit": (False, "recon_iterative", make("bp", **BP_FAST)),
+        "UnrolledTVAL3": (False, "recon_iterative", make("unrolled", pretrained=False)),
+        "DIP": (False, "recon_dip", make("dip", **DIP_FAST)),
     }
 
 
