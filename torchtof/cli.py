@@ -264,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_export)
 
     t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)")
-    t.add_argument("--model", choices=["learned"], default="learned")
+    t.add_argument("--model", choices=["learned"], default="learned", help="the model to train")
     from .recon.learned_train import add_arguments as add_train_arguments
 
     add_train_arguments(t)
