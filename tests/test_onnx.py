@@ -61,7 +61,7 @@ def exported(tmp_path_factory):
     return get
 
 
-def test_registry_covers_the_issue():
+def test_registry_covers_every_inference_stage():
     wanted = {
         "hadamard",
         "hadamard_adjoint",
@@ -104,7 +104,7 @@ def test_export_and_parity(name, exported):
         report = tto.check(path, module, inputs, rtol=1e-4, atol=1e-5)
         assert report["ok"]
         assert all(o["shape"][0] == batch for o in report["outputs"])
-        # the issue's floor, literally: numpy.allclose(rtol=1e-4, atol=1e-5) on every output
+        # the parity floor, literally: numpy.allclose(rtol=1e-4, atol=1e-5) on every output
         sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
         feeds = {i.name: t.detach().numpy() for i, t in zip(sess.get_inputs(), inputs)}
         with torch.no_grad():

@@ -1,4 +1,4 @@
-"""Property tests (hypothesis) of the stress issue.
+"""Property tests (hypothesis) of the numerical stress suite.
 
 ================================  ======================================  ===================
 property                          inputs drawn                            tolerance
