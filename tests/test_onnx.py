@@ -177,6 +177,16 @@ def test_export_refuses_an_adaptive_solver_in_one_line(tmp_path):
     assert not (tmp_path / "a.onnx").exists()
 
 
+def test_dynamo_export_prints_no_torchvision_notes(tmp_path, capfd):
+    """torch's dynamo exporter logs "torchvision is not installed. Skipping torchvision::nms"
+    (and three more) on every export; torchtof uses no torchvision operator, so export drops
+    them."""
+    tto.export(Hadamard(8, sr=0.5), torch.rand(2, 1, 8, 8), tmp_path / "h.onnx",
+               exporter="dynamo")
+    captured = capfd.readouterr()
+    assert "torchvision" not in captured.err + captured.out
+
+
 def test_default_exporter_per_model():
     """The tracer for iterative solvers (the dynamo exporter is slow on their unrolled
     loops), dynamo for the rest; the registry's choices agree."""
