@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field, replace
 import torch
 
 from ._checks import check_in_range, check_positive
+from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
 from .operators import DMDSplit, Hadamard
 from .operators.patterns import _check_n_order, num_patterns
@@ -66,6 +67,7 @@ __all__ = [
     "PaperExperiment",
     "simulate_frames",
     "stray_light",
+    "frame_memory",
 ]
 
 #: The paper's sampling rates (Figs. 5, 7–13).
@@ -196,6 +198,20 @@ def _check_int(value: object, name: str, func: str, lo: int | None = None,
         rng = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
         raise ValueError(f"{func}: expected {name} {rng}, got {value}")
     return value
+
+
+#: Peak bytes per (frame × sensor pixel × bytes of the real dtype) of one chunk of
+#: :func:`simulate_frames` plus the bucket sums, measured with /usr/bin/time -v (maximum
+#: resident size) at n = 64, roi_px = 128 and 256, chunk_frames = 64 and 256
+#: (docs/reliability.md); rounded up.
+FRAME_BYTES_FACTOR = 40
+
+
+def frame_memory(cfg: ExperimentConfig, frames: int, dtype: torch.dtype = torch.float32) -> int:
+    """Estimated peak bytes of simulating ``frames`` frames at once (one chunk of
+    :meth:`PaperExperiment.run`): ``FRAME_BYTES_FACTOR · frames · roi_px² · itemsize``."""
+    item = torch.empty((), dtype=dtype).element_size()
+    return FRAME_BYTES_FACTOR * frames * cfg.roi_px**2 * item
 
 
 def _smooth(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -392,8 +408,11 @@ class PaperExperiment:
                             dtype=dtype)
         stray = stray_light(cfg, dtype) if cfg.stray_e > 0 else None
         hadamard = Hadamard(n, sr=max(cfg.srs), order=cfg.order)
-        pats = DMDSplit(hadamard).patterns(dtype)  # (2M, n, n) in acquisition order
-        n_frames = pats.shape[0]
+        split = DMDSplit(hadamard)  # 2M patterns in acquisition order, built per chunk
+        n_frames = split.m
+        check_memory(frame_memory(cfg, min(cfg.chunk_frames, n_frames), dtype),
+                     f"simulating {min(cfg.chunk_frames, n_frames)} frames of "
+                     f"{p}x{p} sensor pixels at a time", func, "lower chunk_frames or roi_px")
         keys = ("depth", "depth_gated", "intensity", "taps")
         out: dict[str, list[torch.Tensor]] = {k: [] for k in keys}
         raw = []
@@ -407,8 +426,8 @@ class PaperExperiment:
         for _ in range(realisations):
             parts = {k: [] for k in keys}
             for start in chunks:
-                fr = simulate_frames(scene, pats[start : start + cfg.chunk_frames], cfg, gen, dust,
-                                     stray)
+                pats = split.patterns(dtype, start, min(start + cfg.chunk_frames, n_frames))
+                fr = simulate_frames(scene, pats, cfg, gen, dust, stray)
                 depth = fr.depth[:, 0][None]  # (1, F, P, P): frames on the frame axis
                 parts["depth"].append(depth_bucket(depth))
                 parts["depth_gated"].append(depth_bucket(depth, gate_m=cfg.gate_m))

@@ -13,8 +13,12 @@ from __future__ import annotations
 import torch
 
 from .._checks import check_shape
+from .._memory import check_memory
 from .base import LinearOperator
-from .hadamard import Hadamard
+from .hadamard import Hadamard, _check_range, _itemsize
+
+#: ±1 rows split at a time by :meth:`DMDSplit.patterns`.
+PATTERN_CHUNK = 256
 
 __all__ = ["DMDSplit", "combine_split", "split_patterns"]
 
@@ -75,6 +79,42 @@ class DMDSplit(LinearOperator):
         """``(y⁺ − y⁻)/n``: the measurements of the underlying orthonormal ``A``."""
         return combine_split(y_split, self.n)
 
-    def patterns(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """The ``2M`` 0/1 DMD patterns ``(2M, n, n)`` in acquisition order."""
-        return split_patterns(self.hadamard.patterns(dtype))
+    def patterns(
+        self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
+    ) -> torch.Tensor:
+        """The ``2M`` 0/1 DMD patterns ``(2M, n, n)`` in acquisition order, or only rows
+        ``start:stop`` of them.
+
+        Built in chunks of :data:`PATTERN_CHUNK` ±1 rows straight into the result, so the
+        peak is the result itself (``(stop − start)·n²`` entries) plus one chunk, never the
+        ±1 stack next to its two halves; :meth:`iter_patterns` streams them instead.
+
+        Raises:
+            ValueError: for a range outside ``[0, 2M]`` or a result larger than the memory
+                limit (:func:`torchtof.set_memory_limit`).
+        """
+        func = "DMDSplit.patterns"
+        start, stop = _check_range(start, stop, self.m, func)
+        n = self.n
+        rows = stop - start + min(2 * PATTERN_CHUNK, stop - start + 2)  # result + one chunk
+        check_memory(rows * n * n * _itemsize(dtype),
+                     f"{stop - start} DMD patterns of {n}x{n}", func,
+                     "stream them with DMDSplit.iter_patterns(chunk) or ask for rows "
+                     "start:stop")
+        out = torch.empty(stop - start, n, n, dtype=dtype, device=self.hadamard.h.device)
+        lo, hi = start // 2, (stop + 1) // 2  # the ±1 rows that cover split rows start:stop
+        for a in range(lo, hi, PATTERN_CHUNK):
+            b = min(a + PATTERN_CHUNK, hi)
+            rows = split_patterns(self.hadamard.patterns(dtype, a, b))  # split rows 2a:2b
+            s0, s1 = max(2 * a, start), min(2 * b, stop)
+            out[s0 - start : s1 - start] = rows[s0 - 2 * a : s1 - 2 * a]
+        return out
+
+    def iter_patterns(self, chunk: int = 256, dtype: torch.dtype = torch.float32):
+        """Yield ``(start, patterns[start:start + chunk])`` over the ``2M`` DMD patterns in
+        acquisition order: at most ``chunk·n²`` entries alive at a time."""
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+            raise ValueError(f"DMDSplit.iter_patterns: expected chunk to be an int >= 1, "
+                             f"got {chunk!r}")
+        for start in range(0, self.m, chunk):
+            yield start, self.patterns(dtype, start, min(start + chunk, self.m))
