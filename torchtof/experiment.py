@@ -181,10 +181,11 @@ class ExperimentConfig:
                 f"{func}: expected scattering_model in ('phasor', 'depth'), "
                 f"got {self.scattering_model!r}"
             )
+        _check_scene_name(self.scene, func)
         if not isinstance(self.srs, (tuple, list)) or not self.srs:
             raise ValueError(f"{func}: expected at least one sampling rate in srs, got {self.srs}")
         for sr in self.srs:
-            num_patterns(self.n, sr=sr, func=func)
+            check_in_range(sr, 0.0, 1.0, "srs", func, lo_open=True)
         if self.roi_px < self.n:
             raise ValueError(f"{func}: expected roi_px >= n ({self.n}), got {self.roi_px}")
         return self
@@ -212,6 +213,15 @@ def frame_memory(cfg: ExperimentConfig, frames: int, dtype: torch.dtype = torch.
     :meth:`PaperExperiment.run`): ``FRAME_BYTES_FACTOR · frames · roi_px² · itemsize``."""
     item = torch.empty((), dtype=dtype).element_size()
     return FRAME_BYTES_FACTOR * frames * cfg.roi_px**2 * item
+
+
+def _check_scene_name(name: object, func: str) -> None:
+    from .scenes import SCENES
+
+    ok = isinstance(name, str) and (name in SCENES or name.startswith(("skimage:", "binary:")))
+    if not ok:
+        raise ValueError(f"{func}: expected scene in {SCENES} or 'skimage:<name>'/'binary:<name>', "
+                         f"got {name!r}")
 
 
 def _smooth(x: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -346,6 +346,8 @@ def slanted_plane(
     lo, hi = _check_depth_range(near_m, far_m, func)
     if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)):
         raise TypeError(f"{func}: expected angle_deg to be a number, got {angle_deg!r}")
+    if not np.isfinite(angle_deg):
+        raise ValueError(f"{func}: expected a finite angle_deg, got {angle_deg}")
     a = np.deg2rad(float(angle_deg))
     c = np.arange(n, dtype=np.float64)
     yy, xx = np.meshgrid(c, c, indexing="ij")

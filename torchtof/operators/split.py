@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import check_shape
+from .._checks import check_finite, check_rank, check_shape
 from .._memory import check_memory
 from .base import LinearOperator
 from .hadamard import Hadamard, _check_range, _itemsize
@@ -25,6 +25,13 @@ __all__ = ["DMDSplit", "combine_split", "split_patterns"]
 
 def split_patterns(patterns: torch.Tensor) -> torch.Tensor:
     """±1 patterns ``(M, n, n)`` → interleaved 0/1 DMD patterns ``(2M, n, n)``."""
+    func = "split_patterns"
+    check_rank(patterns, 3, "patterns", func, "(M, n, n)")
+    if patterns.is_complex():
+        raise TypeError(
+            f"{func}: expected patterns to be a real tensor, got dtype {patterns.dtype}"
+        )
+    check_finite(patterns, "patterns", func)
     plus = (1 + patterns) / 2
     minus = (1 - patterns) / 2
     return torch.stack((plus, minus), dim=1).reshape(-1, *patterns.shape[1:])
@@ -39,7 +46,8 @@ def combine_split(y_split: torch.Tensor, n: int) -> torch.Tensor:
             f"combine_split: expected y_split with an even number of measurements, "
             f"got {y_split.shape[-1]}"
         )
-    y = y_split.reshape(*y_split.shape[:-1], -1, 2)
+    check_finite(y_split, "y_split", "combine_split")
+    y = y_split.reshape(*y_split.shape[:-1], y_split.shape[-1] // 2, 2)  # no -1: B = 0
     return (y[..., 0] - y[..., 1]) / n
 
 
@@ -70,7 +78,7 @@ class DMDSplit(LinearOperator):
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "DMDSplit.adjoint")
-        y2 = y.reshape(*y.shape[:-1], -1, 2)
+        y2 = y.reshape(*y.shape[:-1], self.m // 2, 2)  # no -1: B = 0 has no size to infer
         s, d = y2[..., 0] + y2[..., 1], y2[..., 0] - y2[..., 1]
         ones = s.sum(dim=-1)[..., None, None] / 2
         return ones + self.hadamard.adjoint(d) * (self.n / 2)

@@ -181,6 +181,8 @@ def scatter_phasor(
     b = _check_term(backscatter, phasor, "backscatter", func)
     d_s = check_positive(sheet_m, "sheet_m", func, strict=False)
     f = check_positive(freq_hz, "freq_hz", func)
+    if blur_sigma is not None:
+        check_positive(blur_sigma, "blur_sigma", func)
     direct = phasor if blur_sigma is None else blur_phasor(phasor, blur_sigma)
     theta = 4.0 * math.pi * f * d_s / SPEED_OF_LIGHT
     return a * direct + b * complex(math.cos(theta), math.sin(theta))
