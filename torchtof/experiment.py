@@ -45,6 +45,7 @@ import torch
 from ._checks import check_in_range, check_positive
 from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
+from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
 from .operators import DMDSplit, Hadamard
 from .operators.patterns import _check_n_order, num_patterns
 from .scenes import Scene, get_scene
@@ -70,8 +71,6 @@ __all__ = [
     "frame_memory",
 ]
 
-#: The paper's sampling rates (Figs. 5, 7–13).
-PAPER_SRS: tuple[float, ...] = (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375)
 
 #: PSNR (dB) the paper reports (DESIGN.md §3): (case, SR) -> {method: dB}.
 PAPER_PSNR: dict[tuple[str, float], dict[str, float]] = {
@@ -429,7 +428,7 @@ class PaperExperiment:
         chunks = range(0, n_frames, cfg.chunk_frames)
         bar = None
         if progress:
-            from tqdm.auto import tqdm
+            from ._optional import progress_bar as tqdm
 
             bar = tqdm(total=realisations * len(chunks), desc="simulating ToF frames",
                        leave=False)
