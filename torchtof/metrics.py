@@ -261,6 +261,8 @@ def ssim(
     # SSIM is invariant under x -> x/L with c1, c2 scaled by 1/L² (numerator and
     # denominator both scale by 1/L⁴): compare on the unit range, where (0.01·L)² and
     # μ², σ² cannot overflow (L = 1e30 gave NaN in float32)
+    if x.is_meta or x_hat.is_meta:  # shape inference: kornia's window has no meta kernel
+        return _reduce(x.new_empty(x.shape[0]), reduction, func)
     smap = _kornia_ssim(x_hat / data_range, x / data_range, window_size, max_val=1.0, eps=0.0)
     return _reduce(smap.flatten(1).mean(1), reduction, func)
 

@@ -228,7 +228,7 @@ def depth_scene(
         raise ValueError(
             f"{func}: expected object_mask of shape (B, 1, H, W), got {tuple(object_mask.shape)}"
         )
-    if not bool(((m == 0) | (m == 1)).all()):
+    if not m.is_meta and not bool(((m == 0) | (m == 1)).all()):  # meta: shapes only
         raise ValueError(f"{func}: expected object_mask to hold only 0 and 1")
     z_obj = check_positive(object_m, "object_m", func)
     if background_m is None:

@@ -172,11 +172,11 @@ class Hadamard(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "Hadamard.forward")
-        return hadamard_forward(x, self.index, self.transform_spec(x))
+        return hadamard_forward(x, self.index.to(x.device), self.transform_spec(x))
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "Hadamard.adjoint")
-        return hadamard_adjoint(y, self.index, self.n, self.transform_spec(y))
+        return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
