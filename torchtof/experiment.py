@@ -200,11 +200,11 @@ def _check_int(value: object, name: str, func: str, lo: int | None = None,
     return value
 
 
-#: Peak bytes per (frame × sensor pixel × bytes of the real dtype) of one chunk of
-#: :func:`simulate_frames` plus the bucket sums, measured with /usr/bin/time -v (maximum
-#: resident size) at n = 64, roi_px = 128 and 256, chunk_frames = 64 and 256
-#: (docs/reliability.md); rounded up.
-FRAME_BYTES_FACTOR = 40
+#: Peak bytes per (frame × sensor pixel × byte of the real dtype) of one chunk of
+#: :func:`simulate_frames` plus the bucket sums: the growth of the maximum resident set size
+#: was 53–58× at n = 64 with (roi_px, chunk_frames) = (128, 256) and (256, 64)
+#: (tests/reliability/measure_memory.py, docs/reliability.md); rounded up to 64.
+FRAME_BYTES_FACTOR = 64
 
 
 def frame_memory(cfg: ExperimentConfig, frames: int, dtype: torch.dtype = torch.float32) -> int:

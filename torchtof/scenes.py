@@ -10,6 +10,15 @@ Images are ``(1, 1, n, n)`` tensors, float32 unless ``dtype`` says otherwise. A
 :class:`Scene` pairs a reflectance map in ``[0, 1]`` with a depth map in metres;
 reflectance 0 means "no return" (the ToF pixel sees no light there).
 
+**Return types** (one rule, checked by the tests): a function that builds what the camera
+looks at — :func:`get_scene`, :func:`depth_scene`, :func:`depth_steps`,
+:func:`slanted_plane` — returns a :class:`Scene` ``(reflectance, depth_m)``; a function
+that draws one image — :func:`sky_character`, :func:`skimage_scene`, :func:`binary_scene`
+(reflectance) and :func:`motorcycle_depth` (depth in metres) — returns that ``Tensor``.
+Turn an image into a scene with :func:`depth_scene` (a 0/1 mask) or
+``Scene(reflectance=x, depth_m=torch.full_like(x, 2.0))``; :func:`get_scene` does so for
+every name it knows.
+
 Example:
     >>> scene = get_scene("sky", n=32)
     >>> scene.reflectance.shape, float(scene.depth_m.max())
