@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from torchtof._checks import check_positive, check_rank
+from torchtof._memory import check_memory
 
 __all__ = [
     "Scene",
@@ -102,6 +103,8 @@ def _check_n(n: object, func: str, lo: int = 8) -> int:
         raise TypeError(f"{func}: expected n to be an int, got {type(n).__name__}")
     if n < lo:
         raise ValueError(f"{func}: expected n >= {lo}, got {n}")
+    # the rasterisers hold a few float64 n x n grids (coordinates, masks, the image)
+    check_memory(8 * n * n * 8, f"a {n}x{n} scene", func)
     return n
 
 

@@ -311,3 +311,19 @@ def test_memory_limit_settings(monkeypatch):
         torchtof.set_memory_limit(-1)
     with pytest.raises(TypeError, match="set_memory_limit: expected limit to be an int"):
         torchtof.set_memory_limit(1.5)
+
+
+def test_dense_views_refuse_what_cannot_fit():
+    import torchtof
+
+    # Hadamard(256) as a dense matrix: 65536² float64 = 32 GiB (plus the m×m unit vectors)
+    torchtof.set_memory_limit("16G")
+    try:
+        with pytest.raises(ValueError, match=r"Hadamard.matrix: the dense 65536x65536 matrix "
+                                             r"needs about"):
+            Hadamard(256).matrix()
+        with pytest.raises(ValueError, match=r"DMDSplit.pinv: the dense 32x16 pseudo-inverse"):
+            torchtof.set_memory_limit(1000)
+            DMDSplit(Hadamard(4)).pinv(torch.zeros(1, 1, 32))
+    finally:
+        torchtof.set_memory_limit(None)

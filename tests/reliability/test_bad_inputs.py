@@ -42,3 +42,15 @@ def test_matrix_covers_every_module():
     mods = {c.spec.module for c in _CASES}
     assert mods == {"operators", "sensor", "metrics", "scenes", "bucket", "experiment"}
     assert len(_CASES) > 700
+
+
+def test_huge_sizes_are_refused_before_allocating():
+    # sizes no machine holds: refused with an estimate, never a MemoryError or a swap storm
+    from torchtof import scenes, sensor
+    from torchtof.operators import random_binary_patterns
+
+    for call in (lambda: scenes.sky_character(1 << 20), lambda: sensor.dust_map(1 << 22),
+                 lambda: sensor.area_overlap_matrix(1 << 22, 1 << 22),
+                 lambda: random_binary_patterns(1 << 20, 1 << 12)):
+        with pytest.raises(ValueError, match="needs about .* more than the memory limit"):
+            call()

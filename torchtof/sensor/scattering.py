@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_in_range, check_positive, check_rank, check_tensor
+from .._memory import check_memory
 from .functional import SPEED_OF_LIGHT, _check_phasor, _check_real
 from .mixing import _pair, blur_phasor
 
@@ -99,6 +100,7 @@ def dust_map(
     """
     func = "dust_map"
     h, w = _pair(size, "size", func)
+    check_memory(4 * h * w * 8, f"a {h}x{w} dust map", func)
     sigma = check_positive(sigma_px, "sigma_px", func)
     noise = torch.randn((1, 1, h, w), generator=generator, dtype=torch.float64)
     if min(h, w) > 1:
