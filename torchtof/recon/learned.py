@@ -445,13 +445,14 @@ def learned(
     n_layers: int = DEFAULT_N_LAYERS,
     noise_sigma: float | torch.Tensor | str = "auto",
     pretrained: bool | str | os.PathLike = True,
+    width: int = 16,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width: as in :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``.
@@ -462,5 +463,5 @@ def learned(
         >>> learned(A(torch.rand(1, 1, 32, 32)), A, pretrained=False).shape
         torch.Size([1, 1, 32, 32])
     """
-    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained)
+    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained, width=width)
     return net.to(y.device)(y)

@@ -109,7 +109,7 @@ def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range):
 
 
 def train_learned(
-    steps: int = 1800,
+    steps: int = 1300,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -295,7 +295,7 @@ def train_learned(
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned``."""
-    p.add_argument("--steps", type=int, default=1800)
+    p.add_argument("--steps", type=int, default=1300)
     p.add_argument("--batch-size", type=int, default=12)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=0)
