@@ -181,7 +181,7 @@ def require_zarr3():
 
     hint = ("torchtof acquire/reconstruct record runs with zarr>=3, which needs Python>=3.11 "
             f"(this is Python {sys.version_info.major}.{sys.version_info.minor}): "
-            "pip install 'zarr>=3'")
+            "pip install 'torchtof[hardware]'")
     try:
         import zarr
     except ImportError as exc:
@@ -353,7 +353,7 @@ def acquire(
              "duplicates": int(group.attrs.get("duplicates", 0))}
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         bar = tqdm(total=n_frames, initial=done, desc="acquiring ToF frames", unit="frame")
 
