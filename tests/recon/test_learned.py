@@ -300,3 +300,32 @@ def test_shipped_weights_serve_every_size_sr_order_without_warning():
             x = draw_scene(A.n, 123_456_789, "silhouette")
             out = Learned(A)(A(x))
             assert out.shape == x.shape and torch.isfinite(out).all()
+
+
+@pytest.mark.slow
+def test_ddp_two_processes_train_the_single_process_model(tmp_path):
+    """``torchrun`` with 2 processes (gloo, loopback) on ``torchtof train --model learned``
+    trains the model one process trains on the same global batch."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    args = ("train --model learned --steps 3 --batch-size 4 --sizes 16 --n-layers 2 --width 4 "
+            "--seed 3 --no-progress --checkpoint-every 0").split()
+    env = dict(os.environ, PYTHONPATH=str(root), OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
+    for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
+        env.pop(k, None)
+    launcher = "-m torch.distributed.run --standalone --nproc_per_node 2".split()
+    cmd = [sys.executable, *launcher, "-m", "torchtof.cli", *args, "--out", str(tmp_path)]
+    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    recipe = json.loads((tmp_path / "recipe.json").read_text())
+    assert recipe["world_size"] == 2 and recipe["steps_run"] == 3
+    got = torch.load(tmp_path / "learned.pt", weights_only=True)
+    single = train_learned(steps=3, batch_size=4, sizes=(16,), n_layers=2, width=4, seed=3,
+                           progress=False, distributed=False).model
+    for k, v in single.prior.state_dict().items():
+        torch.testing.assert_close(got["prior"][k], v, rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(got["step_raw"], single.step_raw.detach(), rtol=1e-4, atol=1e-6)
