@@ -107,6 +107,33 @@ def test_prior_off_is_the_pseudo_inverse(order, step):
     assert r.converged.all() and r.stop_reason == (("n_layers",), ("n_layers",))
 
 
+def test_final_step_noise_free_is_the_exact_projection():
+    """σ = 0: w = 1, x = x_K + Aᵀ(b − A x_K) satisfies A x = y exactly whatever the prior;
+    σ ≫ τ: w → 0, the output is the network without the final step."""
+    net = _net(noise_sigma=0.0).double()
+    with torch.no_grad():
+        net.prior.out.bias.fill_(0.3)  # the prior adds a bright offset at every step
+    y = _y(net.A, b=2, dtype=torch.float64)
+    r = net.solve(y)
+    assert float(r.residual.max()) < 1e-12
+    net.final_dc = False
+    assert float(net.solve(y).residual.min()) > 1e-3  # the prior alone does not fit y
+    loud = _net(noise_sigma=1e12).double()
+    loud.load_state_dict(net.state_dict())
+    on = loud(y)
+    loud.final_dc = False
+    torch.testing.assert_close(on, loud(y), rtol=1e-12, atol=1e-12)
+
+
+def test_calibrate_tau_picks_the_grid_minimum():
+    from torchtof.recon.learned_train import calibrate_tau
+
+    net = _net(n=16, K=2)
+    out = calibrate_tau(net, seed=1, batches=2, batch_size=2, sizes=(16,), grid=(0.01, 0.1, 1.0))
+    assert out["tau"] == min(out["losses"], key=out["losses"].get)
+    assert math.isclose(float(net.log_tau.exp()), out["tau"], rel_tol=1e-6) and net.final_dc
+
+
 def test_dmd_split_frames_equal_combined_buckets():
     A = Hadamard(16, sr=0.25)
     S = DMDSplit(A)
@@ -235,14 +262,17 @@ def test_short_training_run_lowers_the_loss():
             return tot / len(held)
 
     torch.manual_seed(5)
-    before = loss(Learned(Hadamard(32, sr=0.25), pretrained=False, width=16))
-    r = train_learned(steps=25, batch_size=2, lr=3e-3, progress=False, **kw)
+    untrained = Learned(Hadamard(32, sr=0.25), pretrained=False, width=16)
+    untrained.final_dc = False  # as the prior trains
+    before = loss(untrained)
+    r = train_learned(steps=25, batch_size=2, lr=3e-3, progress=False, calibrate=False, **kw)
     after = loss(r.model)
     assert after < before - 0.2, (before, after)
 
 
 def test_resume_continues_the_same_run(tmp_path):
-    kw = dict(batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False, log_every=1)
+    kw = dict(batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False, log_every=1,
+              calibrate=False)
     straight = train_learned(steps=4, **kw).model
     train_learned(steps=4, out=tmp_path, checkpoint_every=1, max_minutes=0.0, **kw)
     resumed = train_learned(steps=4, out=tmp_path, resume=True, **kw).model
@@ -313,7 +343,7 @@ def test_ddp_two_processes_train_the_single_process_model(tmp_path):
 
     root = Path(__file__).resolve().parents[2]
     args = ("train --model learned --steps 3 --batch-size 4 --sizes 16 --n-layers 2 --width 4 "
-            "--seed 3 --no-progress --checkpoint-every 0").split()
+            "--seed 3 --no-progress --checkpoint-every 0 --no-calibrate").split()
     env = dict(os.environ, PYTHONPATH=str(root), OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
     for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
         env.pop(k, None)
@@ -325,7 +355,7 @@ def test_ddp_two_processes_train_the_single_process_model(tmp_path):
     assert recipe["world_size"] == 2 and recipe["steps_run"] == 3
     got = torch.load(tmp_path / "learned.pt", weights_only=True)
     single = train_learned(steps=3, batch_size=4, sizes=(16,), n_layers=2, width=4, seed=3,
-                           progress=False, distributed=False).model
+                           progress=False, distributed=False, calibrate=False).model
     for k, v in single.prior.state_dict().items():
         torch.testing.assert_close(got["prior"][k], v, rtol=1e-4, atol=1e-6)
     torch.testing.assert_close(got["step_raw"], single.step_raw.detach(), rtol=1e-4, atol=1e-6)
