@@ -21,6 +21,7 @@ __all__ = [
     "FrameError",
     "FrameSequenceError",
     "FrameIdError",
+    "FrameTimingError",
 ]
 
 #: How to give a non-root user access to the two USB devices (Linux).
@@ -135,3 +136,14 @@ class FrameIdError(TransientError):
         what = detail or f"{(got - expected) % 256} frame(s) lost"
         super().__init__(f"frame id {got} for pattern {pattern_index}, expected {expected} "
                          f"({what})")
+
+
+class FrameTimingError(TransientError):
+    """A frame whose host arrival time does not fit the pattern schedule (a spurious frame
+    arrives too early, a lost one leaves a gap); the acquisition re-acquires the sequence."""
+
+    def __init__(self, pattern_index: int, expected_s: float, got_s: float) -> None:
+        self.pattern_index, self.expected_s, self.got_s = pattern_index, expected_s, got_s
+        super().__init__(f"frame for pattern {pattern_index} arrived {got_s * 1e3:.1f} ms after "
+                         f"the sequence's first, expected {expected_s * 1e3:.1f} ms (a spurious "
+                         "or lost frame)")
