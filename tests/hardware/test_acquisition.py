@@ -35,7 +35,7 @@ def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", start=0, **kw):
                            frame_number_start=start)
     kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3, "frame_timeout_s": 0.3,
           "metadata": {"simulation": {"config": asdict(cfg), "seed": seed}}, **kw}
-    return acquire(path, bench.lightcrafter(), bench.camera(mode=mode), **kw), bench
+    return acquire(path, bench.lightcrafter(timeout_ms=200), bench.camera(mode=mode), **kw), bench
 
 
 def pure(cfg, seed=0):

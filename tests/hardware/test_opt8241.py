@@ -382,11 +382,11 @@ def test_oversized_transfer_is_a_usb_error():
     cam.start()
     bench.camera_usb._fifo.append((9, bytes(10_000), 0.0))  # > frame + 255 bytes: overflow
     with pytest.raises(ProtocolError, match="bulk read: USB error.*Overflow"):
-        cam.grab(0.1)
+        cam.grab(1.0)
     cam.start()  # a failed bulk read ends the reader: restart it
     bench.camera_usb._fifo.append((9, bytes(100), 0.0))  # a short transfer: not a frame
     with pytest.raises(FrameError, match="100 bytes, a 8x9 'quad' frame has 576"):
-        cam.grab(0.1)
+        cam.grab(1.0)
     assert cam.frame_counter() == 0  # neither was numbered
 
 

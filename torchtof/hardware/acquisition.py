@@ -171,27 +171,29 @@ def _recorded(ok: np.ndarray) -> int:
 
 
 def require_zarr3():
-    """The ``zarr`` module, version 3 or later (the recorder uses the v3 API).
+    """The ``zarr`` module, version 3.1.6 or later (the recorder uses the v3 API, and 3.1.6's
+    local store writes every chunk atomically: a temporary file renamed over the old one, so
+    a killed run never leaves a half-written chunk).
 
     Raises:
-        ImportError: zarr is missing or older than 3, naming the requirement (zarr 3 needs
+        ImportError: zarr is missing or older than 3.1.6, naming the requirement (zarr 3 needs
             Python ≥ 3.11).
     """
     import sys
 
-    hint = ("torchtof acquire/reconstruct record runs with zarr>=3, which needs Python>=3.11 "
-            f"(this is Python {sys.version_info.major}.{sys.version_info.minor}): "
-            "pip install 'zarr>=3'")
+    hint = ("torchtof acquire/reconstruct record runs with zarr>=3.1.6, which needs "
+            f"Python>=3.11 (this is Python {sys.version_info.major}.{sys.version_info.minor}): "
+            "pip install 'torchtof[hardware]' (or pip install 'zarr>=3.1.6')")
     try:
         import zarr
     except ImportError as exc:
         raise ImportError(f"zarr is not installed; {hint}") from exc
     version = str(getattr(zarr, "__version__", "0"))
-    try:
-        major = int(version.split(".")[0])
-    except ValueError:
-        major = 0
-    if major < 3:
+    parts = []
+    for p in version.split(".")[:3]:
+        digits = "".join(ch for ch in p if ch.isdigit()) or "0"
+        parts.append(int(digits))
+    if tuple(parts + [0] * (3 - len(parts))) < (3, 1, 6):
         raise ImportError(f"zarr {version} is installed; {hint}")
     return zarr
 
@@ -216,7 +218,7 @@ _VOLATILE = {"status", "m_acquired", "stopped_early", "retries", "duplicates", "
 def _first_difference(old, new, where: str = "") -> str | None:
     """The dotted name of the first field in which two JSON-like values differ."""
     if isinstance(old, dict) and isinstance(new, dict):
-        for key in sorted(set(old) | set(new)):
+        for key in [*new, *(k for k in old if k not in new)]:  # this run's order
             if not where and key in _VOLATILE:
                 continue
             d = _first_difference(old.get(key), new.get(key), f"{where}.{key}" if where else key)
@@ -573,7 +575,7 @@ class _Sequences:
         gaps = np.diff(t_us) * 1e-6 if k_total > 1 else np.array([self.period_us * 1e-6])
         tol = 0.4 * float(gaps.min())
         # later frames: a few pattern periods (at most the first frame's timeout)
-        next_timeout = min(self.timeout_s, float(gaps.max()) * 2 + 0.2)
+        next_timeout = min(self.timeout_s, float(gaps.max()) * 4 + 0.5)
         tail = max(0.05, 1.5 * float(gaps.max()))  # no frame may follow within this
         attempt = 0
         while True:
@@ -638,16 +640,19 @@ def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Recorded interleaved buckets ``{"depth", "depth_gated", "intensity", "taps"}`` (each
     ``(1, C, 2·m_acquired)``) and the store attributes.
 
+    Every chunk's CRC-32C and every recorded frame's data are checked first (as ``resume``
+    does).
+
     Raises:
         ValueError: not a torchtof acquisition, or no complete pattern pair recorded.
+        StoreDamagedError: the store fails its integrity check.
     """
-    zarr = require_zarr3()
-
-    group = zarr.open_group(str(path), mode="r")
+    group = _open_group(path, "r")
     attrs = dict(group.attrs)
     if attrs.get("format") != _FORMAT:
         raise ValueError(f"load_buckets: {path} is not a torchtof acquisition store")
-    f = _recorded(group["frames_ok"][:])
+    ok = _verify(path, group, int(attrs.get("frames", 0)))
+    f = _recorded(ok)
     if attrs.get("status") == "complete":
         f = 2 * int(attrs["m_acquired"])
     f -= f % 2

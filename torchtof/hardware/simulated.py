@@ -316,6 +316,7 @@ class FakeLightCrafter(_Gone):
                     self._play_all()
             else:
                 s["running"] = False
+                self.bench.camera_usb.cancel_triggers_after(self.bench.now())
         return True
 
     def _internal(self) -> bool:
@@ -439,7 +440,8 @@ class FakeOPT8241(_Gone):
         for name, value in defaults.items():
             self._set(name, value)
         self._fifo: deque[tuple[int, bytes]] = deque()
-        self._pending: deque[tuple[float, np.ndarray]] = deque()  # (ready time, pattern)
+        # (ready time, pattern, trigger time) of frames being taken
+        self._pending: deque[tuple[float, np.ndarray, float]] = deque()
         self._lock = threading.RLock()
         self._cond = threading.Condition(self._lock)
         self.rendered = 0
@@ -579,15 +581,22 @@ class FakeOPT8241(_Gone):
                 self.missed_triggers += 1
                 return
             self.busy_until = t + self.frame_time_s
-            self._pending.append((self.busy_until, pattern))
+            self._pending.append((self.busy_until, pattern, t))
             if not self.bench.realtime:
                 self._complete(math.inf)
             self._cond.notify_all()
 
     def _complete(self, now: float) -> None:
         while self._pending and self._pending[0][0] <= now:
-            ready, pattern = self._pending.popleft()
+            ready, pattern, _ = self._pending.popleft()
             self._output(pattern, ready)
+
+    def cancel_triggers_after(self, t: float) -> None:
+        """The DMD stopped at ``t``: triggers scheduled after it never come."""
+        with self._lock:
+            self._pending = deque(e for e in self._pending if e[2] <= t)
+            if self._pending:
+                self.busy_until = self._pending[-1][0]
 
     def _output(self, pattern: np.ndarray, ready: float) -> None:
         f = self.bench.faults
