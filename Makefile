@@ -1,36 +1,49 @@
 # Two commands for a new user (README "Quick start"):
 #   make demo   - set up a virtual environment (CPU torch first) and run the demo
 #   make test   - set up the same environment and run the test suite
+#
+# TORCH_INDEX: the pip index of the torch wheel, passed as --index-url when set. On a normal
+# machine the CPU build is `make demo TORCH_INDEX=https://download.pytorch.org/whl/cpu`
+# (a bare `pip install torch` on Linux pulls the CUDA build, several GB). Left empty, pip's
+# configured index is used (this machine provides a local CPU wheel).
 PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH_VERSION ?= 2.13.0
+TORCH_INDEX ?=
 STAMP := $(VENV)/.installed
+PYTEST := $(BIN)/python -m pytest -q
 
-.PHONY: demo test test-slow test-all stress bench reproduce lint clean
+.PHONY: demo test test-slow test-all doctest stress bench reproduce lint clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	# The CPU build of torch first: a bare `torch` requirement would pull GBs of CUDA wheels.
-	$(BIN)/python -m pip install -q "torch==$(TORCH_VERSION)"
-	$(BIN)/python -m pip install -q -e ".[dev,plot]"
+	# torch first, from TORCH_INDEX when set, so that the extras below do not pull another build
+	$(BIN)/python -m pip install -q "torch==$(TORCH_VERSION)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
+	$(BIN)/python -m pip install -q -e ".[dev,all]"
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/torchtof demo --out demo_out
 
+# the default suite and the package's doctests (slow tests: make test-slow)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 -m "not slow"
+	$(PYTEST) -n 2 -m "not slow" tests
+	$(PYTEST) --doctest-modules torchtof
+
+doctest: $(STAMP)
+	$(PYTEST) --doctest-modules torchtof
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -q -m slow
+	$(PYTEST) -n 2 -m slow tests
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2
+	$(PYTEST) -n 2 tests
+	$(PYTEST) --doctest-modules torchtof
 
 stress: $(STAMP)
-	$(BIN)/python -m pytest -q tests/stress
+	$(PYTEST) tests/stress
 
 bench: $(STAMP)
 	$(BIN)/torchtof bench operators
@@ -43,4 +56,4 @@ lint: $(STAMP)
 	$(BIN)/ruff check torchtof tests examples export benchmarks
 
 clean:
-	rm -rf $(VENV) demo_out reproduce_out bench_out .pytest_cache
+	rm -rf $(VENV) demo_out reproduce_out bench_out export_out .pytest_cache

@@ -11,7 +11,7 @@ import math
 
 import torch
 
-from torchtof.recon._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
+from torchtof.recon.tv import grad2, grad2_adjoint, laplacian_eigs, shrink
 
 
 def admm_tv(y, A, lam, rho=None, iters=20000, tol=1e-6):

@@ -43,11 +43,11 @@ def main(argv=None) -> dict:
     print(f"  I/Q vectorial TV (joint):                           {err['joint']:.3f} m")
     print(f"  amplitude mask keeps {float(res['joint'].mask.float().mean()):.0%} of the pixels")
     if args.out:
-        from torchtof.depth_demo import _plot_maps
+        from torchtof.apps.depth_demo import plot_depth_maps
 
         maps = {"raw ToF": data.raw_tof_image, **{k: r.depth for k, r in res.items()}}
         rows = [{"rmse_m": err[k]} for k in ("raw", "pinv", "separate", "joint")]
-        png = _plot_maps(Path(args.out) / "depth_resolved.png", truth, maps, rows,
+        png = plot_depth_maps(Path(args.out) / "depth_resolved.png", truth, maps, rows,
                          f"depth-resolved CGI, SR {args.sr:.2%}")
         print(f"wrote {png}")
     out = {f"rmse_{k}_m": v for k, v in err.items()}

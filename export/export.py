@@ -23,7 +23,8 @@ from pathlib import Path
 
 import onnx
 
-from torchtof.onnx import DEFAULT_OPSET, MODELS, check, export_model
+from torchtof.apps.onnx_models import MODELS, export_model
+from torchtof.onnx import DEFAULT_OPSET, check
 
 
 def readme_table() -> str:

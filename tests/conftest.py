@@ -14,3 +14,12 @@ def dtype(request):
 @pytest.fixture
 def gen():
     return torch.Generator().manual_seed(0)
+
+
+#: Every device the module tests run on: the CPU, and CUDA where present.
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.fixture(params=DEVICES)
+def device(request):
+    return torch.device(request.param)

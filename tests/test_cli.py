@@ -31,7 +31,7 @@ def test_bench_operators_json(tmp_path, capsys):
 
 
 def test_recon_sweep_and_pareto():
-    from torchtof.bench.recon import pareto, sweep
+    from torchtof.apps.bench.recon import pareto, sweep
 
     rows = sweep(ns=(16,), srs=(0.25,), scenes=("sky", "steps"),
                  knobs={"PINV": [None], "TVAL3": [5, None]}, progress=False)
@@ -45,7 +45,7 @@ def test_recon_sweep_and_pareto():
 
 
 def test_reproduce_writes_everything(tmp_path):
-    from torchtof.reproduce import reproduce
+    from torchtof.apps.reproduce import reproduce
 
     res = reproduce(tmp_path, quick=True, realisations=1, methods=("CGI", "TVAL3"))
     for case in ("air", "air+gate", "scatter", "scatter+gate"):

@@ -5,8 +5,8 @@ import json
 import pytest
 import torch
 
+from torchtof.apps.depth_demo import DEPTH_METHODS, affine_fit, depth_curves, evaluate_depth
 from torchtof.cli import main
-from torchtof.depth_demo import DEPTH_METHODS, affine_fit, depth_curves, evaluate_depth
 from torchtof.experiment import PaperExperiment
 
 

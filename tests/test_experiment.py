@@ -101,11 +101,39 @@ def test_split_operator_matches_patterns(air):
         (dict(srs=()), ValueError, "srs"),
         (dict(scattering_model="fog"), ValueError, "scattering_model"),
         (dict(colour="red"), TypeError, "unknown arguments"),
+        (dict(gain_e_per_dn=0.0), ValueError, "gain_e_per_dn"),
+        (dict(gain_e_per_dn=-2.0), ValueError, "gain_e_per_dn"),
+        (dict(chunk_frames=0), ValueError, "chunk_frames"),
+        (dict(chunk_frames=-1), ValueError, "chunk_frames"),
+        (dict(chunk_frames=2.5), TypeError, "chunk_frames"),
+        (dict(n=12), ValueError, "n to be a power of two"),
+        (dict(n=32.0), TypeError, "n to be an int"),
+        (dict(order="zigzag"), ValueError, "order"),
+        (dict(adc_bits=0), ValueError, "adc_bits"),
+        (dict(step_m=0.0), ValueError, "step_m"),
+        (dict(min_m=5.0, max_m=1.0), ValueError, "max_m > min_m"),
+        (dict(dust_seed=1.5), TypeError, "dust_seed"),
     ],
 )
 def test_bad_config(kwargs, exc, match):
     with pytest.raises(exc, match=match):
         PaperExperiment(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        (dict(seed=1.5), TypeError, "PaperExperiment.run: expected seed to be an int"),
+        (dict(seed="0"), TypeError, "seed"),
+        (dict(realisations=0), ValueError, "realisations >= 1"),
+        (dict(realisations=2.0), TypeError, "realisations to be an int"),
+        (dict(dtype=torch.float16), TypeError, "dtype"),
+    ],
+)
+def test_bad_run_arguments(kwargs, exc, match):
+    exp = PaperExperiment(sr=0.125, n=8, roi_px=8, srs=(0.125,))
+    with pytest.raises(exc, match=match):
+        exp.run(**kwargs)
 
 
 def test_bad_sr_request(air):

@@ -85,7 +85,7 @@ def test_psnr_errors():
         psnr(x, torch.zeros(1, 1, 4, 3))
     with pytest.raises(ValueError, match="psnr: expected x_hat of rank 4"):
         psnr(x[0], x[0])
-    with pytest.raises(ValueError, match="psnr: expected bits >= 1"):
+    with pytest.raises(ValueError, match=r"psnr: expected bits in \[1, 64\]"):
         psnr(x, x, bits=0)
     with pytest.raises(TypeError, match="psnr: expected bits to be an int or None"):
         psnr(x, x, bits=8.0)
@@ -233,3 +233,22 @@ def test_compare_protocol():
     torch.testing.assert_close(out["psnr"], ref)
     with pytest.raises(ValueError, match="compare: expected polarity in"):
         compare(neg, x, polarity="abs")
+
+
+def test_metrics_do_not_overflow_on_finite_input():
+    # SSIM of x̂ = 0 against a constant c with c = 0.01·L: μ terms (c1)/(c² + c1) = 1/2,
+    # σ terms c2/c2 = 1, so SSIM = 0.5 at every pixel, for L = 1 as for L = 1e30.
+    z = torch.zeros(1, 1, 8, 8)
+    for big in (1.0, 1e30):
+        torch.testing.assert_close(ssim(z, z + 0.01 * big, data_range=big), torch.tensor([0.5]))
+    torch.testing.assert_close(ssim(z + 5e29, z + 5e29, data_range=1e30), torch.tensor([1.0]))
+    # min-max of [−3e38, 0, 3e38]: (x − min)/(max − min) = 0, 1/2, 1
+    out = normalize_image(torch.tensor([-3e38, 0.0, 3e38]).view(1, 1, 1, 3))
+    torch.testing.assert_close(out, torch.tensor([0.0, 0.5, 1.0]).view(1, 1, 1, 3))
+    # PSNR at 64 bits: MSE on [0, 1] = 0.1² = 0.01 -> 20 dB (MAX² cancels), quantised too
+    # (0.1·(2^64 − 1) rounds to an integer within 1 ulp)
+    for q in (False, True):
+        torch.testing.assert_close(psnr(z, z + 0.1, bits=64, quantize=q), torch.tensor([20.0]))
+    # far outside [0, 1]: MSE = (6e38)² = 3.6e77 -> −10·log10(3.6e77) = −775.563 dB
+    got = psnr(z + 3e38, z - 3e38, bits=None)
+    torch.testing.assert_close(got, torch.tensor([-10 * (math.log10(3.6) + 77)]))

@@ -17,7 +17,10 @@ import pytest
 import torch
 
 import torchtof.onnx as tto
+from torchtof.apps.onnx_models import MODELS, export_model
 from torchtof.operators import Hadamard
+from torchtof.recon import TVAL3, BasisPursuit
+from torchtof.sensor import CameraReadout, camera_readout
 from torchtof.sensor.functional import correlation_taps, phasor_from_depth
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +44,7 @@ def exported(tmp_path_factory):
 
     def get(name):
         if name not in cache:
-            spec = tto.MODELS[name]
+            spec = MODELS[name]
             n, sr, kw = _spec_args(name)
             module, inputs = spec(n, sr, **kw)
             path = tto.export(
@@ -79,18 +82,18 @@ def test_registry_covers_the_issue():
         "unet",
         "dip",
     }
-    assert wanted <= set(tto.MODELS)
-    for spec in tto.MODELS.values():
+    assert wanted <= set(MODELS)
+    for spec in MODELS.values():
         assert spec.exporter in tto.EXPORTERS
         assert set(spec.shapes) == set(spec.inputs) | set(spec.outputs)
 
 
-@pytest.mark.parametrize("name", list(tto.MODELS))
+@pytest.mark.parametrize("name", list(MODELS))
 def test_export_and_parity(name, exported):
     module, path = exported(name)
     model = onnx.load(path)
     assert {o.domain: o.version for o in model.opset_import}[""] == tto.DEFAULT_OPSET
-    spec = tto.MODELS[name]
+    spec = MODELS[name]
     assert [i.name for i in model.graph.input] == list(spec.inputs)
     assert [o.name for o in model.graph.output] == list(spec.outputs)
     for value in list(model.graph.input) + list(model.graph.output):
@@ -112,14 +115,14 @@ def test_export_and_parity(name, exported):
 
 
 def test_unrolled_uses_the_shipped_weights():
-    net, _ = tto.MODELS["unrolled_tval3"](32, 0.25)
+    net, _ = MODELS["unrolled_tval3"](32, 0.25)
     assert net.weights_file is not None and Path(net.weights_file).is_file()
 
 
 def test_check_detects_a_different_model(exported, tmp_path):
     module, path = exported("g2")
-    _, (y,) = tto.MODELS["g2"](N, SR, batch=3, seed=1)
-    other, _ = tto.MODELS["tgi"](N, SR)
+    _, (y,) = MODELS["g2"](N, SR, batch=3, seed=1)
+    other, _ = MODELS["tgi"](N, SR)
     with pytest.raises(AssertionError, match="differs from PyTorch"):
         tto.check(path, other, (y,))
 
@@ -140,14 +143,14 @@ def test_export_errors(tmp_path):
     with pytest.raises(ValueError, match="OperatorMethod: expected method"):
         tto.OperatorMethod(Hadamard(8, sr=0.5), "normal")
     with pytest.raises(ValueError, match="export_model: expected name in"):
-        tto.export_model("nope", path=tmp_path / "a.onnx")
+        export_model("nope", path=tmp_path / "a.onnx")
     with pytest.raises(ValueError, match="n_iter given for a model without iterations"):
-        tto.MODELS["g2"](N, SR, n_iter=3)
+        MODELS["g2"](N, SR, n_iter=3)
     assert not (tmp_path / "a.onnx").exists()
 
 
 def test_export_model_static_batch_opset17(tmp_path):
-    path = tto.export_model(
+    path = export_model(
         "hadamard_adjoint",
         n=8,
         sr=0.5,
@@ -159,23 +162,46 @@ def test_export_model_static_batch_opset17(tmp_path):
     model = onnx.load(path)
     assert {o.domain: o.version for o in model.opset_import}[""] == 17
     assert model.graph.input[0].type.tensor_type.shape.dim[0].dim_value == 2
-    module, (y,) = tto.MODELS["hadamard_adjoint"](8, 0.5)
+    module, (y,) = MODELS["hadamard_adjoint"](8, 0.5)
     tto.check(path, module, (y,))
+
+
+def test_export_refuses_an_adaptive_solver_in_one_line(tmp_path):
+    A = Hadamard(8, sr=0.5)
+    y = torch.rand(2, 1, A.m)
+    for solver in (TVAL3(A), BasisPursuit(A)):
+        with pytest.raises(ValueError) as err:
+            tto.export(solver, y, tmp_path / "a.onnx")
+        msg = str(err.value)
+        assert "\n" not in msg and "adaptive=False" in msg and type(solver).__name__ in msg
+    assert not (tmp_path / "a.onnx").exists()
+
+
+def test_default_exporter_per_model():
+    """The tracer for iterative solvers (the dynamo exporter is slow on their unrolled
+    loops), dynamo for the rest; the registry's choices agree."""
+    A = Hadamard(8, sr=0.5)
+    assert tto.default_exporter(A) == "dynamo"
+    assert tto.default_exporter(tto.OperatorMethod(A, "pinv")) == "dynamo"
+    assert tto.default_exporter(TVAL3(A, max_iter=3, adaptive=False)) == "torchscript"
+    for name in ("hadamard", "g2", "camera", "tval3", "unrolled_tval3", "depth_resolved"):
+        module, _ = MODELS[name](*_spec_args(name)[:2], **_spec_args(name)[2])
+        assert tto.default_exporter(module) == MODELS[name].exporter, name
 
 
 def test_camera_readout_known_answer():
     depth = torch.tensor([0.3, 2.1, 3.37, 4.6]).view(1, 1, 2, 2)  # metres
     amp = torch.tensor([100.0, 100.0, 100.0, 0.0]).view(1, 1, 2, 2)
     taps = correlation_taps(phasor_from_depth(amp, depth, 30e6), offset=50.0)
-    amplitude, phase, d = tto.CameraReadout()(taps)
+    amplitude, phase, d = CameraReadout(step_m=0.25)(taps)
     # clip to 1 m, round to 0.25 m, dark pixel -> 5 m (paper §2.2); amplitude = |P|/2 (Eq. 8)
     assert d.flatten().tolist() == [1.0, 2.0, 3.25, 5.0]
     torch.testing.assert_close(amplitude.flatten(), torch.tensor([50.0, 50.0, 50.0, 0.0]))
     assert phase.shape == (1, 1, 2, 2)
-    same = tto.camera_readout(taps)
+    same = camera_readout(taps, step_m=0.25)
     assert all(torch.equal(a, b) for a, b in zip(same, (amplitude, phase, d), strict=True))
     with pytest.raises(ValueError, match="expected max_m > min_m"):
-        tto.CameraReadout(min_m=5.0, max_m=1.0)
+        CameraReadout(min_m=5.0, max_m=1.0)
 
 
 #: Run the example with an import hook that makes every ``import torch…`` raise ImportError.
@@ -219,7 +245,7 @@ def test_torch_blocker_blocks(tmp_path):
 @pytest.mark.parametrize("block_torch", [False, True], ids=["plain", "torch_blocked"])
 def test_example_runs_without_torch(exported, tmp_path, block_torch):
     module, path = exported("g2")
-    _, (y,) = tto.MODELS["g2"](N, SR, batch=3, seed=2)
+    _, (y,) = MODELS["g2"](N, SR, batch=3, seed=2)
     np.save(tmp_path / "buckets.npy", y.numpy())
     out = tmp_path / "image.npy"
     res = _run_example([str(path), str(tmp_path / "buckets.npy"), "--out", str(out)], block_torch)
@@ -232,7 +258,7 @@ def test_example_runs_without_torch(exported, tmp_path, block_torch):
 
 def test_example_single_bucket_vector(exported, tmp_path):
     module, path = exported("g2")
-    _, (y,) = tto.MODELS["g2"](N, SR, batch=2, seed=3)
+    _, (y,) = MODELS["g2"](N, SR, batch=2, seed=3)
     np.save(tmp_path / "b.npy", y[0, 0].numpy())  # (M,): batch and channel axes added
     res = _run_example([str(path), str(tmp_path / "b.npy"), "--quiet"], block_torch=True)
     assert res.returncode == 0, res.stderr
@@ -243,7 +269,7 @@ def test_example_single_bucket_vector(exported, tmp_path):
 
 
 def test_bench_onnx_smoke():
-    from torchtof.bench.onnx import bench_onnx, print_onnx
+    from torchtof.apps.bench.onnx import bench_onnx, print_onnx
 
     res = bench_onnx(
         models=["hadamard_adjoint"], batches=(1, 3), n=8, sr=0.5, compile=False, repeat=1

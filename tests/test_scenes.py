@@ -143,6 +143,10 @@ def test_depth_steps_errors():
         depth_steps(16, levels=(2.0,))
     with pytest.raises(ValueError, match="depth_steps: expected levels > 0"):
         depth_steps(16, levels=(2.0, -1.0))
+    with pytest.raises(TypeError, match="depth_steps: expected seed to be an int"):
+        depth_steps(16, seed=1.5)
+    with pytest.raises(ValueError, match="depth_steps: expected seed >= 0"):
+        depth_steps(16, seed=-1)
 
 
 # ---------------------------------------------------------------- scikit-image scenes

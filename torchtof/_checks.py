@@ -1,13 +1,17 @@
 """Input checks shared by every module.
 
 Each helper raises ``ValueError`` or ``TypeError`` with a message of the form
-``"<func>: expected <arg> ..., got ..."`` (see ``STYLE.md``). Data checks
-(NaN/Inf) only run in eager mode: under ``torch.jit``/``torch.onnx`` tracing
-they are skipped so exported graphs hold no data-dependent control flow.
+``"<func>: expected <arg> ..., got ..."``. Data checks (NaN/Inf) only run in eager mode:
+under ``torch.jit``/``torch.onnx``/``torch.compile`` tracing they are skipped so exported
+and compiled graphs hold no data-dependent control flow, and so are they for meta tensors
+(no data) and inside :func:`unchecked` (the loops of iterative solvers, whose inputs were
+checked once at entry: a NaN/Inf check reads the data back to the host, a device sync).
 """
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from collections.abc import Sequence
 
 import torch
@@ -21,20 +25,39 @@ __all__ = [
     "check_in_range",
     "check_power_of_two",
     "is_tracing",
+    "unchecked",
 ]
+
+_STATE = threading.local()
+
+
+class _Unchecked:
+    def __enter__(self) -> None:
+        _STATE.depth = getattr(_STATE, "depth", 0) + 1
+
+    def __exit__(self, *exc) -> None:
+        _STATE.depth -= 1
+
+
+def unchecked() -> contextlib.AbstractContextManager:
+    """Skip :func:`check_finite` in this thread while the block runs (for solver loops whose
+    inputs were validated once at the public entry; operator calls inside then do no host
+    sync). Nests; the shape and type checks still run. Under tracing (where the checks are
+    skipped anyway) it is a ``nullcontext``, so compiled graphs hold no state change."""
+    return contextlib.nullcontext() if is_tracing() else _Unchecked()
 
 
 def is_tracing() -> bool:
-    """True while ``torch.jit``/``torch.onnx``/``torch.compile`` trace the code."""
+    """True while ``torch.compile``/``torch.jit``/``torch.onnx`` trace the code."""
+    compiler = getattr(torch, "compiler", None)
+    if compiler is not None and compiler.is_compiling():  # first: dynamo folds it to a constant
+        return True
     if torch.jit.is_tracing() or torch.jit.is_scripting():
         return True
     try:
-        if torch.onnx.is_in_onnx_export():
-            return True
+        return bool(torch.onnx.is_in_onnx_export())
     except AttributeError:  # pragma: no cover - old torch
-        pass
-    compiler = getattr(torch, "compiler", None)
-    return bool(compiler is not None and compiler.is_compiling())
+        return False
 
 
 def check_tensor(x: object, name: str, func: str) -> torch.Tensor:
@@ -68,8 +91,9 @@ def check_shape(
 
 
 def check_finite(x: torch.Tensor, name: str, func: str) -> None:
-    """Raise ``ValueError`` if ``x`` holds NaN or Inf (eager mode only)."""
-    if is_tracing() or x.numel() == 0:
+    """Raise ``ValueError`` if ``x`` holds NaN or Inf (eager mode only; skipped for meta
+    tensors and inside :func:`unchecked`)."""
+    if is_tracing() or x.numel() == 0 or x.is_meta or getattr(_STATE, "depth", 0):
         return
     # NaN and ±Inf propagate through min/max: one pass, no bool temporary (this check sits on
     # every operator call, where isfinite(x).all() cost a quarter of a 64x64 forward)

@@ -1,161 +1,105 @@
 """``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``acquire``,
-``reconstruct``."""
+``reconstruct``.
+
+One error path: option values are checked by argparse before any work is done; a mistake
+prints one line naming the option and exits with status 2 (``--debug`` shows the
+traceback instead). Every command prints a one-line summary with where it wrote its files.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from pathlib import Path
 
 import torch
 
-__all__ = ["main"]
+from .apps.args import csv_list, positive_float, positive_int, sampling_rate
+
+__all__ = ["main", "build_parser"]
+
+#: ``bench`` subcommands.
+BENCHES = ("operators", "recon", "onnx", "tradeoff", "stability", "adaptive")
 
 
-def _print_rows(rows: list[dict]) -> None:
-    from .bench._timing import print_table
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows every option's default (``(default: …)``), leaves ``None`` defaults unsaid."""
 
-    table = []
-    for r in rows:
-        table.append({
-            "method": r["method"],
-            "gate": "3 m" if r.get("gate") else "none",
-            "PSNR dB": f"{r['psnr']:.2f}"
-            + (f" ± {r['psnr_std']:.2f}" if r.get("psnr_std") else ""),
-            "SSIM": f"{r['ssim']:.3f}",
-            "time s": f"{r['time_s']:.3f}" if r.get("time_s") is not None else "-",
-        })
-    print_table(table, ["method", "gate", "PSNR dB", "SSIM", "time s"])
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
 
 
-def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[str] | None = None,
-              title: str = "") -> Path:
-    """Save images as a labelled grid PNG (matplotlib; plain montage without it).
+def _methods() -> list[str]:
+    from .methods import METHODS
 
-    ``columns``: (label, tensor (R, 1, H, W)); each tensor's first ``len(rows)`` images fill
-    the rows (row ``r`` uses image ``r`` or the last one).
-    """
-    from .metrics import normalize_image
+    return list(METHODS)
 
-    rows = rows or [""]
-    imgs = [[normalize_image(t[min(r, t.shape[0] - 1) : min(r, t.shape[0] - 1) + 1].float())[0, 0]
-             for r in range(len(rows))] for _, t in columns]
-    path.parent.mkdir(parents=True, exist_ok=True)
+
+def _scene(text: str) -> str:
+    """A scene name of :func:`torchtof.scenes.get_scene`, checked by building it (n = 8)."""
+    from .scenes import get_scene
+
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - plot extra not installed
-        import numpy as np
-        from skimage.io import imsave
-
-        grid = np.concatenate(
-            [np.concatenate([c[r].numpy() for c in imgs], axis=1) for r in range(len(rows))]
-        )
-        imsave(str(path), (grid * 255).astype("uint8"), check_contrast=False)
-        return path
-    fig, axes = plt.subplots(len(rows), len(columns),
-                             figsize=(1.6 * len(columns), 1.75 * len(rows)), squeeze=False)
-    for c, (label, _) in enumerate(columns):
-        for r in range(len(rows)):
-            ax = axes[r][c]
-            ax.imshow(imgs[c][r].numpy(), cmap="gray", vmin=0, vmax=1)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(label, fontsize=8)
-            if c == 0 and rows[r]:
-                ax.set_ylabel(rows[r], fontsize=8)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+        get_scene(text, 8)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("get_scene: ")) from None
+    return text
 
 
+def _check_experiment(args: argparse.Namespace) -> None:
+    """The experiment of ``demo`` checked before it is simulated (n a power of two, SR
+    giving at least one pattern)."""
+    from .experiment import ExperimentConfig
+    from .operators import Hadamard
+
+    ExperimentConfig(n=args.n, scene=args.scene, roi_px=2 * args.n, srs=(args.sr,)).validate()
+    Hadamard(args.n, sr=args.sr)  # n a power of two in the supported range
+
+
+# ---------------------------------------------------------------------------------------------
+# commands
+# ---------------------------------------------------------------------------------------------
 def cmd_demo(args: argparse.Namespace) -> int:
-    if args.depth:  # depth-resolved ghost imaging (torchtof/depth_demo.py)
-        from .depth_demo import run_depth_demo
+    if args.depth:  # depth-resolved ghost imaging
+        from .apps.depth_demo import run_depth_demo
+
         return run_depth_demo(args)
     if args.auto:  # scene-adaptive acquisition and reconstruction (torchtof.adaptive)
-        from .adaptive.demo import demo_auto
+        from .apps.auto_demo import demo_auto
 
         return demo_auto(args)
-    from tqdm.auto import tqdm
+    from .apps.demo import run_demo
 
-    from .experiment import PaperExperiment
-    from .methods import DEFAULT_METHODS, evaluate, raw_tof_scores
-
-    torch.manual_seed(args.seed)
-    t_all = time.perf_counter()
-    exp = PaperExperiment(sr=args.sr, scattering=args.scattering, scene=args.scene, n=args.n,
-                          roi_px=2 * args.n, srs=(args.sr,))
-    print(f"torchtof demo: {exp}")
-    data = exp.run(seed=args.seed, realisations=args.realisations, progress=True)
-    print(f"simulated {data.buckets['depth'].shape[-1]} ToF frames of {exp.config.roi_px}x"
-          f"{exp.config.roi_px} px x {args.realisations} realisation(s) in "
-          f"{data.timings['simulate_s']:.1f} s")
-    methods = args.methods.split(",") if args.methods else list(DEFAULT_METHODS)
-    raw = raw_tof_scores(data)
-    rows = [{"method": "raw ToF", "gate": False, "time_s": None, **raw}]
-    images = {}
-    steps = [(gate, m) for gate in (False, True) for m in methods]
-    with tqdm(total=len(steps), desc="reconstructing", leave=False) as bar:
-        for gate in (False, True):
-            def tick(name, gate=gate):
-                bar.set_postfix_str(f"{name} ({'gate' if gate else 'no gate'})")
-                bar.update(1)
-
-            r, im = evaluate(data, args.sr, gate, methods, progress=tick)
-            rows += r
-            images[gate] = im
-    print(f"\nSR {args.sr:.2%}, scene {args.scene!r}, n={args.n}, "
-          f"{'through the scattering sheet' if args.scattering else 'in air'}; PSNR on the 8-bit "
-          f"scale after min-max normalisation and physics polarity (README 'Scoring')")
-    _print_rows(rows)
-    out = Path(args.out)
-    cols = [("object", data.x), ("raw ToF", data.raw_tof_image)]
-    # one row per gate setting; the raw ToF image has no gate
-    grid_cols = []
-    for label, t in cols:
-        grid_cols.append((label, torch.cat([t[:1], t[:1]])))
-    for m in methods:
-        grid_cols.append((m, torch.cat([images[False][m][:1], images[True][m][:1]])))
-    png = save_grid(out / "demo.png", grid_cols, rows=["no gate", "gate 3 m"],
-                    title=f"ToF-CGI at SR {args.sr:.2%} (cf. paper Fig. 5)")
-    (out / "demo.json").write_text(json.dumps(rows, indent=2))
-    print(f"\nwrote {png} and {out / 'demo.json'}; total {time.perf_counter() - t_all:.1f} s")
-    return 0
+    return run_demo(args)
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
+def _bench_result(args: argparse.Namespace):
     name = args.which
     if name == "operators":
-        from .bench.operators import bench_operators, print_operators
+        from .apps.bench.operators import bench_operators, print_operators
 
-        res = bench_operators(ns=tuple(args.n or (32, 64, 128, 256)), batch=args.batch, sr=args.sr)
-        print_operators(res)
-    elif name == "recon":
-        from .bench.recon import bench_recon, print_recon
+        res = bench_operators(ns=tuple(args.n or (32, 64, 128, 256)), batch=args.batch,
+                              sr=args.sr, progress=True)
+        return res, print_operators
+    if name == "recon":
+        from .apps.bench.recon import bench_recon, print_recon
 
-        res = bench_recon(quick=args.quick, plot=args.plot, out=args.out)
-        print_recon(res)
-    elif name == "onnx":
-        from .bench.onnx import bench_onnx, print_onnx
+        return bench_recon(quick=args.quick, plot=args.plot, out=args.out), print_recon
+    if name == "onnx":
+        from .apps.bench.onnx import bench_onnx, print_onnx
 
-        res = bench_onnx()
-        print_onnx(res)
-    elif name == "tradeoff":
-        from .bench.tradeoff import bench_tradeoff, print_tradeoff
+        return bench_onnx(progress=True), print_onnx
+    if name == "tradeoff":
+        from .apps.bench.tradeoff import bench_tradeoff, print_tradeoff
 
-        res = bench_tradeoff(quick=args.quick, out=args.out)
-        print_tradeoff(res)
-    elif name == "adaptive":
-        from .bench.adaptive import (
+        return bench_tradeoff(quick=args.quick, out=args.out), print_tradeoff
+    if name == "adaptive":
+        from .apps.bench.adaptive import (
             bench_adaptive,
             bench_adaptive_seeds,
             parse_seeds,
@@ -163,121 +107,211 @@ def cmd_bench(args: argparse.Namespace) -> int:
             print_adaptive_seeds,
         )
 
-        kw = dict(realisations=args.realisations or (3 if args.quick else 6), progress=False)
+        kw = dict(realisations=args.realisations or (3 if args.quick else 6), progress=True)
         if args.signal_e is not None:
             kw["signal_e"] = args.signal_e
         if args.noise is not None:
             kw["pipeline"] = {"noise": args.noise}
         if args.seeds is not None:
-            res = bench_adaptive_seeds(parse_seeds(args.seeds), **kw)
-            print_adaptive_seeds(res)
-        else:
-            res = bench_adaptive(seed=args.seed, **kw)
-            print_adaptive(res)
-    elif name == "stability":
-        from .bench.stability import bench_stability, print_stability
+            return bench_adaptive_seeds(parse_seeds(args.seeds), **kw), print_adaptive_seeds
+        return bench_adaptive(seed=args.seed, **kw), print_adaptive
+    from .apps.bench.stability import bench_stability, print_stability
 
-        res = bench_stability()
-        print_stability(res)
-    else:  # pragma: no cover - argparse restricts choices
-        raise ValueError(name)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(res, indent=2, default=str))
-        print(f"wrote {args.json}")
+    return bench_stability(progress=True), print_stability
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    res, show = _bench_result(args)
+    show(res)
+    path = Path(args.json) if args.json else Path(args.out) / f"bench_{args.which}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(res, indent=2, default=str))
+    rows = res.get("rows") if isinstance(res, dict) else None
+    count = f"{len(rows)} rows" if isinstance(rows, list) else "done"
+    print(f"\ntorchtof bench {args.which}: {count} in {time.perf_counter() - t0:.1f} s; "
+          f"wrote {path}")
     return 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from .reproduce import reproduce
+    from .apps.reproduce import reproduce
 
     reproduce(out=Path(args.out), quick=args.quick, realisations=args.realisations)
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .onnx import MODELS, export_model
+    from .apps.onnx_models import export_model
 
-    if args.model not in MODELS:
-        print(f"unknown model {args.model!r}; choose from {sorted(MODELS)}", file=sys.stderr)
-        return 2
-    path = export_model(args.model, n=args.n, sr=args.sr, path=args.output, opset=args.opset)
-    print(f"wrote {path}")
+    t0 = time.perf_counter()
+    path = args.output or Path(args.out) / f"{args.model}_n{args.n}_sr{args.sr:g}.onnx"
+    path = export_model(args.model, n=args.n, sr=args.sr, path=path, opset=args.opset)
+    print(f"torchtof export: {args.model} (n={args.n}, SR {args.sr:.2%}) in "
+          f"{time.perf_counter() - t0:.1f} s; wrote {path}")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="torchtof", description=__doc__)
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch intra-op threads (default 1: fastest for these problem sizes)")
-    sub = p.add_subparsers(dest="cmd", required=True)
+def cmd_train(args: argparse.Namespace) -> int:
+    from .recon.learned_train import main as train_main  # options: learned_train.add_arguments
 
-    d = sub.add_parser("demo", help="reconstruct the paper's experiment (SR 12.5 %%) and plot it")
-    d.add_argument("--sr", type=float, default=0.125)
-    d.add_argument("--scene", default="sky")
-    d.add_argument("--n", type=int, default=32)
-    d.add_argument("--scattering", action="store_true")
-    d.add_argument("--realisations", type=int, default=1)
-    d.add_argument("--methods", default=None, help="comma-separated subset, e.g. CGI,TVAL3")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--out", default="demo_out")
+    return train_main(args)
+
+
+# ---------------------------------------------------------------------------------------------
+# parser
+# ---------------------------------------------------------------------------------------------
+def _export_models() -> list[str] | None:
+    """Names of :data:`torchtof.apps.onnx_models.MODELS`; ``None`` without the onnx extra
+    (``export`` then reports the missing extra when run)."""
+    try:
+        from .apps.onnx_models import MODELS
+    except ImportError:
+        return None
+    return list(MODELS)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``torchtof`` parser with every subcommand (the hardware ones included)."""
+    p = argparse.ArgumentParser(prog="torchtof", description=__doc__, formatter_class=_Formatter)
+    p.add_argument("--threads", type=positive_int, default=1,
+                   help="torch intra-op threads for this run (the library itself keeps torch's "
+                        "default; one thread is fastest for these problem sizes and does not "
+                        "collapse on a busy machine, see README 'Threads')")
+    p.add_argument("--debug", action="store_true",
+                   help="show the Python traceback of an error instead of one line")
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+
+    d = sub.add_parser("demo", help="reconstruct the paper's experiment (SR 12.5 %%) and plot it",
+                       description="Simulate the paper's experiment and reconstruct it with "
+                       "every method, without and with the 3 m depth gate.")
+    d.add_argument("--sr", type=sampling_rate, default=0.125,
+                   help="sampling rate M/n² of the Hadamard patterns, in (0, 1]")
+    d.add_argument("--scene", type=_scene, default="sky",
+                   help="scene: sky, steps, motorcycle, slanted, steps_far, skimage:<name>, "
+                        "binary:<name>")
+    d.add_argument("--n", type=positive_int, default=32,
+                   help="DMD side in pixels (a power of two)")
+    d.add_argument("--scattering", action="store_true",
+                   help="image through the scattering sheet (paper Fig. 6)")
+    d.add_argument("--realisations", type=positive_int, default=1,
+                   help="noise realisations (PSNR mean ± std over them)")
+    d.add_argument("--methods", type=csv_list(_methods()), default=None,
+                   help=f"comma-separated subset of {','.join(_methods())} (default: all)")
+    d.add_argument("--seed", type=int, default=0, help="random seed of the noise")
+    d.add_argument("--out", default="demo_out", help="folder for the PNG and JSON")
     d.add_argument("--depth", nargs="?", const="motorcycle", default=None, metavar="SCENE",
-                   help="depth-resolved GI from per-tap buckets on SCENE (default motorcycle)")
+                   type=_scene, help="depth-resolved GI from per-tap buckets on SCENE "
+                   "(motorcycle when given without a value)")
     d.add_argument("--auto", action="store_true",
                    help="adaptive pipeline vs the fixed one (skip what the scene doesn't need)")
-    d.set_defaults(func=cmd_demo)
+    d.set_defaults(func=cmd_demo, check=_check_experiment, parser=d)
 
-    b = sub.add_parser("bench", help="benchmarks: operators, recon, onnx, tradeoff, stability, "
-                       "adaptive")
-    b.add_argument("which", choices=["operators", "recon", "onnx", "tradeoff", "stability",
-                                     "adaptive"])
-    b.add_argument("--n", type=int, nargs="*", default=None)
-    b.add_argument("--batch", type=int, default=16)
-    b.add_argument("--sr", type=float, default=0.25)
-    b.add_argument("--quick", action="store_true")
-    b.add_argument("--plot", action="store_true")
-    b.add_argument("--out", default="bench_out")
-    b.add_argument("--json", default=None, help="write the result as JSON to this path")
-    b.add_argument("--seed", type=int, default=0, help="adaptive: noise seed (default 0)")
+    b = sub.add_parser("bench", help="benchmarks: " + ", ".join(BENCHES),
+                       description="Run one benchmark, print its table and write its JSON.")
+    b.add_argument("which", choices=BENCHES, help="the benchmark")
+    b.add_argument("--n", type=positive_int, nargs="*", default=None,
+                   help="operators: DMD sides (default 32 64 128 256)")
+    b.add_argument("--batch", type=positive_int, default=16, help="operators: batch size")
+    b.add_argument("--sr", type=sampling_rate, default=0.25, help="operators: sampling rate")
+    b.add_argument("--quick", action="store_true",
+                   help="recon, tradeoff, adaptive: a smaller grid")
+    b.add_argument("--plot", action="store_true", help="recon: also write recon.png")
+    b.add_argument("--out", default="bench_out", help="folder for the JSON and PNGs")
+    b.add_argument("--json", default=None,
+                   help="write the result to this JSON file instead of OUT/bench_WHICH.json")
+    b.add_argument("--seed", type=int, default=0, help="adaptive: noise seed")
     b.add_argument("--seeds", default=None,
                    help="adaptive: several seeds, e.g. 0-5 or 0,3,7 (one table per seed)")
-    b.add_argument("--signal-e", type=float, default=None,
+    b.add_argument("--signal-e", type=positive_float, default=None,
                    help="adaptive: signal electrons (the paper's set-up: 400; 4000 = 10x light)")
     b.add_argument("--noise", choices=["repeat", "pairs"], default=None,
                    help="adaptive: noise estimate of the adaptive pipeline (default: "
                         "run_adaptive's)")
-    b.add_argument("--realisations", type=int, default=None,
+    b.add_argument("--realisations", type=positive_int, default=None,
                    help="adaptive: noise realisations per scene (default 6, --quick 3; the "
                         "empty field 4x)")
-    b.set_defaults(func=cmd_bench)
+    b.set_defaults(func=cmd_bench, check=_check_bench, parser=b)
 
-    r = sub.add_parser("reproduce", help="regenerate the paper's figures and PSNR table")
-    r.add_argument("--out", default="reproduce_out")
-    r.add_argument("--quick", action="store_true")
-    r.add_argument("--realisations", type=int, default=None)
+    r = sub.add_parser("reproduce", help="regenerate the paper's figures and PSNR table",
+                       description="Regenerate the paper's figures, PSNR table and claims.")
+    r.add_argument("--out", default="reproduce_out", help="folder for the figures and tables")
+    r.add_argument("--quick", action="store_true",
+                   help="2 realisations and 100 DIP steps instead of 5 and the full schedule")
+    r.add_argument("--realisations", type=positive_int, default=None,
+                   help="noise realisations per case (default 5, --quick 2)")
     r.set_defaults(func=cmd_reproduce)
 
-    e = sub.add_parser("export", help="export a model to ONNX")
-    e.add_argument("model")
-    e.add_argument("--n", type=int, default=32)
-    e.add_argument("--sr", type=float, default=0.25)
-    e.add_argument("--opset", type=int, default=None)
-    e.add_argument("-o", "--output", required=True)
+    e = sub.add_parser("export", help="export a model to ONNX (needs torchtof[onnx])",
+                       description="Export a registered model with realistic example inputs to "
+                       "ONNX (dynamic batch axis, validated by onnx.checker).")
+    models = _export_models()
+    e.add_argument("model", choices=models, metavar="MODEL",
+                   help="one of " + ", ".join(models) if models else "a model name (needs the "
+                   "onnx extra: pip install 'torchtof[onnx]')")
+    e.add_argument("--n", type=positive_int, default=32, help="DMD side (a power of two)")
+    e.add_argument("--sr", type=sampling_rate, default=0.25, help="sampling rate M/n²")
+    e.add_argument("--opset", type=int, choices=[17, 18], default=18, help="ONNX opset")
+    e.add_argument("--out", default="export_out", help="folder of the .onnx file")
+    e.add_argument("-o", "--output", default=None,
+                   help="the .onnx file (default OUT/MODEL_nN_srSR.onnx)")
     e.set_defaults(func=cmd_export)
+
+    t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)")
+    t.add_argument("--model", choices=["learned"], default="learned")
+    from .recon.learned_train import add_arguments as add_train_arguments
+
+    add_train_arguments(t)
+    t.set_defaults(func=cmd_train)
 
     from .hardware.cli import add_parsers as add_hardware_parsers  # acquire, reconstruct
 
     add_hardware_parsers(sub)
+    for sp in sub.choices.values():
+        sp.formatter_class = _Formatter
     return p
 
 
+def _check_bench(args: argparse.Namespace) -> None:
+    if args.which == "adaptive" and args.seeds is not None:
+        from .apps.bench.adaptive import parse_seeds
+
+        try:
+            parse_seeds(args.seeds)
+        except ValueError as exc:
+            raise ValueError(f"argument --seeds: {exc}") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    # Our problems are small (32–128 px images, ≤ 1k patterns): one intra-op thread is as fast
-    # and does not collapse when other processes share the cores (OpenMP spin-waiting made a
-    # 32×32 transform 500× slower with 2 threads on a loaded 2-core machine).
+    """Run ``torchtof ARGV``; returns the exit status (2 for a usage mistake)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check = getattr(args, "check", None)
+    if check is not None:  # cross-option checks, before any work
+        try:
+            check(args)
+        except ValueError as exc:
+            if args.debug:
+                raise
+            args.parser.error(_one_line(exc))
+    # The library keeps torch's default thread count; the CLI sets --threads (default 1): the
+    # problems are small (32–128 px images, ≤ 1k patterns), and OpenMP spin-waiting on a
+    # loaded machine makes two threads many times slower than one (README 'Threads').
     torch.set_num_threads(args.threads)
-    return args.func(args)
+    logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
+    try:
+        return args.func(args)
+    except (ValueError, TypeError, FileNotFoundError, NotADirectoryError, ImportError) as exc:
+        if args.debug:
+            raise
+        print(f"torchtof {args.cmd}: error: {_one_line(exc)} (--debug shows the traceback)",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

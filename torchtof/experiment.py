@@ -37,14 +37,16 @@ simulation at ``max(srs)`` serves every SR.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
 from ._checks import check_in_range, check_positive
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
+from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
 from .operators import DMDSplit, Hadamard
-from .operators.patterns import num_patterns
+from .operators.patterns import _check_n_order, num_patterns
 from .scenes import Scene, get_scene
 from .sensor import (
     add_multipath,
@@ -67,8 +69,6 @@ __all__ = [
     "stray_light",
 ]
 
-#: The paper's sampling rates (Figs. 5, 7–13).
-PAPER_SRS: tuple[float, ...] = (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375)
 
 #: PSNR (dB) the paper reports (DESIGN.md §3): (case, SR) -> {method: dB}.
 PAPER_PSNR: dict[tuple[str, float], dict[str, float]] = {
@@ -143,6 +143,26 @@ class ExperimentConfig:
 
     def validate(self) -> ExperimentConfig:
         func = "ExperimentConfig"
+        _check_n_order(self.n, self.order, func)
+        for name in ("roi_px", "chunk_frames"):
+            _check_int(getattr(self, name), name, func, lo=1)
+        for name in ("stray_seed", "dust_seed"):
+            _check_int(getattr(self, name), name, func)
+        if self.adc_bits is not None:
+            _check_int(self.adc_bits, "adc_bits", func, lo=1, hi=32)
+        if self.gain_e_per_dn is not None:
+            check_positive(self.gain_e_per_dn, "gain_e_per_dn", func)
+        if self.step_m is not None:
+            check_positive(self.step_m, "step_m", func)
+        for name in ("min_m", "max_m", "sheet_m", "multipath_extra_m", "stray_near_m",
+                     "stray_far_m", "multipath_sigma_px", "stray_sigma_px", "dust_sigma_px"):
+            check_positive(getattr(self, name), name, func, strict=False)
+        if not self.max_m > self.min_m:
+            raise ValueError(f"{func}: expected max_m > min_m, got min_m={self.min_m}, "
+                             f"max_m={self.max_m}")
+        if not isinstance(self.scattering, bool):
+            raise TypeError(f"{func}: expected scattering to be a bool, got "
+                            f"{type(self.scattering).__name__}")
         for name in ("signal_e", "freq_hz", "object_m", "gate_m"):
             check_positive(getattr(self, name), name, func)
         for name in ("ambient_e", "stray_e", "read_noise_e", "amp_threshold_e",
@@ -158,13 +178,23 @@ class ExperimentConfig:
                 f"{func}: expected scattering_model in ('phasor', 'depth'), "
                 f"got {self.scattering_model!r}"
             )
-        if not self.srs:
+        if not isinstance(self.srs, (tuple, list)) or not self.srs:
             raise ValueError(f"{func}: expected at least one sampling rate in srs, got {self.srs}")
         for sr in self.srs:
             num_patterns(self.n, sr=sr, func=func)
         if self.roi_px < self.n:
             raise ValueError(f"{func}: expected roi_px >= n ({self.n}), got {self.roi_px}")
         return self
+
+
+def _check_int(value: object, name: str, func: str, lo: int | None = None,
+               hi: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{func}: expected {name} to be an int, got {type(value).__name__}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        rng = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ValueError(f"{func}: expected {name} {rng}, got {value}")
+    return value
 
 
 def _smooth(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -346,8 +376,11 @@ class PaperExperiment:
         import time
 
         cfg = self.config
-        if isinstance(realisations, bool) or not isinstance(realisations, int) or realisations < 1:
-            raise ValueError(f"PaperExperiment.run: expected realisations >= 1, got {realisations}")
+        func = "PaperExperiment.run"
+        _check_int(realisations, "realisations", func, lo=1)
+        _check_int(seed, "seed", func)
+        if dtype not in (torch.float32, torch.float64):
+            raise TypeError(f"{func}: expected dtype torch.float32 or torch.float64, got {dtype}")
         t0 = time.perf_counter()
         gen = torch.Generator().manual_seed(seed)
         scene = self.scene(dtype)
@@ -366,7 +399,7 @@ class PaperExperiment:
         chunks = range(0, n_frames, cfg.chunk_frames)
         bar = None
         if progress:
-            from tqdm.auto import tqdm
+            from ._optional import progress_bar as tqdm
 
             bar = tqdm(total=realisations * len(chunks), desc="simulating ToF frames",
                        leave=False)

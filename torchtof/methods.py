@@ -24,15 +24,17 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 
 from .experiment import ExperimentData
 from .metrics import compare
-from .recon.correlation import CGI, DGI
-from .recon.pinv import PseudoInverse
+from .recon import registry
+from .recon.registry import ReconSpec
 
-__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores"]
+__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores",
+           "score_image"]
 
 
 @dataclass
@@ -50,53 +52,9 @@ class Method:
         return self.module(self.y)
 
 
-def _split(data: ExperimentData, sr: float, gate: bool, kind: str):
-    return data.split_operator(sr), data.split_buckets(sr, kind, gate)
-
-
 def _no_options(name: str, kwargs: dict) -> None:
     if kwargs:
         raise TypeError(f"build_method: {name} takes no options, got {sorted(kwargs)}")
-
-
-def _cgi(data, sr, gate, kind, **kwargs):
-    _no_options("CGI", kwargs)
-    s, y = _split(data, sr, gate, kind)
-    return Method("CGI", CGI(s), y)
-
-
-def _dgi(data, sr, gate, kind, **kwargs):
-    _no_options("DGI", kwargs)
-    s, y = _split(data, sr, gate, kind)
-    return Method("DGI", DGI(s), y)
-
-
-def _pinv(data, sr, gate, kind, **kwargs):
-    _no_options("PINV", kwargs)
-    A, y = data.measurements(sr, kind, gate)
-    return Method("PINV", PseudoInverse(A), y)
-
-
-def _bp(data, sr, gate, kind, **kwargs):
-    from .recon.bp import BasisPursuit
-
-    A, y = data.measurements(sr, kind, gate)
-    # noise-aware BPDN by default (module docstring)
-    return Method("BP", BasisPursuit(A, **{"eps": "auto", **kwargs}), y)
-
-
-def _tval3(data, sr, gate, kind, **kwargs):
-    from .recon.tval3 import TVAL3
-
-    A, y = data.measurements(sr, kind, gate)
-    return Method("TVAL3", TVAL3(A, **kwargs), y)
-
-
-def _unrolled(data, sr, gate, kind, **kwargs):
-    from .recon.unrolled import UnrolledTVAL3
-
-    A, y = data.measurements(sr, kind, gate)
-    return Method("Unrolled", UnrolledTVAL3(A, **kwargs), y)
 
 
 class _SignedDIP(torch.nn.Module):
@@ -104,41 +62,47 @@ class _SignedDIP(torch.nn.Module):
     on a dark background, so negative images (ungated depth buckets, a polarity known from the
     physics, paper §3.1) are fitted as ``A(−x) = −y`` and negated back (A is linear)."""
 
-    def __init__(self, A, sign: float, **kwargs) -> None:
+    def __init__(self, module: torch.nn.Module, sign: float) -> None:
         super().__init__()
-        from .recon.dip import DIP
-
-        self.dip, self.sign = DIP(A, **kwargs), sign
+        self.dip, self.sign = module, sign
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.sign * self.dip(self.sign * y)
 
 
-def _dip(data, sr, gate, kind, **kwargs):
-    A, y = data.measurements(sr, kind, gate)
-    sign = -1.0 if data.polarity(gate, kind) == "negative" else 1.0
-    return Method("DIP", _SignedDIP(A, sign, **kwargs), y, per_sample=True)
+def _build(spec: ReconSpec, data, sr, gate, kind, **kwargs) -> Method:
+    if spec.operator == "split":  # raw 0/1 DMD buckets (module docstring)
+        _no_options(spec.label, kwargs)
+        A, y = data.split_operator(sr), data.split_buckets(sr, kind, gate)
+    else:
+        if not spec.iterative:
+            _no_options(spec.label, kwargs)
+        A, y = data.measurements(sr, kind, gate)
+    module = spec.build(A, **kwargs)
+    if spec.positive_prior:
+        sign = -1.0 if data.polarity(gate, kind) == "negative" else 1.0
+        module = _SignedDIP(module, sign)
+    return Method(spec.label, module, y, per_sample=spec.per_sample)
 
 
-#: name -> builder(data, sr, gate, kind) -> Method, in the demo's column order.
+#: label -> builder(data, sr, gate, kind, **options) -> Method, read from the registry
+#: (:mod:`torchtof.recon.registry`).
 METHODS: dict[str, Callable[..., Method]] = {
-    "CGI": _cgi,
-    "DGI": _dgi,
-    "PINV": _pinv,
-    "BP": _bp,
-    "TVAL3": _tval3,
-    "Unrolled": _unrolled,
-    "DIP": _dip,
+    s.label: partial(_build, s) for s in registry.specs()
 }
-DEFAULT_METHODS: tuple[str, ...] = tuple(METHODS)
+#: the demo's columns, in order.
+DEFAULT_METHODS: tuple[str, ...] = ("CGI", "DGI", "PINV", "BP", "TVAL3", "Unrolled", "DIP")
 
 
 def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: str = "depth",
                  **options):
-    """Bind method ``name`` to the run; ``options`` go to its constructor (DIP only)."""
-    if name not in METHODS:
-        raise ValueError(f"build_method: expected name in {tuple(METHODS)}, got {name!r}")
-    return METHODS[name](data, sr, gate, kind, **options)
+    """Bind method ``name`` (a registry label or name) to the run; ``options`` go to its
+    constructor (iterative methods only) over the registry's defaults."""
+    try:
+        spec = registry.get(name)
+    except (ValueError, TypeError):
+        raise ValueError(f"build_method: expected name in {tuple(METHODS)}, got {name!r}") from None
+    return _build(spec, data, sr, gate, kind, **options)
 
 
 def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
@@ -148,6 +112,11 @@ def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str,
     std = (lambda t: float(t.std())) if p.numel() > 1 else (lambda t: 0.0)
     return {"psnr": float(p.mean()), "psnr_std": std(p), "ssim": float(q.mean()),
             "ssim_std": std(q)}
+
+
+def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+    """Mean ± std PSNR/SSIM of ``img`` (one image per realisation) against the object."""
+    return _scores(img, data, polarity)
 
 
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
@@ -161,7 +130,7 @@ def evaluate(
 ) -> tuple[list[dict], dict[str, torch.Tensor]]:
     """Run and score ``methods`` at ``sr``; returns (rows, images) — rows hold mean ± std over
     the realisations and the wall time of the whole batch. ``options[name]`` are constructor
-    keyword arguments of that method (e.g. ``{"DIP": {"n_iter": 100}}``)."""
+    keyword arguments of that method (e.g. ``{"DIP": {"max_iter": 100}}``)."""
     rows, images = [], {}
     polarity = data.polarity(gate, kind)
     for name in methods:
@@ -171,7 +140,7 @@ def evaluate(
         if not method.per_sample:  # one-off initialisation is not the method's run time
             with torch.no_grad():
                 method.module(method.y[:1])
-        with torch.no_grad() if name != "DIP" else torch.enable_grad():
+        with torch.enable_grad() if registry.get(name).per_sample else torch.no_grad():
             t0 = time.perf_counter()
             img = method()
             dt = time.perf_counter() - t0

@@ -39,6 +39,8 @@ Example:
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -148,17 +150,30 @@ def psnr(
             raise TypeError(
                 f"{func}: expected bits to be an int or None, got {type(bits).__name__}"
             )
-        if bits < 1:
-            raise ValueError(f"{func}: expected bits >= 1, got {bits}")
+        if not 1 <= bits <= 64:
+            raise ValueError(f"{func}: expected bits in [1, 64], got {bits}")
         peak = float(2**bits - 1)
-    a, b = x_hat * peak, x * peak
+    # MAX² cancels in MAX²/MSE_k, so the ratio is formed on the [0, 1] scale and in the log
+    # domain: PSNR = −10 log10(4 s² · mean((h/s)²)) with h = (x̂ − x)/2, s = max|h|. No
+    # square or product can overflow (bits = 64 squares 2^64 − 1 past float32, data far
+    # outside [0, 1] squares past any float), and the float16 floor does not underflow.
+    wide = torch.promote_types(x.dtype, torch.float32)
+    a, b = x_hat.to(wide), x.to(wide)
     if quantize:
-        a = a.clamp(0.0, peak).round()
-        b = b.clamp(0.0, peak).round()
-    mse = (a - b).pow(2).flatten(1).mean(1)
-    wide = torch.promote_types(mse.dtype, torch.float32)  # the floor underflows in float16
-    mse = mse.to(wide).clamp_min(peak**2 * 10.0 ** (-max_db / 10.0))
-    return _reduce(10.0 * torch.log10(peak**2 / mse), reduction, func).to(x.dtype)
+        a = (a * peak).clamp(0.0, peak).round()
+        b = (b * peak).clamp(0.0, peak).round()
+        h = (a - b) / (2.0 * peak)
+    else:
+        h = a / 2 - b / 2  # halves: no overflow of x̂ − x at ±3e38
+    h = h.flatten(1)
+    s = h.abs().amax(1) if h.shape[1] else h.new_zeros(h.shape[0])
+    some = s > 0
+    s_safe = torch.where(some, s, torch.ones_like(s))
+    inner = (h / s_safe.unsqueeze(1)).pow(2).mean(1)
+    inner = torch.where(some, inner, torch.ones_like(inner))
+    log_mse = math.log10(4.0) + 2.0 * torch.log10(s_safe) + torch.log10(inner)
+    db = torch.where(some, -10.0 * log_mse, torch.full_like(log_mse, max_db))
+    return _reduce(db.clamp_max(max_db), reduction, func).to(x.dtype)
 
 
 class PSNR(nn.Module):
@@ -234,7 +249,10 @@ def ssim(
             f"{func}: expected an odd window_size >= 3 with window_size // 2 < min(H, W) = "
             f"{min(x.shape[-2:])}, got {window_size}"
         )
-    smap = _kornia_ssim(x_hat, x, window_size, max_val=data_range, eps=0.0)
+    # SSIM is invariant under x -> x/L with c1, c2 scaled by 1/L² (numerator and
+    # denominator both scale by 1/L⁴): compare on the unit range, where (0.01·L)² and
+    # μ², σ² cannot overflow (L = 1e30 gave NaN in float32)
+    smap = _kornia_ssim(x_hat / data_range, x / data_range, window_size, max_val=1.0, eps=0.0)
     return _reduce(smap.flatten(1).mean(1), reduction, func)
 
 
@@ -365,8 +383,13 @@ def normalize_image(x: torch.Tensor, mode: str = "minmax") -> torch.Tensor:
         raise ValueError(f"{func}: expected mode in ('minmax', 'clip'), got {mode!r}")
     flat = x.flatten(1)
     lo = flat.min(1).values.view(-1, 1, 1, 1)
-    span = flat.max(1).values.view(-1, 1, 1, 1) - lo
-    return (x - lo) / torch.where(span > 0, span, torch.ones_like(span))
+    hi = flat.max(1).values.view(-1, 1, 1, 1)
+    # max − min overflows for images spanning more than the dtype's range ([−3e38, 3e38] in
+    # float32 gave NaN): halve both sides there (exact, a power of two)
+    scale = torch.where(torch.isfinite(hi - lo), torch.ones_like(lo), torch.full_like(lo, 0.5))
+    lo = lo * scale
+    span = hi * scale - lo
+    return (x * scale - lo) / torch.where(span > 0, span, torch.ones_like(span))
 
 
 class NormalizeImage(nn.Module):

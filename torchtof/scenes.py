@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import numbers
 from typing import NamedTuple
 
 import numpy as np
@@ -277,6 +278,10 @@ def depth_steps(
     if len(levels) < 2:
         raise ValueError(f"{func}: expected at least two levels, got {tuple(levels)}")
     lv = sorted((check_positive(v, "levels", func) for v in levels), reverse=True)
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+        raise TypeError(f"{func}: expected seed to be an int, got {type(seed).__name__}")
+    if seed < 0:
+        raise ValueError(f"{func}: expected seed >= 0, got {seed}")
     rng = np.random.default_rng(seed)
     c = np.arange(n, dtype=np.float64) + 0.5
     yy, xx = np.meshgrid(c, c, indexing="ij")

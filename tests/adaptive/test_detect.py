@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from torchtof.adaptive import dark_reference, detect_far_background, detect_veil
-from torchtof.bench.adaptive import _SceneExperiment, scene_type
+from torchtof.apps.bench.adaptive import _SceneExperiment, scene_type
 
 N = 16
 

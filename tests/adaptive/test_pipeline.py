@@ -5,7 +5,7 @@ import torch
 
 from torchtof import cli
 from torchtof.adaptive import AdaptiveResult, ProgressiveStop, run_adaptive, signed_buckets
-from torchtof.bench.adaptive import _SceneExperiment, flatness_psnr, scene_type
+from torchtof.apps.bench.adaptive import _SceneExperiment, flatness_psnr, scene_type
 
 N = 16
 
@@ -134,7 +134,7 @@ def test_bad_pipeline_options(kw, match):
 
 
 def test_cli_bench_adaptive_seed_and_light_options():
-    from torchtof.bench.adaptive import parse_seeds
+    from torchtof.apps.bench.adaptive import parse_seeds
 
     args = cli.build_parser().parse_args(["bench", "adaptive", "--seeds", "0-5", "--signal-e",
                                           "4000", "--realisations", "3"])
@@ -153,7 +153,7 @@ def test_cli_bench_adaptive_seed_and_light_options():
 
 @pytest.mark.slow  # two small benches (~5 s); the CLI parsing test above is the fast one
 def test_bench_adaptive_seeds_runs_each_seed():
-    from torchtof.bench.adaptive import bench_adaptive_seeds
+    from torchtof.apps.bench.adaptive import bench_adaptive_seeds
 
     res = bench_adaptive_seeds([0, 1], realisations=2, n=N, block=8, scenes=["empty"],
                                progress=False, signal_e=800.0)

@@ -8,6 +8,7 @@ from torchtof.operators import (
     PatternOperator,
     combine_split,
     hadamard_patterns,
+    sylvester,
 )
 
 from .registry import OPERATORS
@@ -166,6 +167,10 @@ def test_bad_inputs():
         PatternOperator(torch.zeros(3, 4, 5))
     with pytest.raises(TypeError, match="Hadamard"):
         DMDSplit(PatternOperator(torch.ones(2, 4, 4)))
+    with pytest.raises(ValueError, match=r"PatternOperator: .*n >= 1, got \(3, 0, 0\)"):
+        PatternOperator(torch.zeros(3, 0, 0))
+    with pytest.raises(TypeError, match="PatternOperator: expected patterns to be a real tensor"):
+        PatternOperator(torch.ones(3, 4, 4, dtype=torch.complex64))
     with pytest.raises(ValueError, match="even"):
         combine_split(torch.zeros(1, 1, 3), 4)
 
@@ -202,3 +207,41 @@ def test_auto_method_by_size():
     assert Hadamard(32, sr=0.25).method == "matmul"
     assert Hadamard(64, sr=0.25).method == "kron"
     assert Hadamard(256, m=10).method == "kron"
+
+
+def test_sylvester_result_is_not_shared_with_operators():
+    # H_8 written into must not reach the cache behind Hadamard buffers: an operator built
+    # before and one built after must both still have ±1 rows with A Aᵀ = I.
+    before = Hadamard(8, m=64, method="matmul")
+    h = sylvester(8)
+    h[h < 0] = 0
+    h2 = sylvester(8)
+    assert torch.equal(h2.abs(), torch.ones(8, 8))  # a fresh ±1 matrix again
+    after = Hadamard(8, m=64, method="matmul")
+    eye = torch.eye(64, dtype=torch.float64)
+    for op in (before, after):
+        assert torch.equal(op.h.abs(), torch.ones(8, 8))
+        a = op.matrix()
+        torch.testing.assert_close(a @ a.T, eye, rtol=0, atol=1e-12)
+    # the kron path's factors come from the same cache
+    hk = sylvester(16)
+    hk.zero_()
+    a = Hadamard(64, m=16, method="kron").matrix()
+    torch.testing.assert_close(a @ a.T, torch.eye(16, dtype=torch.float64), rtol=0, atol=1e-12)
+
+
+def test_hadamard_finite_when_the_result_fits():
+    # a constant 1e36 on 32x32: the all-ones row (first in cake-cutting order) gives
+    # Σx / n = 1024·1e36 / 32 = 3.2e37 < 3.4e38 = float32 max, every other row 0.
+    a = Hadamard(32, sr=0.25)
+    y = a(torch.full((1, 1, 32, 32), 1e36))
+    assert torch.isfinite(y).all()
+    torch.testing.assert_close(y[0, 0, 0], torch.tensor(3.2e37), rtol=1e-6, atol=0)
+    assert y[0, 0, 1:].abs().max() <= 1e-6 * 3.2e37
+    # back: Aᵀ(3.2e37·e₀) = 3.2e37 / 32 on every pixel = 1e36
+    x = a.adjoint(torch.nn.functional.one_hot(torch.tensor([[0]]), a.m).float() * 3.2e37)
+    torch.testing.assert_close(x, torch.full((1, 1, 32, 32), 1e36), rtol=1e-6, atol=0)
+    # the DMD split: φ⁺ of the all-ones row is all ones, Σx = 1024·1e34 = 1.024e37; φ⁻ = 0
+    ys = DMDSplit(a)(torch.full((1, 1, 32, 32), 1e34))
+    assert torch.isfinite(ys).all()
+    torch.testing.assert_close(ys[0, 0, :2], torch.tensor([1.024e37, 0.0]), rtol=1e-6, atol=1e31)

@@ -392,9 +392,10 @@ def test_onnx_export_with_the_unrolled_reconstructor_inside(tmp_path):
     import numpy as np
 
     import torchtof.onnx as tto
+    from torchtof.apps.onnx_models import MODELS, export_model
 
-    path = tto.export_model("depth_resolved", n=32, sr=0.25, path=tmp_path / "d.onnx")
-    module, (y,) = tto.MODELS["depth_resolved"](32, 0.25, batch=3, seed=4)
+    path = export_model("depth_resolved", n=32, sr=0.25, path=tmp_path / "d.onnx")
+    module, (y,) = MODELS["depth_resolved"](32, 0.25, batch=3, seed=4)
     assert isinstance(module.net.reconstructor, UnrolledTVAL3)
     assert module.net.reconstructor.weights_file is not None
     report = tto.check(path, module, (y,))

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from torchtof.operators import Hadamard, PatternOperator
-from torchtof.recon._tv import tv_norm
 from torchtof.recon.dip import (
     DIP,
     ZETA_KAPPA,
@@ -21,10 +20,11 @@ from torchtof.recon.dip import (
     dip_input,
     fit_dip,
 )
+from torchtof.recon.tv import tv_norm
 from torchtof.recon.unet import UNet
 
 N = 16
-FAST = {"n_iter": 20}
+FAST = {"max_iter": 20}
 
 
 def _scene(b=1, c=1, dtype=torch.float32):
@@ -42,7 +42,7 @@ def A():
 
 
 def test_fit_dip_smoke(A):
-    res = fit_dip(A, A(_scene()), **FAST)
+    res = fit_dip(A(_scene()), A, **FAST)
     assert res.x.shape == res.x_cal.shape == (1, 1, N, N)
     assert res.x0.shape == (1, 1, N, N)
     assert float(res.x.min()) == 0.0 and float(res.x.max()) == 1.0
@@ -53,32 +53,32 @@ def test_fit_dip_smoke(A):
 
 def test_fit_dip_dtype(A, dtype):
     y = A(_scene(dtype=dtype))
-    res = fit_dip(A, y, n_iter=5)
+    res = fit_dip(y, A, max_iter=5)
     assert res.x.dtype == res.x_cal.dtype == dtype
     assert next(res.unet.parameters()).dtype == dtype
 
 
 def test_deterministic_bitwise(A):
     y = A(_scene())
-    r1 = fit_dip(A, y, **FAST, seed=3)
-    r2 = fit_dip(A, y, **FAST, seed=3)
-    r3 = fit_dip(A, y, **FAST, seed=4)
+    r1 = fit_dip(y, A, **FAST, seed=3)
+    r2 = fit_dip(y, A, **FAST, seed=3)
+    r3 = fit_dip(y, A, **FAST, seed=4)
     assert torch.equal(r1.x, r2.x) and torch.equal(r1.loss_history, r2.loss_history)
     assert not torch.equal(r1.x, r3.x)
 
 
 def test_fit_under_no_grad_and_inference_mode(A):
     y = A(_scene())
-    want = fit_dip(A, y, n_iter=5).x
+    want = fit_dip(y, A, max_iter=5).x
     with torch.no_grad():
-        assert torch.equal(fit_dip(A, y, n_iter=5).x, want)
+        assert torch.equal(fit_dip(y, A, max_iter=5).x, want)
     with torch.inference_mode():
         y_inf = A(_scene())
-        assert torch.equal(DIP(A, n_iter=5, output="unit")(y_inf), want)
+        assert torch.equal(DIP(A, max_iter=5, output="unit")(y_inf), want)
 
 
 def test_progress_bar(A, capsys):
-    res = fit_dip(A, A(_scene()), n_iter=3, progress=True)
+    res = fit_dip(A(_scene()), A, max_iter=3, progress=True)
     assert res.n_iter == 3 and "fit_dip" in capsys.readouterr().err
 
 
@@ -86,13 +86,13 @@ def test_global_rng_untouched(A):
     torch.manual_seed(123)
     want = torch.rand(3)
     torch.manual_seed(123)
-    fit_dip(A, A(_scene()), n_iter=2)
+    fit_dip(A(_scene()), A, max_iter=2)
     assert torch.equal(torch.rand(3), want)
 
 
 def test_loss_decreases_and_fits(A):
     x = _scene()
-    res = fit_dip(A, A(x), n_iter=60)
+    res = fit_dip(A(x), A, max_iter=60)
     assert res.loss_history[-1] < 0.2 * res.loss_history[0]
     # the fitted image is closer to the scene than the pseudo-inverse image
     pinv = A.pinv(A(x))
@@ -101,7 +101,7 @@ def test_loss_decreases_and_fits(A):
 
 
 def test_eval_unet_reproduces_image(A):
-    res = fit_dip(A, A(_scene()), **FAST)
+    res = fit_dip(A(_scene()), A, **FAST)
     with torch.no_grad():
         out = res.unet(res.x0)
         train_out = copy.deepcopy(res.unet).train()(res.x0)
@@ -111,7 +111,7 @@ def test_eval_unet_reproduces_image(A):
 
 
 def test_exported_unet_reproduces_image(A):
-    res = fit_dip(A, A(_scene()), **FAST)
+    res = fit_dip(A(_scene()), A, **FAST)
     buf = io.BytesIO()
     torch.onnx.export(
         res.unet,
@@ -139,8 +139,8 @@ def test_scale_invariance_and_calibration(A):
     """Known answer: the loss and the input are invariant to the scale of ``y``; a power-of-two
     scale is exact in floating point, so ``x`` is bitwise equal and ``x_cal`` scales."""
     y = A(_scene())
-    r1 = fit_dip(A, y, **FAST)
-    r2 = fit_dip(A, 4 * y, **FAST)
+    r1 = fit_dip(y, A, **FAST)
+    r2 = fit_dip(4 * y, A, **FAST)
     assert torch.equal(r1.x, r2.x)
     torch.testing.assert_close(r2.x_cal, 4 * r1.x_cal, rtol=1e-4, atol=1e-5)
 
@@ -151,7 +151,7 @@ def test_calibrated_image_units(A):
     x = _scene()
     for scene in (x, 3 - 2 * x):
         y = A(scene)
-        res = fit_dip(A, y, n_iter=80)
+        res = fit_dip(y, A, max_iter=80)
         assert torch.linalg.vector_norm(A(res.x_cal) - y) < 0.25 * torch.linalg.vector_norm(y)
         assert torch.corrcoef(torch.stack([res.x_cal.flatten(), scene.flatten()]))[0, 1] > 0.9
 
@@ -186,9 +186,8 @@ def test_wmv_early_stop_triggers(A):
     # the learning rate collapses after the first step, so the outputs freeze: the window
     # variance reaches 0 at t = 3 and never improves again
     res = fit_dip(
-        A,
-        A(_scene()),
-        n_iter=100,
+        A(_scene()), A,
+        max_iter=100,
         early_stop="wmv",
         window=3,
         patience=4,
@@ -199,7 +198,7 @@ def test_wmv_early_stop_triggers(A):
 
 
 def test_wmv_returns_best_network(A):
-    res = fit_dip(A, A(_scene()), n_iter=40, early_stop="wmv", window=5, patience=100)
+    res = fit_dip(A(_scene()), A, max_iter=40, early_stop="wmv", window=5, patience=100)
     with torch.no_grad():
         out = res.unet(res.x0)
     torch.testing.assert_close(
@@ -210,9 +209,9 @@ def test_wmv_returns_best_network(A):
 
 def test_discrepancy_stop(A):
     y = A(_scene())
-    loose = fit_dip(A, y, n_iter=50, early_stop="discrepancy", noise_sigma=10.0)
+    loose = fit_dip(y, A, max_iter=50, early_stop="discrepancy", noise_sigma=10.0)
     assert loose.n_iter == 1 and loose.best_iter == 0
-    tight = fit_dip(A, y, n_iter=50, early_stop="discrepancy", noise_sigma=0.05)
+    tight = fit_dip(y, A, max_iter=50, early_stop="discrepancy", noise_sigma=0.05)
     res = A(tight.x_cal) - y
     assert tight.n_iter < 50 and float((res**2).sum()) <= A.m * 0.05**2 * 1.001
 
@@ -224,14 +223,14 @@ def test_explicit_x0_and_unet_not_modified(A):
     net = UNet(in_ch=2, base=4, depth=2)
     state = copy.deepcopy(net.state_dict())
     y_copy, x0_copy = y.clone(), x0.clone()
-    res = fit_dip(A, y, x0=x0, unet=net, n_iter=5)
+    res = fit_dip(y, A, x0=x0, unet=net, max_iter=5)
     assert res.unet is not net and res.unet.in_ch == 2
     assert all(torch.equal(v, state[k]) for k, v in net.state_dict().items())
     assert torch.equal(y, y_copy) and torch.equal(x0, x0_copy) and torch.equal(res.x0, x0)
 
 
 def test_dip_input(A):
-    x0 = dip_input(A, A(_scene(b=2)))
+    x0 = dip_input(A(_scene(b=2)), A)
     assert x0.shape == (2, 1, N, N)
     torch.testing.assert_close(x0.mean(dim=(-2, -1)), torch.zeros(2, 1), atol=1e-5, rtol=0)
     torch.testing.assert_close(x0.std(dim=(-2, -1), unbiased=False), torch.ones(2, 1))
@@ -252,7 +251,7 @@ def test_tv_weight_is_effective(A):
     y = A(_scene())
     rel_tv = []
     for zeta in (0.0, 3.0):
-        res = fit_dip(A, y, n_iter=40, zeta=zeta, early_stop=None)
+        res = fit_dip(y, A, max_iter=40, zeta=zeta, early_stop=None)
         with torch.no_grad():
             out = res.unet(res.x0)
         rel_tv.append(float(tv_norm(out).sum() / out.std(unbiased=False)))
@@ -267,7 +266,7 @@ def test_default_unet_depth():
 def test_general_operator():
     g = torch.Generator().manual_seed(0)
     P = PatternOperator((torch.rand(64, N, N, generator=g) > 0.5).float())
-    res = fit_dip(P, P(_scene()), n_iter=5)
+    res = fit_dip(P(_scene()), P, max_iter=5)
     assert res.x.shape == (1, 1, N, N)
 
 
@@ -275,33 +274,33 @@ def test_general_operator():
 def test_dip_shapes_module_and_stacked(A, b, c):
     y = A(_scene(b, c))
     y_copy = y.clone()
-    out = dip(A, y, n_iter=5)
+    out = dip(y, A, max_iter=5)
     assert out.shape == (b, c, N, N)
-    torch.testing.assert_close(DIP(A, n_iter=5)(y), out, rtol=0, atol=0)
-    singles = torch.cat([dip(A, y[i : i + 1], n_iter=5) for i in range(b)])
+    torch.testing.assert_close(DIP(A, max_iter=5)(y), out, rtol=0, atol=0)
+    singles = torch.cat([dip(y[i : i + 1], A, max_iter=5) for i in range(b)])
     torch.testing.assert_close(out, singles, rtol=0, atol=0)
     assert torch.equal(y, y_copy)
 
 
 def test_dip_outputs(A):
     y = A(_scene())
-    res = fit_dip(A, y, n_iter=5)
-    torch.testing.assert_close(dip(A, y, n_iter=5, output="unit"), res.x, rtol=0, atol=0)
-    torch.testing.assert_close(dip(A, y, n_iter=5), res.x_cal, rtol=0, atol=0)
-    x0 = dip_input(A, y)
-    torch.testing.assert_close(dip(A, y, x0=x0, n_iter=5), res.x_cal, rtol=0, atol=0)
+    res = fit_dip(y, A, max_iter=5)
+    torch.testing.assert_close(dip(y, A, max_iter=5, output="unit"), res.x, rtol=0, atol=0)
+    torch.testing.assert_close(dip(y, A, max_iter=5), res.x_cal, rtol=0, atol=0)
+    x0 = dip_input(y, A)
+    torch.testing.assert_close(dip(y, A, x0=x0, max_iter=5), res.x_cal, rtol=0, atol=0)
 
 
 def test_dip_dtype(A, dtype):
     y = A(_scene(dtype=dtype))
-    assert DIP(A, n_iter=3)(y).dtype == dtype
+    assert DIP(A, max_iter=3)(y).dtype == dtype
 
 
 @pytest.mark.parametrize(
     ("kw", "exc", "match"),
     [
-        ({"n_iter": 0}, ValueError, "fit_dip: expected n_iter >= 1, got 0"),
-        ({"n_iter": 2.0}, TypeError, "fit_dip: expected n_iter to be an int"),
+        ({"max_iter": 0}, ValueError, "fit_dip: expected max_iter >= 1, got 0"),
+        ({"max_iter": 2.0}, TypeError, "fit_dip: expected max_iter to be an int"),
         ({"lr": -1.0}, ValueError, "fit_dip: expected lr > 0"),
         ({"zeta": -1.0}, ValueError, "fit_dip: expected zeta >= 0"),
         ({"zeta": "high"}, ValueError, "fit_dip: expected zeta >= 0 or 'auto', got 'high'"),
@@ -317,25 +316,25 @@ def test_dip_dtype(A, dtype):
 )
 def test_fit_dip_bad_options(A, kw, exc, match):
     with pytest.raises(exc, match=match):
-        fit_dip(A, A(_scene()), **kw)
+        fit_dip(A(_scene()), A, **kw)
 
 
 def test_fit_dip_bad_data(A):
     y = A(_scene())
     with pytest.raises(ValueError, match=r"fit_dip: expected y of shape \(\*, \*, 64\), got"):
-        fit_dip(A, y[..., :-1])
+        fit_dip(y[..., :-1], A)
     bad = y.clone()
     bad[..., 3] = float("nan")
     with pytest.raises(ValueError, match="fit_dip: y contains non-finite values"):
-        fit_dip(A, bad)
+        fit_dip(bad, A)
     with pytest.raises(ValueError, match=r"fit_dip: expected y of shape \(1, 1, 64\) \(one image"):
-        fit_dip(A, y.repeat(2, 1, 1))
+        fit_dip(y.repeat(2, 1, 1), A)
     with pytest.raises(ValueError, match="fit_dip: y is constant"):
-        fit_dip(A, torch.ones_like(y))
+        fit_dip(torch.ones_like(y), A)
     with pytest.raises(TypeError, match="fit_dip: expected A to be a LinearOperator"):
-        fit_dip(torch.nn.Identity(), y)
+        fit_dip(y, torch.nn.Identity())
     with pytest.raises(TypeError, match="fit_dip: expected y of dtype float32 or float64"):
-        fit_dip(A, y.half())
+        fit_dip(y.half(), A)
     with pytest.raises(
         ValueError, match=r"dip: expected y of rank 3 \(B, C, M\), got shape \(1, 64"
     ):
@@ -348,10 +347,10 @@ def test_fit_dip_bad_depth(A):
         ValueError,
         match="fit_dip: expected n divisible by 2\\^depth = 16 with a bottleneck of at least 2x2",
     ):
-        fit_dip(A, y, unet=UNet(depth=4), n_iter=2)
+        fit_dip(y, A, unet=UNet(depth=4), max_iter=2)
     P = PatternOperator(torch.rand(30, 12, 12, generator=torch.Generator().manual_seed(0)))
     with pytest.raises(ValueError, match="fit_dip: expected n divisible by 2\\^depth = 8"):
-        fit_dip(P, P(torch.rand(1, 1, 12, 12)), unet=UNet(depth=3), n_iter=2)
+        fit_dip(P(torch.rand(1, 1, 12, 12)), P, unet=UNet(depth=3), max_iter=2)
 
 
 def test_bad_module_config(A):

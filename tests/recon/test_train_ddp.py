@@ -116,7 +116,7 @@ def test_ddp_two_processes_train_the_single_process_model(tmp_path):
     assert meta["world_size"] == 2 and meta["batch_size"] == 8 and meta["steps"] == 5
 
     single = train_unrolled(
-        n=16, sr=0.25, n_iter=3, steps=5, batch_size=8, seed=3, distributed=False
+        n=16, sr=0.25, n_layers=3, steps=5, batch_size=8, seed=3, distributed=False
     ).model
     untrained = UnrolledTVAL3(single.A, n_iter=3, pretrained=False)
     for name in PARAM_NAMES:

@@ -10,12 +10,11 @@ import pytest
 import torch
 
 from torchtof.operators import Hadamard, PatternOperator, random_binary_patterns
-from torchtof.recon._tv import grad2, grad2_adjoint
+from torchtof.recon.tv import grad2, grad2_adjoint
 from torchtof.recon.tval3 import (
+    STOP_REASONS,
     TVAL3,
     TVAL3Result,
-    _exact_factors,
-    _exact_solve,
     bucket_noise_sigma,
     tval3,
 )
@@ -286,27 +285,6 @@ def test_noise_free_rectangles_40db(u_step):
     assert bool(res.converged) and float(res.residual) < 1e-3
 
 
-def test_exact_solve_matches_dense():
-    """(D^T D + rho A^T A) u = r with a per-sample rho: Hadamard (constant image in the row
-    space), zero-mean rows (constant in the null space) and 0/1 patterns (neither)."""
-    zero_mean = PatternOperator(Hadamard(8).patterns(torch.float64)[1:21] / 8)
-    binary = PatternOperator(
-        random_binary_patterns(20, 8, generator=torch.Generator().manual_seed(3))
-    )
-    like = torch.zeros(1, dtype=torch.float64)
-    for A, dc in ((Hadamard(8, sr=0.25), True), (zero_mean, False), (binary, True)):
-        f = _exact_factors(A, like)
-        assert f.has_dc == dc
-        r = torch.randn(2, 1, 8, 8, dtype=torch.float64)
-        if not dc:  # M is singular on constants: solvable for zero-mean r, zero-mean answer
-            r = r - r.mean(dim=(-2, -1), keepdim=True)
-        rho = torch.tensor([[0.5], [7.0]], dtype=torch.float64)
-        u, au = _exact_solve(r, rho, A.forward, A.adjoint, f, 1.0)
-        lhs = grad2_adjoint(grad2(u)) + rho[..., None, None] * A.adjoint(A(u))
-        torch.testing.assert_close(lhs, r, rtol=1e-9, atol=1e-9)
-        torch.testing.assert_close(au, A(u), rtol=1e-9, atol=1e-9)
-
-
 def test_general_operator_scale_a():
     """0/1 patterns: A^T A has a large top eigenvalue, so ScaleA divides A and y by its root;
     the scaled problem, hence x, does not change when A and y are both multiplied by 3, and the
@@ -407,15 +385,21 @@ def test_shapes_and_dtype(b, c, dtype):
     assert res.converged.shape == (b, c) and res.converged.dtype == torch.bool
 
 
-def test_module_equals_function_and_last_result():
+def test_module_equals_function_and_keeps_no_state():
     A = Hadamard(8, sr=0.5)
     y = A(_small(0, b=2, dtype=torch.float32))
     rec = TVAL3(A, mu=2**6, max_iter=60)
     x = rec(y)
     res = tval3(y, A, mu=2**6, max_iter=60)
     torch.testing.assert_close(x, res.x, rtol=0, atol=0)
-    assert torch.equal(rec.last_result.n_iter, res.n_iter)
-    torch.testing.assert_close(rec.solve(y).x, x, rtol=0, atol=0)
+    sol = rec.solve(y)
+    assert torch.equal(sol.n_iter, res.n_iter)
+    torch.testing.assert_close(sol.x, x, rtol=0, atol=0)
+    assert not hasattr(rec, "last_result")
+    assert len(sol.stop_reason) == 2 and all(len(r) == 1 for r in sol.stop_reason)
+    assert all(r[0] in STOP_REASONS for r in sol.stop_reason)
+    assert [STOP_REASONS[k] for k in sol.stop_code.flatten().tolist()] == [
+        r[0] for r in sol.stop_reason]
     assert "mu=64" in repr(rec)
 
 
@@ -575,3 +559,49 @@ def test_errors():
         TVAL3(A, beta=0.0)
     with pytest.raises(TypeError, match="TVAL3: unexpected options"):
         TVAL3(A, foo=1)
+    with pytest.raises(ValueError, match="tval3: expected boundary in"):
+        tval3(y, A, boundary="mirror")
+    with pytest.raises(ValueError, match="TVAL3: expected boundary in"):
+        TVAL3(A, boundary="zero")
+    with pytest.raises(ValueError, match="tval3: expected bounds with lo < hi"):
+        tval3(y, A, bounds=(1.0, 0.0))
+    with pytest.raises(ValueError, match="tval3: expected bounds to be a pair"):
+        tval3(y, A, bounds=1.0)
+    with pytest.raises(ValueError, match="TVAL3: expected bounds lo finite"):
+        TVAL3(A, bounds=(float("nan"), 1.0))
+    with pytest.raises(ValueError, match="tval3: expected noise_sigma a number"):
+        tval3(y, A, noise_sigma="guess")
+
+
+@pytest.mark.parametrize("u_step", ["bb", "exact"])
+def test_box_known_answer_is_the_clipped_image(u_step):
+    # Full orthonormal Hadamard: ‖Au − b‖ = ‖u − x‖, so min TV/μ + ½‖u − x‖² over the box is
+    # clip(x, lo, hi) up to the TV term's O(1/μ) pull (here μ = 2¹⁶ on the scaled buckets).
+    n = 8
+    A = Hadamard(n, sr=1.0)
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(1, 1, n, n, dtype=torch.float64, generator=g) * 2 - 0.5  # in [-0.5, 1.5)
+    r = tval3(A(x), A, mu=2.0**16, tvl2=True, bounds=(0.0, 1.0), u_step=u_step, max_iter=3000)
+    assert r.x.min() >= 0 and r.x.max() <= 1
+    assert (r.x - x.clamp(0, 1)).abs().max() < 2e-3
+    free = tval3(A(x), A, mu=2.0**16, tvl2=True, u_step=u_step, max_iter=3000)
+    assert (free.x - x).abs().max() < 2e-3  # without the box: x itself (it is the box at work)
+    nn_ = tval3(A(x), A, mu=2.0**16, tvl2=True, nonneg=True, u_step=u_step, max_iter=3000)
+    assert (nn_.x - x.clamp_min(0)).abs().max() < 2e-3
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "neumann"])
+def test_boundary_known_answer(boundary):
+    # A square touching the left border: periodic TV charges the wrap-around edge to the right
+    # border, Neumann does not. Noise-free at SR 50 % both recover it exactly (constrained).
+    n = 16
+    A = Hadamard(n, sr=0.5)
+    x = torch.zeros(1, 1, n, n, dtype=torch.float64)
+    x[..., 3:10, 0:6] = 1.0
+    r = tval3(A(x), A, mu=2**8, boundary=boundary, max_iter=3000)
+    assert _psnr(r.x, x) > 40
+    # the solution's TV under its own boundary rule is the step's hand-computed TV
+    from torchtof.recon.tv import tv_norm
+
+    expected = {"neumann": 2 * 6 + 7, "periodic": 2 * 6 + 2 * 7}[boundary]
+    assert abs(float(tv_norm(r.x, boundary=boundary)) - expected) < 0.05 * expected

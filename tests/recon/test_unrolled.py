@@ -28,7 +28,7 @@ NAME_RE = re.compile(r"unrolled_n(\d+)_sr(\d{4})_K(\d+)\.pt")
 
 def _net(n=8, sr=0.25, K=3, seed=0):
     """An untrained network with its scalars moved off the initialisation."""
-    net = UnrolledTVAL3(Hadamard(n, sr=sr), n_iter=K, pretrained=False)
+    net = UnrolledTVAL3(Hadamard(n, sr=sr), n_layers=K, pretrained=False)
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for name in PARAM_NAMES:
@@ -149,16 +149,16 @@ def test_generic_orthonormal_operator_matches_hadamard_fast_path():
 
 def test_bad_inputs():
     A = Hadamard(8, sr=0.25)
-    with pytest.raises(ValueError, match="UnrolledTVAL3: expected n_iter >= 1, got 0"):
-        UnrolledTVAL3(A, n_iter=0, pretrained=False)
-    with pytest.raises(TypeError, match="UnrolledTVAL3: expected n_iter to be an int"):
-        UnrolledTVAL3(A, n_iter=2.0, pretrained=False)
+    with pytest.raises(ValueError, match="UnrolledTVAL3: expected n_layers >= 1, got 0"):
+        UnrolledTVAL3(A, n_layers=0, pretrained=False)
+    with pytest.raises(TypeError, match="UnrolledTVAL3: expected n_layers to be an int"):
+        UnrolledTVAL3(A, n_layers=2.0, pretrained=False)
     with pytest.raises(TypeError, match="UnrolledTVAL3: expected A to be a LinearOperator"):
         UnrolledTVAL3(torch.eye(4), pretrained=False)
     rnd = PatternOperator(torch.rand(16, 8, 8, generator=torch.Generator().manual_seed(0)))
     with pytest.raises(ValueError, match="UnrolledTVAL3: expected an operator with orthonormal"):
         UnrolledTVAL3(rnd, pretrained=False)
-    net = UnrolledTVAL3(A, n_iter=2, pretrained=False)
+    net = UnrolledTVAL3(A, n_layers=2, pretrained=False)
     with pytest.raises(ValueError, match=r"unrolled_tval3: expected y of shape \(\*, \*, 16\)"):
         net(torch.zeros(1, 1, 15))
     with pytest.raises(ValueError, match="unrolled_tval3: expected y of rank 3"):
@@ -178,7 +178,7 @@ def test_bad_inputs():
 
 
 def test_scalars_positive_by_parametrisation():
-    net = UnrolledTVAL3(Hadamard(8, sr=0.25), n_iter=4, pretrained=False)
+    net = UnrolledTVAL3(Hadamard(8, sr=0.25), n_layers=4, pretrained=False)
     init = dict(zip(PARAM_NAMES, net.scalars(), strict=True))
     torch.testing.assert_close(init["log_mu"], torch.full((4,), 256.0))  # TVAL3's defaults
     torch.testing.assert_close(init["log_beta"], torch.full((4,), 32.0))
@@ -219,13 +219,13 @@ def test_gradcheck_float64():
 
 
 def test_a_few_training_steps_reduce_the_loss():
-    res = train_unrolled(n=16, sr=0.25, n_iter=3, steps=40, batch_size=8, noise_level=(0.01, 0.01))
+    res = train_unrolled(n=16, sr=0.25, n_layers=3, steps=40, batch_size=8, noise_level=(0.01, 0.01))
     A = res.model.A
     from torchtof.recon.synthetic import synthetic_scenes
 
     x = synthetic_scenes(16, seed=99, step=0, indices=range(16))
     y = noisy_measurements(A, x, 99, 0, range(16), (0.01, 0.01))
-    untrained = UnrolledTVAL3(A, n_iter=3, pretrained=False)
+    untrained = UnrolledTVAL3(A, n_layers=3, pretrained=False)
     with torch.no_grad():
         before = ((untrained(y) - x) ** 2).mean()
         after = ((res.model(y) - x) ** 2).mean()
@@ -286,9 +286,9 @@ def test_pretrained_loads_every_shipped_file(fname):
     assert round(A.sr * 10000) == code
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a matching file must load without the fallback warning
-        net = UnrolledTVAL3(A, n_iter=K)
+        net = UnrolledTVAL3(A, n_layers=K)
     assert net.weights_file == str(WEIGHTS_DIR / fname)
-    untrained = UnrolledTVAL3(A, n_iter=K, pretrained=False)
+    untrained = UnrolledTVAL3(A, n_layers=K, pretrained=False)
     assert not torch.equal(net.log_mu, untrained.log_mu)
     for v in net.scalars():
         assert (v > 0).all() and torch.isfinite(v).all()
@@ -301,22 +301,22 @@ def test_pretrained_loads_every_shipped_file(fname):
 def test_fallback_and_mismatch(tmp_path):
     A16 = Hadamard(16, sr=0.25)
     with pytest.warns(UserWarning, match="no shipped weights for Hadamard\\(n=16"):
-        net = UnrolledTVAL3(A16, n_iter=3)
+        net = UnrolledTVAL3(A16, n_layers=3)
     assert net.weights_file is None
-    ref = UnrolledTVAL3(A16, n_iter=3, pretrained=False)
+    ref = UnrolledTVAL3(A16, n_layers=3, pretrained=False)
     for a, b in zip(net.scalars(), ref.scalars(), strict=True):
         torch.testing.assert_close(a, b)
     # round trip through a file, then a file that does not match
     trained = _net(n=16, K=3)
     path = tmp_path / "w.pt"
     trained.save_weights(path, note="test")
-    loaded = UnrolledTVAL3(A16, n_iter=3, pretrained=path)
+    loaded = UnrolledTVAL3(A16, n_layers=3, pretrained=path)
     for a, b in zip(loaded.scalars(), trained.scalars(), strict=True):
         torch.testing.assert_close(a, b)
     with pytest.raises(ValueError, match="UnrolledTVAL3.load_weights: weights file .* was trained"):
-        UnrolledTVAL3(A16, n_iter=4, pretrained=path)
+        UnrolledTVAL3(A16, n_layers=4, pretrained=path)
     with pytest.raises(ValueError, match="UnrolledTVAL3.load_weights: weights file .* was trained"):
-        UnrolledTVAL3(Hadamard(16, sr=0.5), n_iter=3, pretrained=path)
+        UnrolledTVAL3(Hadamard(16, sr=0.5), n_layers=3, pretrained=path)
 
 
 # -- acceptance (slow) --------------------------------------------------------------------------
@@ -352,6 +352,6 @@ def test_within_half_a_db_of_converged_tval3(fname):
         return float((10 * torch.log10(1.0 / ((xh - x) ** 2).mean(dim=(1, 2, 3)))).mean())
 
     with torch.no_grad():
-        p_unrolled = psnr(UnrolledTVAL3(A, n_iter=K)(y))
+        p_unrolled = psnr(UnrolledTVAL3(A, n_layers=K)(y))
         p_tval3 = max(psnr(TVAL3(A)(y)), psnr(TVAL3(A, mu=2**8)(y)))
     assert p_unrolled >= p_tval3 - 0.5, (p_unrolled, p_tval3)

@@ -310,3 +310,15 @@ def test_rules_errors():
         camera_rules(torch.ones(1, 2, 1, 2), torch.ones(1, 2, 1, 2))
     with pytest.raises(TypeError, match="camera_rules: expected amp_threshold to be a number"):
         camera_rules(d, a, amp_threshold=torch.tensor(1.0))
+
+
+def test_phasor_from_depth_refuses_non_finite():
+    nan = torch.full((1, 1, 2, 2), float("nan"))
+    with pytest.raises(ValueError, match="phasor_from_depth: depth_m contains non-finite"):
+        phasor_from_depth(1.0, nan, F)
+    with pytest.raises(ValueError, match="phasor_from_depth: amplitude contains non-finite"):
+        phasor_from_depth(nan, torch.ones(1, 1, 2, 2), F)
+    with pytest.raises(ValueError, match="phasor_from_depth: expected a finite amplitude"):
+        phasor_from_depth(float("inf"), torch.ones(1, 1, 2, 2), F)
+    with pytest.raises(TypeError, match="phasor_from_depth: expected amplitude to be"):
+        phasor_from_depth("1", torch.ones(1, 1, 2, 2), F)

@@ -145,3 +145,36 @@ def test_noise_errors():
         ToFNoise(full_well_e=0.0)
     with pytest.raises(ValueError, match="shot_noise: taps contains non-finite"):
         shot_noise(torch.full((1, 4, 1, 1), float("nan")))
+
+
+def test_shot_noise_huge_means_are_counts_not_overflow():
+    # torch.poisson wraps to −9.2e18 near 1e19; a Poisson count has mean c and variance c,
+    # so at c = 1e20 the draws must sit at 1e20 ± a few 1e10, never negative.
+    g = torch.Generator().manual_seed(0)
+    taps = torch.full((2500, 4, 1, 1), 1e20, dtype=torch.float64)
+    c = shot_noise(taps, generator=g)
+    assert (c > 0).all()
+    z = (c - 1e20) / 1e10
+    assert abs(float(z.mean())) < 5 / 100  # 10000 draws: standard error of the mean 0.01
+    assert abs(float(z.std()) - 1.0) < 0.05
+    assert torch.equal(c, c.round())  # counts
+    # float32 at 1e20 (the probe's case): finite and positive
+    c32 = shot_noise(torch.full((1, 4, 2, 2), 1e20), generator=g)
+    assert torch.isfinite(c32).all() and (c32 > 0).all()
+    torch.testing.assert_close(c32, torch.full_like(c32, 1e20), rtol=1e-6, atol=0)
+
+
+def test_shot_noise_small_means_keep_the_poisson_stream():
+    # below the switch the draws are exactly torch.poisson's (seeded runs unchanged); in a
+    # tensor that also holds a huge mean the small pixels stay non-negative integer counts
+    taps = torch.rand(3, 4, 5, 5, generator=torch.Generator().manual_seed(1)) * 100
+    got = shot_noise(taps, generator=torch.Generator().manual_seed(2))
+    want = torch.poisson(taps, generator=torch.Generator().manual_seed(2))
+    assert torch.equal(got, want)
+    mixed = taps.clone()
+    mixed[0, 0, 0, 0] = 1e25
+    got = shot_noise(mixed, generator=torch.Generator().manual_seed(2))
+    small = mixed < 1e12
+    assert torch.equal(got[small], got[small].round()) and (got[small] >= 0).all()
+    assert abs(float(got[small].mean() - mixed[small].mean())) < 2.0  # 299 draws, σ ≈ 7/√299
+    assert got[0, 0, 0, 0] > 0

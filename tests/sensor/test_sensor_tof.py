@@ -168,3 +168,13 @@ def test_errors():
         cw_tof_sensor(p, p.abs()[..., :2])
     with pytest.raises(TypeError, match="cw_tof_sensor: expected intensity to be a real"):
         cw_tof_sensor(p, p)
+
+
+def test_extremely_bright_return_keeps_its_depth():
+    # a 1e30 e⁻ return from 2 m with Poisson shot noise (no ADC): relative noise 1e-15, so
+    # the phase and depth are those of 2 m, not the 5 m of a dark pixel
+    p = phasor_from_depth(1e30, torch.full((1, 1, 2, 2), 2.0, dtype=torch.float64), 30e6)
+    frame = cw_tof_sensor(p, adc_bits=None, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(frame.depth, torch.full_like(frame.depth, 2.0), rtol=0, atol=1e-6)
+    torch.testing.assert_close(frame.amplitude, torch.full_like(frame.amplitude, 5e29),
+                               rtol=1e-9, atol=0)

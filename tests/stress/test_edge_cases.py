@@ -24,7 +24,6 @@ import math
 import pytest
 import torch
 
-from torchtof.bench.stability import BP_FAST, DIP_FAST, illcond_patterns, scene
 from torchtof.bucket import depth_bucket
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator
 from torchtof.sensor import (
@@ -34,25 +33,20 @@ from torchtof.sensor import (
     tap_phase,
     unambiguous_range,
 )
+from torchtof.testing.stability import BP_FAST, DIP_FAST, illcond_patterns, scene
 
 F32, F64 = torch.float32, torch.float64
 HALF = (torch.float16, torch.bfloat16)
 
 
 def _reconstructors(A, S):
-    from torchtof.recon.bp import BasisPursuit
-    from torchtof.recon.correlation import CGI, DGI, TGI
-    from torchtof.recon.dip import DIP
-    from torchtof.recon.pinv import PseudoInverse
-    from torchtof.recon.tval3 import TVAL3
-    from torchtof.recon.unrolled import UnrolledTVAL3
+    from torchtof.recon import registry
 
-    return {
-        "CGI": (CGI(S), S), "TGI": (TGI(S), S), "DGI": (DGI(S), S),
-        "PseudoInverse": (PseudoInverse(A), A), "TVAL3": (TVAL3(A), A),
-        "BasisPursuit": (BasisPursuit(A, **BP_FAST), A),
-        "UnrolledTVAL3": (UnrolledTVAL3(A, pretrained=False), A), "DIP": (DIP(A, **DIP_FAST), A),
-    }
+    opts = {"BasisPursuit": BP_FAST, "UnrolledTVAL3": {"pretrained": False}, "DIP": DIP_FAST}
+    names = ("CGI", "TGI", "DGI", "PseudoInverse", "TVAL3", "BasisPursuit", "UnrolledTVAL3", "DIP")
+    specs = {k: registry.get(k) for k in names}
+    return {k: (s.module(op, **opts.get(k, {})), op)
+            for k, s in specs.items() for op in [S if s.operator == "split" else A]}
 
 
 @pytest.mark.parametrize("dtype", [F32, F64])

@@ -1,7 +1,7 @@
 """The numerical stress matrix of ``torchtof bench stability``, one test per row.
 
 Each row is one public module on one edge case, run in float16, bfloat16, float32 and
-float64 (:mod:`torchtof.bench.stability` builds inputs in float64, rounds them to the dtype and
+float64 (:mod:`torchtof.testing.stability` builds inputs in float64, rounds them to the dtype and
 compares against float64 on the same rounded inputs). A row passes when no cell is ``FAIL``:
 every cell is a finite result within tolerance (``ok``), a clear ``ValueError``/``TypeError``
 naming the function (``error``; not acceptable for float32/float64 on an edge case that must
@@ -41,14 +41,14 @@ import torch
 
 import torchtof.operators
 import torchtof.recon
-from torchtof.bench.stability import (
+from torchtof.apps.bench.stability import print_stability
+from torchtof.testing.stability import (
     DTYPES,
     TOLERANCES,
     Case,
     Ctx,
     bench_stability,
     evaluate_case,
-    print_stability,
     stability_cases,
 )
 

@@ -34,9 +34,9 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from torchtof.bench.stability import BP_FAST, DIP_FAST, scene
 from torchtof.operators import ORDERS, DMDSplit, Hadamard, PatternOperator
 from torchtof.sensor import cw_tof_sensor, phasor_from_depth, unambiguous_range
+from torchtof.testing.stability import BP_FAST, DIP_FAST, scene
 
 F64 = torch.float64
 FAST = settings(max_examples=30, deadline=None, derandomize=True,

@@ -189,7 +189,7 @@ def run_fixed(data, r: int = 0, method: str = "TVAL3", fps: float = DEFAULT_FPS,
     dt = time.perf_counter() - t0
     m = A.m
     return AdaptiveResult(
-        image=image, kind="gated", polarity="positive", method=method, n_iter=sol.n_iter[0][0],
+        image=image, kind="gated", polarity="positive", method=method, n_iter=int(sol.n_iter[0, 0]),
         solver_stop=sol.stop_reason[0][0], patterns_used=m, patterns_max=m, repeat_patterns=0,
         acquisition_stop="fixed: every pattern up to the maximum SR",
         stages=["depth gate", "veil compensation"], veil=veil,
@@ -348,7 +348,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     n_rep = block if rep is not None else 0
     res = AdaptiveResult(
         image=image, kind=kind, polarity="positive" if gate else "negative", method=method,
-        n_iter=sol.n_iter[0][0], solver_stop=sol.stop_reason[0][0], patterns_used=m + n_rep,
+        n_iter=int(sol.n_iter[0, 0]), solver_stop=sol.stop_reason[0][0], patterns_used=m + n_rep,
         patterns_max=data.hadamard.m, repeat_patterns=n_rep, acquisition_stop=prog.reason,
         skipped=skipped, stages=stages, veil=veil, far=far, noise_sigma=sigma,
         acquisition_s=_frames_s(m + n_rep, fps), compute_s=dt, choice=choice, progressive=prog,

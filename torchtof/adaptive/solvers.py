@@ -26,26 +26,34 @@ further only fits the noise. ``σ`` comes from repeated frames
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
+from ..constants import DISCREPANCY_TAU
+from ..recon import registry
+from ..recon.base import relative_residual
+
 __all__ = ["SolveResult", "solve_at_noise", "SOLVERS"]
 
-SOLVERS = ("PINV", "BP", "TVAL3", "Unrolled", "DIP")
+#: registry labels of the solvers that :func:`solve_at_noise` stops at the noise level.
+SOLVERS = tuple(registry.get(k).label for k in ("pinv", "bp", "tval3", "unrolled", "dip"))
 #: Morozov's safety factor ``τ`` (the same as TVAL3's and the DIP's).
-TAU = 1.0
+TAU = DISCREPANCY_TAU
 
 
-@dataclass
-class SolveResult:
-    """``x`` ``(B, C, n, n)``, the ``method``, ``n_iter`` per sample, ``stop_reason`` per
-    sample (``[b][c]`` names), the ``noise_sigma`` used and the wall ``time_s``."""
+class SolveResult(NamedTuple):
+    """``x`` ``(B, C, n, n)``; per sample ``(B, C)``: ``n_iter`` (int64), ``residual``
+    (``‖A x − y‖ / ‖y‖``), ``converged`` (stopped by its own rule, not by the iteration cap)
+    and ``stop_reason`` (``[b][c]`` names); the ``method``, the ``noise_sigma`` used and the
+    wall ``time_s``."""
 
     x: torch.Tensor
+    n_iter: torch.Tensor
+    residual: torch.Tensor
+    converged: torch.Tensor
+    stop_reason: tuple[tuple[str, ...], ...]
     method: str
-    n_iter: list[list[int]]
-    stop_reason: list[list[str]]
     noise_sigma: float | None
     time_s: float
 
@@ -83,7 +91,7 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
         ValueError: unknown method, ``y`` not ``(B, C, M)``.
     """
     from ..recon import PseudoInverse, UnrolledTVAL3, basis_pursuit, tval3
-    from ..recon.dip import DISCREPANCY_TAU, fit_dip
+    from ..recon.dip import fit_dip
 
     fn = "solve_at_noise"
     if method not in SOLVERS:
@@ -94,6 +102,7 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
         raise ValueError(f"{fn}: expected y of shape (B, C, M), got "
                          f"{tuple(y.shape) if isinstance(y, torch.Tensor) else type(y)}")
     b, c, m = y.shape
+    conv = None  # TVAL3, BP: their own flag; else: not stopped by the iteration cap
     sig = None if noise_sigma is None else _per_sample(noise_sigma, (b, c)).to(y.dtype)
     t0 = time.perf_counter()
     if method == "PINV":
@@ -101,17 +110,17 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
             x = PseudoInverse(A)(y)
         iters, reasons = [[0] * c for _ in range(b)], [["direct"] * c for _ in range(b)]
     elif method == "Unrolled":
-        rec = UnrolledTVAL3(A) if n_iter is None else UnrolledTVAL3(A, n_iter=n_iter)
+        rec = UnrolledTVAL3(A) if n_iter is None else UnrolledTVAL3(A, n_layers=n_iter)
         with torch.no_grad():
             x = rec(y)
-        iters = [[rec.n_iter] * c for _ in range(b)]
+        iters = [[rec.n_layers] * c for _ in range(b)]
         reasons = [["fixed"] * c for _ in range(b)]
     elif method == "TVAL3":
         kw = {} if n_iter is None else {"max_iter": int(n_iter)}
         with torch.no_grad():
             disc = None if sig is None else sig * float(tau) ** 0.5  # τ M σ² = M (√τ σ)²
             res = tval3(y, A, noise_sigma=sig if model_sigma else None, discrepancy=disc, **kw)
-        x, iters, reasons = res.x, res.n_iter.tolist(), res.reasons()
+        x, iters, reasons, conv = res.x, res.n_iter.tolist(), res.reasons(), res.converged
     elif method == "BP":
         kw = {} if n_iter is None else {"n_iter": int(n_iter)}
         eps = "auto" if sig is None else None
@@ -127,6 +136,7 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
         x = res.x
         iters = res.n_iter.tolist()
         reasons = [["tol" if ok else "max_iter" for ok in row] for row in res.converged.tolist()]
+        conv = res.converged
     else:  # DIP, one sample at a time
         steps = 300 if n_iter is None else int(n_iter)
         xs, iters, reasons = [], [], []
@@ -134,10 +144,10 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
             xr, ir, rr = [], [], []
             for j in range(c):
                 yi = sign * y[i : i + 1, j : j + 1]
-                kw = dict(n_iter=steps, seed=seed)
+                kw = dict(max_iter=steps, seed=seed)
                 if sig is not None:
                     kw.update(early_stop="discrepancy", noise_sigma=float(sig[i, j]))
-                r = fit_dip(A, yi, **kw)
+                r = fit_dip(yi, A, **kw)
                 xr.append(sign * r.x_cal.detach())
                 ir.append(r.n_iter)
                 if sig is None:
@@ -151,5 +161,13 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
             reasons.append(rr)
         x = torch.cat(xs)
     dt = time.perf_counter() - t0
-    return SolveResult(x=x, method=method, n_iter=iters, stop_reason=reasons,
-                       noise_sigma=None if sig is None else float(sig.max()), time_s=dt)
+    reasons = tuple(tuple(str(r) for r in row) for row in reasons)
+    with torch.no_grad():
+        res = relative_residual(x, y, A)
+    if conv is None:
+        conv = torch.tensor([[r != "max_iter" for r in row] for row in reasons],
+                            dtype=torch.bool).reshape(b, c)
+    return SolveResult(x=x, n_iter=torch.as_tensor(iters, dtype=torch.int64).reshape(b, c),
+                       residual=res, converged=conv.to(x.device), stop_reason=reasons,
+                       method=method, noise_sigma=None if sig is None else float(sig.max()),
+                       time_s=dt)

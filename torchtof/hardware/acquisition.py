@@ -491,7 +491,7 @@ def acquire(
              "duplicates": int(group.attrs.get("duplicates", 0))}
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         bar = tqdm(total=n_frames, initial=done, desc="acquiring ToF frames", unit="frame")
 

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -49,7 +48,7 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         from .simulated import Faults, SimulatedBench
 
         cfg = _sim_config(args)
-        faults = Faults.from_dict(json.loads(args.sim_faults)) if args.sim_faults else None
+        faults = Faults.from_dict(args.sim_faults) if args.sim_faults else None
         bench = SimulatedBench(cfg, seed=args.seed, faults=faults, video_hz=args.video_hz)
         metadata["simulation"] = {"config": asdict(cfg), "seed": args.seed}
         return bench.lightcrafter(), bench.camera(**cam_kw), None
@@ -135,18 +134,18 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
 
 def _method_name(name: str) -> str:
-    from ..methods import METHODS
+    from ..recon import registry
 
-    table = {k.lower(): k for k in METHODS}
-    if name.lower() not in table:
+    try:
+        return registry.get(name).label
+    except ValueError:
         raise SystemExit(f"torchtof reconstruct: unknown method {name!r}; choose from "
-                         f"{sorted(METHODS)}")
-    return table[name.lower()]
+                         f"{sorted(s.label for s in registry.specs())}") from None
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from ..cli import save_grid
     from ..methods import _scores, build_method
+    from ..report import save_grid
     from .acquisition import StoreDamagedError, load_run
 
     if not _zarr_ok("reconstruct"):
@@ -176,6 +175,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
 def add_parsers(sub) -> None:
     """Add ``acquire`` and ``reconstruct`` to the CLI's subparsers."""
+    from ..apps.args import json_object
+
     a = sub.add_parser("acquire", help="acquire buckets from a LightCrafter 4500 + OPT8241 "
                        "(or --simulated) into a zarr store")
     a.add_argument("--simulated", action="store_true",
@@ -214,7 +215,7 @@ def add_parsers(sub) -> None:
                    "arrives (a kill loses at most the frame in flight); count: host numbering, "
                    "frames recorded per checked sequence (a kill loses up to 24 frames)")
     a.add_argument("--no-progress", action="store_true")
-    a.add_argument("--sim-faults", default=None,
+    a.add_argument("--sim-faults", default=None, type=json_object,
                    help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults)")
     a.add_argument("-o", "--output", required=True, help="zarr store (directory)")
     a.set_defaults(func=cmd_acquire)

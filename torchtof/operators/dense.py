@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from .._checks import check_finite, check_rank, check_tensor
+from .._memory import check_memory
 from .base import LinearOperator
 
 __all__ = ["PatternOperator", "pattern_forward", "pattern_adjoint"]
@@ -38,14 +39,25 @@ class PatternOperator(LinearOperator):
     """
 
     def __init__(self, patterns: torch.Tensor) -> None:
-        check_tensor(patterns, "patterns", "PatternOperator")
-        check_rank(patterns, 3, "patterns", "PatternOperator", "(M, n, n)")
-        if patterns.shape[1] != patterns.shape[2] or patterns.shape[0] < 1:
+        func = "PatternOperator"
+        check_tensor(patterns, "patterns", func)
+        if patterns.is_complex():  # the float64 copy below would drop the imaginary part
+            raise TypeError(
+                f"{func}: expected patterns to be a real tensor (DMD patterns are real), "
+                f"got dtype {patterns.dtype}"
+            )
+        check_rank(patterns, 3, "patterns", func, "(M, n, n)")
+        m, n1, n2 = patterns.shape
+        if n1 != n2 or m < 1 or n1 < 1:
             raise ValueError(
-                f"PatternOperator: expected patterns of shape (M, n, n) with M >= 1, "
+                f"{func}: expected patterns of shape (M, n, n) with M >= 1 and n >= 1, "
                 f"got {tuple(patterns.shape)}"
             )
-        check_finite(patterns, "patterns", "PatternOperator")
+        # the float64 copy and its SVD pseudo-inverse: about 3·M·n² doubles at the peak
+        check_memory(3 * m * n1 * n1 * 8 + 8 * min(m, n1 * n1) ** 2, f"an ({m}, {n1}, {n1}) "
+                     "pattern stack with its float64 pseudo-inverse", func,
+                     "use the fast Hadamard operator or fewer/smaller patterns")
+        check_finite(patterns, "patterns", func)
         super().__init__(patterns.shape[1], patterns.shape[0])
         self.register_buffer("patterns", patterns.detach().clone(), persistent=False)
         g = patterns.reshape(self.m, -1).double()

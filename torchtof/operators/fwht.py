@@ -74,9 +74,14 @@ def _sylvester_cpu(n: int, dtype: torch.dtype) -> torch.Tensor:
 
 
 def sylvester(n: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
-    """Sylvester–Hadamard matrix ``H_n`` (±1, natural order), shape ``(n, n)``."""
+    """Sylvester–Hadamard matrix ``H_n`` (±1, natural order), shape ``(n, n)``.
+
+    Always a fresh tensor owned by the caller: the cached copy behind it (and behind every
+    :class:`~torchtof.operators.Hadamard` buffer) is never handed out, so writing into the
+    result cannot change any operator.
+    """
     check_power_of_two(n, "n", "sylvester")
-    return _sylvester_cpu(n, dtype).to(device)
+    return _sylvester_cpu(n, dtype).to(device=device, copy=True)
 
 
 def fwht2_matmul(x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:

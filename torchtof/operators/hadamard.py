@@ -70,8 +70,11 @@ def hadamard_forward(x: torch.Tensor, index: torch.Tensor, h: Transform = None) 
     n = x.shape[-1]
     if x.dtype in (torch.float16, torch.bfloat16):  # H X H reaches n²·max|x| before the /n
         return hadamard_forward(x.float(), index, _to_float(h)).to(x.dtype)
-    coef = _transform(x, h).reshape(*x.shape[:-2], n * n)
-    return coef.index_select(-1, index) / n
+    # scale before summing: H (x/n) H stays within n·max|x|, the bound of the result itself,
+    # where H x H reached n²·max|x| (inf at 1e36 in float32 for n = 32); n is a power of two,
+    # so x/n is exact (away from subnormals)
+    coef = _transform(x / n, h).reshape(*x.shape[:-2], n * n)
+    return coef.index_select(-1, index)
 
 
 def hadamard_adjoint(

@@ -60,7 +60,7 @@ class DMDSplit(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")
-        half_total = x.sum(dim=(-2, -1)).unsqueeze(-1) / 2  # ⟨1, x⟩/2
+        half_total = (x / 2).sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩/2, halved first
         half_h = self.hadamard(x) * (self.n / 2)  # ⟨h, x⟩/2 with ±1 rows
         return torch.stack((half_total + half_h, half_total - half_h), dim=-1).flatten(-2)
 

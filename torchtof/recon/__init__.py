@@ -1,4 +1,7 @@
-"""Reconstructors: every one an ``nn.Module`` with ``forward(y (B, C, M)) -> x (B, C, n, n)``."""
+"""Reconstructors: every one an ``nn.Module`` with ``forward(y (B, C, M)) -> x (B, C, n, n)``.
+
+:func:`get` and :func:`names` read the one table of reconstructors (:mod:`.registry`).
+"""
 
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
@@ -18,12 +21,17 @@ from .depth import (
 )
 from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_dip
 from .pinv import PseudoInverse, pseudo_inverse
+from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
 from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
+    "REGISTRY",
+    "ReconSpec",
+    "get",
+    "names",
     "CGI",
     "DGI",
     "TGI",

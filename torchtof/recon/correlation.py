@@ -32,6 +32,7 @@ from __future__ import annotations
 import torch
 
 from ..operators.base import LinearOperator
+from .base import ReconResult, direct_result
 
 __all__ = ["cgi", "g2", "tgi", "dgi", "CGI", "TGI", "DGI"]
 
@@ -52,6 +53,11 @@ def _check(y: torch.Tensor, A: LinearOperator, func: str) -> None:
     A._check_y(y, func)
 
 
+def _empty(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
+    """The result for an empty batch ``(0, C, M)``: ``(0, C, n, n)``."""
+    return y.new_zeros(y.shape[:-1] + (A.n, A.n))
+
+
 def _pattern_stats(A: LinearOperator, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Row sums ``R = A·1`` ``(M,)`` and mean pattern ``⟨φ⟩ = Aᵀ1 / M`` ``(n, n)``."""
     ones_x = like.new_ones(1, 1, A.n, A.n)
@@ -70,6 +76,8 @@ def tgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``(B, C, n, n)``.
     """
     _check(y, A, "tgi")
+    if y.shape[0] == 0:
+        return _empty(y, A)
     if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
         return tgi(y.double(), A).to(y.dtype)
     return A.adjoint(y - y.mean(dim=-1, keepdim=True)) / A.m
@@ -95,6 +103,8 @@ def cgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         True
     """
     _check(y, A, "cgi")
+    if y.shape[0] == 0:
+        return _empty(y, A)
     if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
         return cgi(y.double(), A).to(y.dtype)
     _, mean_phi = _pattern_stats(A, y)
@@ -118,6 +128,8 @@ def dgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
         ``⟨yφ⟩`` (the regularised quotient vanishes).
     """
     _check(y, A, "dgi")
+    if y.shape[0] == 0:
+        return _empty(y, A)
     if y.dtype in (torch.float16, torch.bfloat16, torch.float32):  # module docstring
         return dgi(y.double(), A).to(y.dtype)
     r, _ = _pattern_stats(A, y)
@@ -138,6 +150,12 @@ class _Correlation(torch.nn.Module):
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return type(self)._fn(y, self.A)
+
+    def solve(self, y: torch.Tensor) -> ReconResult:
+        """``forward`` with its :class:`~torchtof.recon.base.ReconResult` (direct: no
+        iterations, ``"direct"``). ``residual = ‖A x − y‖ / ‖y‖`` only says how far the
+        correlation image is from fitting the buckets: it is not a least-squares solution."""
+        return direct_result(self(y), y, self.A)
 
 
 class CGI(_Correlation):

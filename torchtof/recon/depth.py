@@ -52,15 +52,8 @@ from torch import nn
 from .._checks import check_finite, check_positive, check_shape, check_tensor
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from ._tv import grad2, grad2_adjoint
-from .tval3 import (
-    B_SPREAD,
-    _exact_factors,
-    _exact_solve,
-    _largest_eig_normal,
-    auto_weights,
-    check_buckets,
-)
+from .tv import admm_tv, largest_eig_normal
+from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
     "MODES",
@@ -214,20 +207,6 @@ def iq_phase_amplitude(iq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 # -- joint (vectorial) TV ----------------------------------------------------------------------
 
 
-def _group_shrink(v: torch.Tensor, t: torch.Tensor, joint: bool) -> torch.Tensor:
-    """Proximal map of ``t·Σ_u ‖v(u)‖₂`` on a gradient field ``v (B, C, 2, n, n)``.
-
-    ``joint``: the norm runs over the channels and both difference directions (vectorial
-    TV, Blomgren & Chan 1998; Bresson & Chan 2008); otherwise over the two directions of
-    each channel (isotropic TV per image, TVAL3 ``TVnorm = 2``). ``t``: ``(B,)``.
-    """
-    dims = (1, 2) if joint else (2,)
-    tiny = torch.finfo(v.dtype).tiny
-    norm = torch.sqrt((v * v).sum(dim=dims, keepdim=True) + tiny)
-    t = t.reshape(-1, 1, 1, 1, 1)
-    return v * (torch.clamp(norm - t, min=0) / norm)
-
-
 def joint_tv(
     y: torch.Tensor,
     A: LinearOperator,
@@ -308,16 +287,9 @@ def joint_tv(
     fn = "joint_tv"
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
-    s2 = 1.0 if A.orthonormal_rows else _largest_eig_normal(A, y)
+    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     sq = math.sqrt(inv_s2)
-
-    def fwd(u):
-        return A(u) * sq
-
-    def adj(r):
-        return A.adjoint(r) * sq
-
     # one gain for all channels, invariant to rotations of the channel vector (module doc)
     spread = y.norm(dim=1).amax(dim=-1)  # (B,)
     zero = spread == 0
@@ -325,8 +297,6 @@ def joint_tv(
     b = y * gain[:, None, None]
     if mu == "auto":
         if noise_sigma is None:
-            from .tval3 import bucket_noise_sigma
-
             sigma = bucket_noise_sigma(y).amin(dim=1)
         elif isinstance(noise_sigma, torch.Tensor):
             sigma = noise_sigma.to(dtype=y.dtype, device=y.device).reshape(-1).expand(y.shape[0])
@@ -337,35 +307,15 @@ def joint_tv(
         mu_b = y.new_full((y.shape[0],), float(mu))
         beta_b = y.new_full((y.shape[0],), float(beta))
         constrained = torch.ones_like(zero)
-    factors = _exact_factors(A, b)
-    rho = (mu_b / beta_b)[:, None].expand(y.shape[:2])  # (B, C) for the exact solve
-    ib = (1.0 / beta_b).reshape(-1, 1, 1, 1, 1)
-    imu = torch.where(constrained, 1.0 / mu_b, torch.zeros_like(mu_b)).reshape(-1, 1, 1)
-    mu_dlt = torch.where(constrained, mu_b, torch.zeros_like(mu_b)).reshape(-1, 1, 1)
-    u = adj(b)
-    du = grad2(u)
-    sig = torch.zeros_like(du)
-    dlt = torch.zeros_like(b)
-    done = zero.clone()
-    tiny = torch.finfo(y.dtype).tiny
-    for _ in range(n_iter):
-        w = _group_shrink(du - sig * ib, 1.0 / beta_b, joint)
-        rhs = grad2_adjoint(w + sig * ib) + rho[..., None, None] * adj(b + dlt * imu)
-        u_new, au = _exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
-        du_new = grad2(u_new)
-        sig_new = sig - (du_new - w) / ib
-        dlt_new = dlt - mu_dlt * (au - b)  # TV-L2: δ ≡ 0
-        change = (u_new - u).flatten(1).norm(dim=1) / u.flatten(1).norm(dim=1).clamp_min(tiny)
-        keep = done.reshape(-1, 1, 1, 1)
-        u = torch.where(keep, u, u_new)
-        du = torch.where(keep[..., None], du, du_new)
-        sig = torch.where(keep[..., None], sig, sig_new)
-        dlt = torch.where(keep[..., 0], dlt, dlt_new)
-        if adaptive:
-            done = done | (change <= tol)
-            if bool(done.all()):
-                break
-    return u * (sq / gain).reshape(-1, 1, 1, 1)
+    c = y.shape[1]
+    per = (y.shape[0], c)
+    out = admm_tv(
+        b, A, mu_b[:, None].expand(per), beta_b[:, None].expand(per),
+        constrained[:, None].expand(per), tv="isotropic", boundary="periodic", joint=joint,
+        inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
+        done=zero[:, None].expand(per), stop_over_channels=True,
+    )
+    return out.u * (sq / gain).reshape(-1, 1, 1, 1)
 
 
 def _check_jtv_options(fn: str, mu, beta, n_iter, tol) -> None:

@@ -20,15 +20,18 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from typing import NamedTuple
 
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape, check_tensor
+from .._checks import check_finite, check_positive, check_shape, check_tensor, unchecked
+from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from ._tv import tv_norm
-from .tval3 import bucket_noise_sigma
+from .tv import tv_norm
+from .base import ReconResult, relative_residual, renamed_option
+from .noise import tail_noise_sigma
 from .unet import UNet
 
 __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", "fit_dip"]
@@ -37,8 +40,6 @@ __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", 
 ZETA_KAPPA = 1.5
 ZETA_MIN = 0.03
 ZETA_MAX = 1.0
-#: Morozov's safety factor of the discrepancy principle ``‖A x̂_cal − y‖² ≤ τ M σ²``.
-DISCREPANCY_TAU = 1.0
 _EARLY_STOP = ("wmv", "discrepancy", None)
 _OUTPUTS = ("calibrated", "unit")
 
@@ -58,6 +59,7 @@ class DIPResult(NamedTuple):
         best_iter: 0-based iteration whose network is returned (the ES-WMV minimum, the
             discrepancy stop, or ``n_iter − 1``).
         loss_history: ``(n_iter,)`` loss of Eq. 12 at every iteration.
+        stop_reason: ``"wmv"`` (ES-WMV), ``"discrepancy"`` or ``"max_iter"``.
     """
 
     x: torch.Tensor
@@ -67,6 +69,17 @@ class DIPResult(NamedTuple):
     n_iter: int
     best_iter: int
     loss_history: torch.Tensor
+    stop_reason: str = "max_iter"
+
+
+def _swap_legacy(y, A, func: str):
+    """``(y, A)``; the old order ``(A, y)`` still works for one release (DeprecationWarning)."""
+    if isinstance(y, LinearOperator) and isinstance(A, torch.Tensor):
+        warnings.warn(f"{func}: the argument order is now ({func}(y, A, ...)); "
+                      f"{func}(A, y) will stop working in the next release",
+                      DeprecationWarning, stacklevel=3)
+        return A, y
+    return y, A
 
 
 def _zscore(v: torch.Tensor) -> torch.Tensor:
@@ -90,7 +103,7 @@ def _affine_coeffs(ax: torch.Tensor, a1: torch.Tensor, y: torch.Tensor) -> torch
     return torch.linalg.pinv(gram, hermitian=True) @ (basis.T @ y)
 
 
-def dip_input(A: LinearOperator, y: torch.Tensor) -> torch.Tensor:
+def dip_input(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
     r"""The default network input: the z-scored pseudo-inverse image.
 
     .. math::
@@ -102,8 +115,8 @@ def dip_input(A: LinearOperator, y: torch.Tensor) -> torch.Tensor:
     z-scored DGI image, Wang et al. 2022).
 
     Args:
-        A: measurement operator.
         y: buckets ``(B, C, M)``.
+        A: measurement operator.
 
     Returns:
         ``(B, C, n, n)``, zero mean and unit standard deviation per image (all zeros if
@@ -120,17 +133,18 @@ def dip_input(A: LinearOperator, y: torch.Tensor) -> torch.Tensor:
     Example:
         >>> from torchtof.operators import Hadamard
         >>> A = Hadamard(16, sr=0.25)
-        >>> x0 = dip_input(A, A(torch.rand(1, 1, 16, 16)))
+        >>> x0 = dip_input(A(torch.rand(1, 1, 16, 16)), A)
         >>> x0.shape, abs(float(x0.mean())) < 1e-5
         (torch.Size([1, 1, 16, 16]), True)
     """
+    y, A = _swap_legacy(y, A, "dip_input")
     _check_a_y(A, y, "dip_input")
     img = A.pinv(y)
     flat = _zscore(img.flatten(-2))
     return flat.reshape(img.shape)
 
 
-def default_unet(n: int, in_ch: int = 1) -> UNet:
+def default_unet(n: int, in_ch: int = 1, generator: torch.Generator | None = None) -> UNet:
     """The U-Net that :func:`fit_dip` builds when none is given.
 
     ``UNet(in_ch, 1, base=16, depth=3, kernel=3)`` for ``n <= 32`` (4×4 bottleneck at 32×32)
@@ -141,14 +155,22 @@ def default_unet(n: int, in_ch: int = 1) -> UNet:
     Args:
         n: image side.
         in_ch: input channels.
+        generator: CPU generator of the weight initialisation (``None``: the global RNG);
+            :func:`fit_dip` passes its own, seeded one.
 
     Returns:
-        A freshly initialised :class:`UNet` (uses the global RNG; :func:`fit_dip` seeds it).
+        A freshly initialised :class:`UNet` on the CPU, float32.
     """
     depth = 3 if n <= 32 else 4
     while depth > 1 and n // 2**depth < 2:
         depth -= 1
-    return UNet(in_ch=in_ch, out_ch=1, base=16, depth=depth, kernel=3)
+    if generator is None:
+        return UNet(in_ch=in_ch, out_ch=1, base=16, depth=depth, kernel=3)
+    with torch.device("meta"):  # no draw from the global RNG
+        net = UNet(in_ch=in_ch, out_ch=1, base=16, depth=depth, kernel=3)
+    net = net.to_empty(device="cpu")
+    net.reset_parameters(generator)
+    return net
 
 
 def _check_a_y(A: LinearOperator, y: torch.Tensor, func: str) -> None:
@@ -211,7 +233,7 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
 
     with :data:`ZETA_KAPPA` ``κ = 1.5``, :data:`ZETA_MIN` ``= 0.03``, :data:`ZETA_MAX` ``= 1``;
     ``σ`` is ``noise_sigma`` or, when it is ``None``, the estimate of
-    :func:`~torchtof.recon.tval3.bucket_noise_sigma` (high-order tail of ``y``; meant for
+    :func:`~torchtof.recon.noise.tail_noise_sigma` (high-order tail of ``y``; meant for
     Hadamard orders that put low sequencies first, as TVAL3's ``mu="auto"``). The TV term of
     :func:`fit_dip` is scale invariant and the data term is the squared residual over the bucket
     variance, so ``ζ`` relative to the data term scales like ``σ/std(y)`` (TV is 1-homogeneous;
@@ -226,7 +248,7 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
     Returns:
         ``ζ`` as a Python float.
     """
-    sigma = float(bucket_noise_sigma(y)) if noise_sigma is None else float(noise_sigma)
+    sigma = float(tail_noise_sigma(y)) if noise_sigma is None else float(noise_sigma)
     ratio = sigma / max(float(y.std(unbiased=False)), torch.finfo(y.dtype).tiny)
     return min(max(ZETA_KAPPA * ratio, ZETA_MIN), ZETA_MAX)
 
@@ -234,10 +256,10 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
 @torch.inference_mode(False)
 @torch.enable_grad()
 def fit_dip(
-    A: LinearOperator,
     y: torch.Tensor,
+    A: LinearOperator,
     x0: torch.Tensor | None = None,
-    n_iter: int = 300,
+    max_iter: int = 300,
     lr: float = 0.05,
     betas: tuple[float, float] = (0.5, 0.9),
     zeta: float | str = "auto",
@@ -250,6 +272,7 @@ def fit_dip(
     progress: bool = False,
     lr_step: int = 100,
     lr_gamma: float = 0.9,
+    n_iter: int | None = None,
 ) -> DIPResult:
     r"""Fit an untrained U-Net to one bucket vector (deep image prior, paper Eq. 12).
 
@@ -280,7 +303,7 @@ def fit_dip(
       at the first ``min_{a,b} ‖A(a x̂ + b) − y‖² ≤ τ M σ²`` (``σ = noise_sigma``,
       ``τ =`` :data:`DISCREPANCY_TAU`). With Hadamard buckets at low SR a blurred early
       output already meets the bound, so this rule tends to stop too early;
-    - ``None``: runs ``n_iter`` iterations and returns the last output.
+    - ``None``: runs ``max_iter`` iterations and returns the last output.
 
     Defaults (``base=16, depth=3, kernel=3`` at 32×32, ``lr=0.05``, ``betas=(0.5, 0.9)``,
     ``zeta="auto"``, ES-WMV with ``W=20, P=50``, 300 iterations) were chosen on binary 32×32
@@ -299,16 +322,18 @@ def fit_dip(
     returned ``unet(x0)`` and its ONNX export then compute the fitted ``x̂`` exactly (up to
     rounding), with no momentum-averaged running statistics involved.
 
-    Determinism: the network is initialised from ``seed`` inside a forked RNG, so the global
-    RNG is left untouched. On CPU, two runs with the same arguments are bitwise equal. The fit
-    enables autograd itself, so it also runs under ``torch.no_grad()`` or
-    ``torch.inference_mode()``.
+    Determinism: the network is initialised from its own ``torch.Generator`` seeded with
+    ``seed`` (the weights equal those drawn after ``torch.manual_seed(seed)``), so the global
+    RNG is neither read nor changed and fits in parallel threads do not interfere. On CPU, two
+    runs with the same arguments are bitwise equal. The fit enables autograd itself and
+    detaches ``y``, so it also runs under ``torch.no_grad()`` or ``torch.inference_mode()``
+    and on a ``y`` that requires grad (no gradient flows back to ``y``).
 
     Args:
-        A: measurement operator with ``n`` divisible by ``2^depth`` of the U-Net.
         y: buckets of one image, ``(1, 1, M)``; ``M == A.m``, finite, not constant.
+        A: measurement operator with ``n`` divisible by ``2^depth`` of the U-Net.
         x0: network input ``(1, C0, n, n)``; default :func:`dip_input` (z-scored ``A⁺y``).
-        n_iter: maximal number of iterations, ``>= 1``.
+        max_iter: maximal number of iterations, ``>= 1``.
         lr: Adam learning rate (GIDC: 0.05).
         betas: Adam betas (GIDC: (0.5, 0.9)).
         zeta: TV weight ``ζ >= 0`` or ``"auto"`` (:func:`auto_zeta`; for operators without a
@@ -323,9 +348,11 @@ def fit_dip(
         progress: show a tqdm progress bar.
         lr_step: iterations between learning-rate decays, ``>= 1``.
         lr_gamma: learning-rate decay factor in ``(0, 1]``.
+        n_iter: old name of ``max_iter`` (``DeprecationWarning``; removed in the next release).
 
     Returns:
-        :class:`DIPResult` ``(x, x_cal, unet, x0, n_iter, best_iter, loss_history)``.
+        :class:`DIPResult` ``(x, x_cal, unet, x0, n_iter, best_iter, loss_history,
+        stop_reason)``.
 
     Raises:
         TypeError: if ``A``, ``y``, ``x0`` or ``unet`` have the wrong type.
@@ -342,11 +369,13 @@ def fit_dip(
         >>> from torchtof.operators import Hadamard
         >>> A = Hadamard(16, sr=0.25)
         >>> x = torch.zeros(1, 1, 16, 16); x[..., 4:12, 6:10] = 1
-        >>> res = fit_dip(A, A(x), n_iter=20)
+        >>> res = fit_dip(A(x), A, max_iter=20)
         >>> res.x.shape, res.n_iter
         (torch.Size([1, 1, 16, 16]), 20)
     """
     func = "fit_dip"
+    y, A = _swap_legacy(y, A, func)
+    max_iter = renamed_option(func, "n_iter", "max_iter", n_iter, max_iter, 300)
     _check_a_y(A, y, func)
     if y.shape[:2] != (1, 1):
         raise ValueError(
@@ -355,7 +384,7 @@ def fit_dip(
         )
     if bool(y.amax() == y.amin()):
         raise ValueError(f"{func}: y is constant (zero spread), nothing to fit")
-    n_iter = _check_int(n_iter, "n_iter", func, 1)
+    max_iter = _check_int(max_iter, "max_iter", func, 1)
     window = _check_int(window, "window", func, 2)
     patience = _check_int(patience, "patience", func, 1)
     lr_step = _check_int(lr_step, "lr_step", func, 1)
@@ -380,18 +409,18 @@ def fit_dip(
         zeta = auto_zeta(y, noise_sigma)
 
     n = A.n
-    y = y.clone()  # a normal tensor even when the caller runs under torch.inference_mode
+    # a normal tensor even under torch.inference_mode, and no graph back to the caller's y
+    y = y.detach().clone()
     if x0 is None:
-        x0 = dip_input(A, y)
+        x0 = dip_input(y, A)
     else:
         check_tensor(x0, "x0", func)
         check_shape(x0, (1, None, n, n), "x0", func, "(1, C0, n, n)")
         check_finite(x0, "x0", func)
-        x0 = x0.to(dtype=y.dtype, device=y.device).clone()
-    if unet is None:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(seed)
-            net = default_unet(n, in_ch=x0.shape[1])
+        x0 = x0.detach().to(dtype=y.dtype, device=y.device).clone()
+    if unet is None:  # own generator: the global RNG is not touched (thread-safe)
+        net = default_unet(n, in_ch=x0.shape[1],
+                           generator=torch.Generator().manual_seed(seed))
     elif isinstance(unet, UNet):
         net = copy.deepcopy(unet)
     else:
@@ -418,39 +447,42 @@ def fit_dip(
     bound = DISCREPANCY_TAU * A.m * noise_sigma**2 if early_stop == "discrepancy" else None
     best_state, best_iter = None, 0
     losses = []
-    steps = range(n_iter)
+    steps = range(max_iter)
     if progress:
-        from tqdm.auto import tqdm
+        from .._optional import progress_bar as tqdm
 
         steps = tqdm(steps, desc=func)
-    t = 0
-    for t in steps:
-        out = net(x0)
-        ax = A(out)
-        loss = (_zscore(ax) - zy).pow(2).mean()
-        if zeta > 0:
-            scale = out.std(unbiased=False).clamp_min(torch.finfo(out.dtype).eps)
-            loss = loss + zeta * tv_norm(out, eps=1e-12).sum() / (n * n * scale)
-        losses.append(loss.detach())
-        if wmv is not None:
-            improved, stop = wmv.update(out.detach())
-            if improved:
-                best_iter = t
-                best_state = [p.detach().clone() for p in net.parameters()]
-            if stop:
-                break
-        if bound is not None:
-            with torch.no_grad():
-                ab = _affine_coeffs(ax.flatten(), a1, yf)
-                res = (ab[0] * ax.flatten() + ab[1] * a1 - yf).pow(2).sum()
-            if float(res) <= bound:
-                break
-        if t == n_iter - 1:
-            break  # the last output is evaluated, not stepped past
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
+    t, reason = 0, "max_iter"
+    with unchecked():  # inputs checked above: no NaN/Inf host sync in the loop's operator calls
+        for t in steps:
+            out = net(x0)
+            ax = A(out)
+            loss = (_zscore(ax) - zy).pow(2).mean()
+            if zeta > 0:
+                scale = out.std(unbiased=False).clamp_min(torch.finfo(out.dtype).eps)
+                loss = loss + zeta * tv_norm(out, eps=1e-12).sum() / (n * n * scale)
+            losses.append(loss.detach())
+            if wmv is not None:
+                improved, stop = wmv.update(out.detach())
+                if improved:
+                    best_iter = t
+                    best_state = [p.detach().clone() for p in net.parameters()]
+                if stop:
+                    reason = "wmv"
+                    break
+            if bound is not None:
+                with torch.no_grad():
+                    ab = _affine_coeffs(ax.flatten(), a1, yf)
+                    res = (ab[0] * ax.flatten() + ab[1] * a1 - yf).pow(2).sum()
+                if float(res) <= bound:  # one host sync per convergence check
+                    reason = "discrepancy"
+                    break
+            if t == max_iter - 1:
+                break  # the last output is evaluated, not stepped past
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
     if best_state is not None:
         with torch.no_grad():
             for p, best in zip(net.parameters(), best_state):
@@ -470,12 +502,39 @@ def fit_dip(
         n_iter=t + 1,
         best_iter=best_iter,
         loss_history=torch.stack(losses),
+        stop_reason=reason,
     )
 
 
+def _dip_batch(y, A, x0, output, func, fit_kwargs):
+    """Fit every ``(b, c)`` sample: ``(x, n_iter (B, C), stop reasons [b][c])``."""
+    y, A = _swap_legacy(y, A, func)
+    _check_a_y(A, y, func)
+    if output not in _OUTPUTS:
+        raise ValueError(f"{func}: expected output in {_OUTPUTS}, got {output!r}")
+    b, c, _ = y.shape
+    if x0 is not None:
+        check_tensor(x0, "x0", func)
+        check_shape(x0, (b, c, A.n, A.n), "x0", func, "(B, C, n, n)")
+    key = "x_cal" if output == "calibrated" else "x"
+    x = y.new_zeros(b, c, A.n, A.n)
+    iters = torch.zeros(b, c, dtype=torch.int64)
+    reasons = []
+    for i in range(b):
+        row = []
+        for j in range(c):
+            x0_ij = None if x0 is None else x0[i : i + 1, j : j + 1]
+            res = fit_dip(y[i : i + 1, j : j + 1], A, x0=x0_ij, **fit_kwargs)
+            x[i, j] = getattr(res, key)[0, 0].detach()
+            iters[i, j] = res.n_iter
+            row.append(res.stop_reason)
+        reasons.append(tuple(row))
+    return x, iters.to(y.device), tuple(reasons)
+
+
 def dip(
-    A: LinearOperator,
     y: torch.Tensor,
+    A: LinearOperator,
     x0: torch.Tensor | None = None,
     output: str = "calibrated",
     **fit_kwargs,
@@ -483,21 +542,22 @@ def dip(
     """Deep-image-prior reconstruction of a batch: :func:`fit_dip` on every ``(b, c)`` sample.
 
     Every sample is fitted independently with the same options and seed (a Python loop over
-    samples: a DIP fits one network per image), so a batch equals the stacked single fits.
+    samples: a DIP fits one network per image), so a batch equals the stacked single fits;
+    an empty batch (``B = 0``) gives an empty result.
 
     Args:
-        A: measurement operator.
         y: buckets ``(B, C, M)``.
+        A: measurement operator.
         x0: optional network inputs ``(B, C, n, n)`` (one channel per sample); default
             :func:`dip_input`.
         output: ``"calibrated"`` (default): ``x_cal``, the image in the units of ``y``
             (comparable with :func:`~torchtof.recon.pinv.pseudo_inverse` and TVAL3);
             ``"unit"``: ``x``, min-max normalised to ``[0, 1]``.
-        **fit_kwargs: options of :func:`fit_dip` (``n_iter``, ``lr``, ``zeta``,
+        **fit_kwargs: options of :func:`fit_dip` (``max_iter``, ``lr``, ``zeta``,
             ``early_stop``, ``seed`` …).
 
     Returns:
-        ``(B, C, n, n)`` images, dtype and device of ``y``.
+        ``(B, C, n, n)`` images, dtype and device of ``y`` (detached: no gradient to ``y``).
 
     Raises:
         TypeError, ValueError: as :func:`fit_dip`; ``ValueError`` for an unknown ``output``
@@ -510,44 +570,28 @@ def dip(
     Example:
         >>> from torchtof.operators import Hadamard
         >>> A = Hadamard(16, sr=0.25)
-        >>> dip(A, A(torch.rand(2, 1, 16, 16)), n_iter=5).shape
+        >>> dip(A(torch.rand(2, 1, 16, 16)), A, max_iter=5).shape
         torch.Size([2, 1, 16, 16])
     """
-    func = "dip"
-    _check_a_y(A, y, func)
-    if output not in _OUTPUTS:
-        raise ValueError(f"{func}: expected output in {_OUTPUTS}, got {output!r}")
-    b, c, _ = y.shape
-    if x0 is not None:
-        check_tensor(x0, "x0", func)
-        check_shape(x0, (b, c, A.n, A.n), "x0", func, "(B, C, n, n)")
-    key = "x_cal" if output == "calibrated" else "x"
-    rows = []
-    for i in range(b):
-        cols = []
-        for j in range(c):
-            x0_ij = None if x0 is None else x0[i : i + 1, j : j + 1]
-            res = fit_dip(A, y[i : i + 1, j : j + 1], x0=x0_ij, **fit_kwargs)
-            cols.append(getattr(res, key))
-        rows.append(torch.cat(cols, dim=1))
-    return torch.cat(rows, dim=0)
+    return _dip_batch(y, A, x0, output, "dip", fit_kwargs)[0]
 
 
 class DIP(nn.Module):
     """Module of :func:`dip`: ``forward(y (B, C, M)) -> (B, C, n, n)``.
 
     The fit runs inside ``forward`` of this wrapper (it is not meant for export: export the
-    fitted :class:`UNet` of :func:`fit_dip` instead).
+    fitted :class:`UNet` of :func:`fit_dip` instead). :meth:`solve` also returns the
+    iterations and stop reason of every sample.
 
     Args:
         A: measurement operator (a submodule).
         output: ``"calibrated"`` (default, units of ``y``) or ``"unit"`` (``[0, 1]``).
-        **fit_kwargs: options of :func:`fit_dip`.
+        **fit_kwargs: options of :func:`fit_dip` (``max_iter``, ``seed``, ``zeta`` …).
 
     Example:
         >>> from torchtof.operators import Hadamard
         >>> A = Hadamard(16, sr=0.25)
-        >>> DIP(A, n_iter=5)(A(torch.rand(1, 1, 16, 16))).shape
+        >>> DIP(A, max_iter=5)(A(torch.rand(1, 1, 16, 16))).shape
         torch.Size([1, 1, 16, 16])
     """
 
@@ -557,9 +601,24 @@ class DIP(nn.Module):
             raise TypeError(f"DIP: expected A to be a LinearOperator, got {type(A).__name__}")
         if output not in _OUTPUTS:
             raise ValueError(f"DIP: expected output in {_OUTPUTS}, got {output!r}")
+        if "n_iter" in fit_kwargs:
+            fit_kwargs["max_iter"] = renamed_option(
+                "DIP", "n_iter", "max_iter", fit_kwargs.pop("n_iter"),
+                fit_kwargs.get("max_iter", 300), 300)
         self.A = A
         self.output = output
         self.fit_kwargs = dict(fit_kwargs)
 
+    def solve(self, y: torch.Tensor) -> ReconResult:
+        """:class:`~torchtof.recon.base.ReconResult`: ``n_iter`` per sample, ``converged``
+        where the early stop ended the fit before ``max_iter``, ``stop_reason[b][c]`` in
+        ``"wmv"``, ``"discrepancy"``, ``"max_iter"``."""
+        x, iters, reasons = _dip_batch(y, self.A, None, self.output, "DIP", self.fit_kwargs)
+        with torch.no_grad():
+            res = relative_residual(x, y.detach(), self.A)
+        conv = torch.tensor([[r != "max_iter" for r in row] for row in reasons],
+                            dtype=torch.bool).reshape(iters.shape).to(y.device)
+        return ReconResult(x, iters, res, conv, reasons)
+
     def forward(self, y: torch.Tensor) -> torch.Tensor:
-        return dip(self.A, y, output=self.output, **self.fit_kwargs)
+        return dip(y, self.A, output=self.output, **self.fit_kwargs)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 
 from ..operators.base import LinearOperator
+from .base import ReconResult, direct_result
 
 __all__ = ["pseudo_inverse", "PseudoInverse"]
 
@@ -44,3 +45,8 @@ class PseudoInverse(torch.nn.Module):
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return pseudo_inverse(y, self.A)
+
+    def solve(self, y: torch.Tensor) -> ReconResult:
+        """``forward`` with its :class:`~torchtof.recon.base.ReconResult` (direct: no
+        iterations, ``"direct"``, ``residual = ‖A x − y‖ / ‖y‖``)."""
+        return direct_result(self(y), y, self.A)

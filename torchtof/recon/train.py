@@ -27,14 +27,14 @@ import torch.distributed as dist
 from torch import nn
 
 from .._checks import check_in_range, check_positive
+from ..constants import PAPER_SRS
 from ..operators.hadamard import Hadamard
 from .synthetic import measurement_noise, synthetic_scenes
-from .unrolled import DEFAULT_N_ITER, UnrolledTVAL3
+from .base import renamed_option
+from .unrolled import DEFAULT_N_LAYERS, UnrolledTVAL3
 
 __all__ = ["train_unrolled", "TrainResult", "PAPER_SRS", "noisy_measurements"]
 
-#: The paper's sampling rates (§3): 1/16 … 6/16.
-PAPER_SRS: tuple[float, ...] = (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375)
 
 
 class TrainResult(NamedTuple):
@@ -110,7 +110,7 @@ def _dist_setup(distributed: bool | None) -> tuple[bool, int, int, bool]:
 def train_unrolled(
     n: int = 32,
     sr: float = 0.25,
-    n_iter: int = DEFAULT_N_ITER,
+    n_layers: int = DEFAULT_N_LAYERS,
     order: str = "cake_cutting",
     steps: int = 300,
     batch_size: int = 16,
@@ -120,6 +120,7 @@ def train_unrolled(
     distributed: bool | None = None,
     out: str | os.PathLike | None = None,
     log_every: int = 0,
+    n_iter: int | None = None,
 ) -> TrainResult:
     """Train :class:`~torchtof.recon.UnrolledTVAL3` for ``Hadamard(n, sr, order)`` from TVAL3's
     defaults on scenes drawn on the fly (module docstring).
@@ -127,7 +128,7 @@ def train_unrolled(
     Args:
         n: image side (power of two, ``Hadamard``'s range).
         sr: sampling rate in (0, 1].
-        n_iter: unrolled iterations ``K``.
+        n_layers: unrolled iterations ``K``.
         order: Hadamard order.
         steps: optimiser steps ``>= 1``.
         batch_size: global batch (scenes per step), divisible by the number of processes.
@@ -138,6 +139,7 @@ def train_unrolled(
             initialised process group), ``False`` trains in this process only.
         out: if given, rank 0 writes the weights there (:meth:`UnrolledTVAL3.save_weights`).
         log_every: print the loss every that many steps on rank 0 (0: never).
+        n_iter: old name of ``n_layers`` (``DeprecationWarning``; removed in the next release).
 
     Returns:
         :class:`TrainResult` with the trained model and the per-step losses.
@@ -146,6 +148,8 @@ def train_unrolled(
         ValueError: for invalid sizes, a batch not divisible by the world size, or
             ``distributed=True`` without a process group or torchrun environment.
     """
+    n_layers = renamed_option("train_unrolled", "n_iter", "n_layers", n_iter, n_layers,
+                              DEFAULT_N_LAYERS)
     func = "train_unrolled"
     for name, v, least in (
         ("steps", steps, 1),
@@ -160,7 +164,7 @@ def train_unrolled(
     check_in_range(hi, lo, math.inf, "noise_level[1]", func)
 
     A = Hadamard(n, sr=sr, order=order)
-    model = UnrolledTVAL3(A, n_iter=n_iter, pretrained=False)
+    model = UnrolledTVAL3(A, n_layers=n_layers, pretrained=False)
     is_dist, rank, world, created = _dist_setup(distributed)
     try:
         if batch_size % world:
@@ -212,3 +216,7 @@ def train_unrolled(
         if created:
             dist.destroy_process_group()
     return TrainResult(model=model, losses=losses)
+
+
+#: Public name of the torchrun/DDP set-up, shared with :mod:`torchtof.recon.learned_train`.
+dist_setup = _dist_setup

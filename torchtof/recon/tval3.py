@@ -25,7 +25,6 @@ relative change drops below ``tol_inner``, then updating the multipliers
 from __future__ import annotations
 
 import math
-import weakref
 from statistics import NormalDist
 from typing import NamedTuple
 
@@ -41,13 +40,23 @@ from .._checks import (
     is_tracing,
 )
 from ..operators.base import LinearOperator
-from ._tv import grad2, grad2_adjoint, laplacian_eigs, shrink
+from .tv import (
+    BOUNDARIES,
+    exact_factors,
+    exact_solve,
+    grad2,
+    grad2_adjoint,
+    largest_eig_normal,
+    shrink,
+)
 
 __all__ = ["TVAL3", "TVAL3Result", "tval3", "bucket_noise_sigma", "STOP_REASONS"]
 
 #: Spread ``max(b) − min(b)`` that the buckets are scaled to (TVAL3's ``Scaleb`` keeps spreads in
 #: ``[0.5, 1.5]`` and maps larger ones to 1.5; we always map to 1.5, see :func:`tval3`).
 B_SPREAD = 1.5
+#: Published ``Scaleb`` lifts spreads below this to it (operators without orthonormal rows).
+B_SPREAD_MIN = 0.5
 #: ``mu="auto"``: TV-L2 weight ``μ = AUTO_KAPPA · σ_s^(−AUTO_POWER)``, ``σ_s`` the noise std of the
 #: buckets scaled to spread 1.5 (calibration: see :func:`tval3`).
 AUTO_KAPPA = 0.7
@@ -65,7 +74,6 @@ NOISE_QUANTILE = 0.2
 STOP_REASONS = ("tol", "max_outer", "discrepancy", "max_iter")
 #: Morozov's safety factor ``τ`` of the ``discrepancy`` stop: ``‖A x − y‖² ≤ τ M σ²``.
 DISCREPANCY_TAU = 1.0
-_POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
 _N_BACKTRACK = 5  # ftvcs_alp gives up after 5 backtracks
 
 
@@ -78,19 +86,22 @@ class TVAL3Result(NamedTuple):
         residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)`` (0 for an all-zero ``y``).
         converged: ``(B, C)`` bool, ``True`` where the outer stopping rule was met before
             ``max_iter``.
-        stop_reason: ``(B, C)`` int64 index into :data:`STOP_REASONS` (``"tol"``,
-            ``"max_outer"``, ``"discrepancy"``, ``"max_iter"``); :meth:`reasons` names them.
+        stop_reason: per sample names ``[b][c]`` from :data:`STOP_REASONS` (``"tol"``,
+            ``"max_outer"``, ``"discrepancy"``, ``"max_iter"``); empty while tracing.
+        stop_code: the same as a ``(B, C)`` int64 index into :data:`STOP_REASONS` (a tensor:
+            it survives tracing and export).
     """
 
     x: torch.Tensor
     n_iter: torch.Tensor
     residual: torch.Tensor
     converged: torch.Tensor
-    stop_reason: torch.Tensor | None = None
+    stop_reason: tuple = ()
+    stop_code: torch.Tensor | None = None
 
     def reasons(self) -> list[list[str]]:
-        """``stop_reason`` as names, ``[b][c]``."""
-        return [[STOP_REASONS[int(k)] for k in row] for row in self.stop_reason.tolist()]
+        """``stop_reason`` as lists, ``[b][c]``."""
+        return [list(r) for r in self.stop_reason]
 
 
 # -- small helpers ----------------------------------------------------------------------------
@@ -174,107 +185,7 @@ def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.
     return q / NormalDist().inv_cdf((1.0 + quantile) / 2)  # q-quantile of |z|, z ~ N(0, 1)
 
 
-# -- exact u-step: (D^T D + rho A^T A) u = r by Woodbury around the FFT-diagonal D^T D ----------
-
-#: Per-operator caches (keyed weakly by the operator object): exact-step factors and ``s₂``.
-_EXACT_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-_S2_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-class _ExactFactors(NamedTuple):
-    kinv: torch.Tensor  # 1 / eig(K) on the rfft2 grid, K = DᵀD + P₀
-    lam: torch.Tensor  # eigenvalues of S = A K⁻¹ Aᵀ, (m,)
-    v: torch.Tensor  # eigenvectors of S, (m, m)
-    av: torch.Tensor  # aᵀ V, (m,)
-    a: torch.Tensor  # A e₀, e₀ = 1/n (the unit constant image), (m,)
-    has_dc: bool  # a ≠ 0: the constant image is not in the null space of A
-
-
-def _exact_factors(A: LinearOperator, like: torch.Tensor) -> _ExactFactors:
-    """Cached factors of :func:`_exact_solve`, computed once per operator in float64.
-
-    ``K = DᵀD + P₀`` (periodic Laplacian plus the projector on constants: FFT-diagonal and
-    SPD); ``S = A K⁻¹ Aᵀ = V diag(lam) Vᵀ`` (``m × m``, from ``m`` adjoints, FFT solves and
-    forwards, then ``eigh``); ``a = A e₀``.
-    """
-    per_op = _EXACT_CACHE.setdefault(A, {})
-    key = (like.dtype, like.device)
-    if key not in per_op:
-        n, m = A.n, A.m
-        with torch.no_grad():
-            dt = torch.float64
-            eig = laplacian_eigs(n, n, dtype=dt, device=like.device)[:, : n // 2 + 1]
-            eig[0, 0] = 1.0
-            kinv = 1.0 / eig
-            eye = torch.eye(m, dtype=dt, device=like.device).reshape(m, 1, m)
-            rows = A.adjoint(eye)  # row i of A as an image
-            cols = torch.fft.irfft2(torch.fft.rfft2(rows) * kinv, s=(n, n))
-            s = A(cols).reshape(m, m)
-            lam, v = torch.linalg.eigh((s + s.T) / 2)
-            a = A(torch.full((1, 1, n, n), 1.0 / n, dtype=dt, device=like.device)).reshape(m)
-            out = [t.to(like.dtype) for t in (kinv, lam.clamp_min(0), v, a @ v, a)]
-            has_dc = bool(a.abs().max() > 1e-9 * rows.abs().max())
-        per_op[key] = _ExactFactors(*out, has_dc=has_dc)
-    return per_op[key]
-
-
-def _exact_solve(
-    r: torch.Tensor,
-    rho: torch.Tensor,
-    fwd,
-    adj,
-    factors: _ExactFactors,
-    inv_s2: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Solve ``(DᵀD + ρ AᵀA) u = r`` per sample; return ``(u, A u)``.
-
-    Woodbury identity with ``U = [Aᵀ, e₀]``, ``E = diag(ρ I, −1)`` around ``K = DᵀD + P₀``
-    (Hager 1989): the capacitance ``[[I/ρ + S, a], [aᵀ, 0]]`` is solved through the cached
-    eigendecomposition of ``S`` (so each sample may have its own ``ρ``) and a scalar border.
-    Without a constant component in the row space (``a = 0``) the border drops and ``u`` is
-    the zero-mean solution. ``inv_s2`` is TVAL3's ``ScaleA`` factor (``A ← A/√s2``).
-    """
-    kinv, lam, v, av, a, has_dc = factors
-    n = r.shape[-1]
-    lam = lam * inv_s2
-    av = av * math.sqrt(inv_s2)
-    z = torch.fft.irfft2(torch.fft.rfft2(r) * kinv, s=(n, n))
-    p = fwd(z)
-    dinv = 1.0 / (1.0 / rho[..., None] + lam)  # (B, C, m)
-    pv = p @ v
-    if has_dc:
-        q = z.sum(dim=(-2, -1)) / n
-        t = (_dot_v(av * dinv, pv) - q) / _dot_v(av * av, dinv)
-        xv = (pv - t[..., None] * av) * dinv
-    else:
-        t = torch.zeros_like(rho)
-        xv = pv * dinv
-    x = xv @ v.T
-    u = z - torch.fft.irfft2(torch.fft.rfft2(adj(x)) * kinv, s=(n, n)) - _i(t) / n
-    au = p - (xv * lam) @ v.T - t[..., None] * (a * math.sqrt(inv_s2))
-    return u, au
-
-
 # -- the solver --------------------------------------------------------------------------------
-
-
-def _largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
-    """Largest eigenvalue ``s₂`` of ``AᵀA`` by power iteration from a fixed start (TVAL3's
-    ``ScaleA`` calls ``eigs``), cached per operator object."""
-    if A in _S2_CACHE:
-        return _S2_CACHE[A]
-    n = A.n
-    with torch.no_grad():
-        k = torch.arange(n * n, dtype=torch.float64, device=like.device)
-        x = (1.0 + 0.5 * torch.cos(k * 2.399963)).reshape(1, 1, n, n)  # deterministic start
-        s = 0.0
-        for _ in range(_POWER_STEPS):
-            x = x / x.norm()
-            z = A.normal(x)
-            s = float((z * x).sum())
-            x = z
-    _S2_CACHE[A] = s
-    return s
 
 
 def _where(mask: torch.Tensor, new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
@@ -324,8 +235,10 @@ def tval3(
     tv: str = "isotropic",
     nonneg: bool = False,
     *,
+    boundary: str = "periodic",
+    bounds: tuple[float | None, float | None] | None = None,
     tvl2: bool = False,
-    noise_sigma: float | torch.Tensor | None = None,
+    noise_sigma: float | str | torch.Tensor | None = None,
     max_outer: int = 10,
     ctn_steps: int = 0,
     rate_ctn: float = 2.0,
@@ -456,19 +369,32 @@ def tval3(
         fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn_steps, rate_ctn, u_step
     )
 
+    _check_boundary(boundary, fn)
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
-    s2 = 1.0 if A.orthonormal_rows else _largest_eig_normal(A, y)
+    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     spread = y.amax(dim=-1) - y.amin(dim=-1)
     spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
     zero = spread == 0
-    gain = B_SPREAD / torch.where(zero, torch.ones_like(spread), spread)  # b = gain·y
+    safe = torch.where(zero, torch.ones_like(spread), spread)
+    if A.orthonormal_rows:
+        gain = B_SPREAD / safe  # b = gain·y, spread 1.5 (scale-invariant, see above)
+    else:  # published Scaleb on the ScaleA-scaled buckets y/√s2
+        sq = math.sqrt(inv_s2)
+        s_scaled = safe * sq
+        g = torch.where(s_scaled < B_SPREAD_MIN, B_SPREAD_MIN / s_scaled,
+                        torch.where(s_scaled > B_SPREAD, B_SPREAD / s_scaled,
+                                    torch.ones_like(s_scaled)))
+        gain = g * sq
     b = y * gain[..., None]
+    lo, hi = _box(nonneg, bounds, fn)
+    scale = gain / math.sqrt(inv_s2)  # u = x · gain/√s2
+    box = (None if lo is None else lo * scale, None if hi is None else hi * scale)
 
     # Model and weights per sample.
     if mu == "auto":
-        if noise_sigma is None:
-            sigma = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
+        if noise_sigma is None or isinstance(noise_sigma, str):
+            sigma = _estimate_sigma(y, A, noise_sigma, fn)
         else:
             sigma = _sigma_tensor(noise_sigma, y)
         mu_f, beta_f, constrained = auto_weights(sigma * gain, beta)
@@ -487,8 +413,8 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, nonneg, adaptive, **opts,
-               disc_bound=bound)
+    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+               boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
@@ -496,7 +422,50 @@ def tval3(
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
     code = torch.where(u.converged, code, 3)
-    return TVAL3Result(x, u.n_iter, residual, u.converged, code)
+    return TVAL3Result(x, u.n_iter, residual, u.converged, stop_names(code), code)
+
+
+def stop_names(code: torch.Tensor) -> tuple:
+    """``(B, C)`` stop codes -> ``stop_reason`` names ``[b][c]`` (one host read, after the
+    solve; empty while tracing, where the codes stay a graph output)."""
+    if is_tracing() or code.device.type == "meta":
+        return ()
+    return tuple(tuple(STOP_REASONS[k] for k in row) for row in code.tolist())
+
+
+def _check_boundary(boundary: str, fn: str) -> None:
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
+
+
+def _box(nonneg: bool, bounds, fn: str) -> tuple[float | None, float | None]:
+    """``(lo, hi)`` from ``nonneg`` and ``bounds`` (validated; ``nonneg`` is ``lo ≥ 0``)."""
+    if not isinstance(nonneg, bool):
+        raise TypeError(f"{fn}: expected nonneg to be a bool, got {type(nonneg).__name__}")
+    lo = hi = None
+    if bounds is not None:
+        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
+        lo, hi = (None if v is None else float(v) for v in bounds)
+        for name, v in (("lo", lo), ("hi", hi)):
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f"{fn}: expected bounds {name} finite or None, got {v}")
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
+    if nonneg:
+        lo = 0.0 if lo is None else max(lo, 0.0)
+        if hi is not None and hi <= lo:
+            raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
+    return lo, hi
+
+
+def _estimate_sigma(y: torch.Tensor, A: LinearOperator, name: str | None, fn: str
+                    ) -> torch.Tensor:
+    """The named noise estimator (``None`` and ``"auto"``: :func:`bucket_noise_sigma`)."""
+    if name not in (None, "auto", "tail"):
+        raise ValueError(f"{fn}: expected noise_sigma a number, a tensor, None or one of "
+                         f"('auto', 'tail'), got {name!r}")
+    return _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
 
 
 def _sigma_tensor(noise_sigma: float | torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -568,9 +537,10 @@ def _solve(
     constrained: torch.Tensor,
     zero: torch.Tensor,
     inv_s2: float,
-    nonneg: bool,
+    box: tuple,
     adaptive: bool,
     *,
+    boundary: str,
     tol: float,
     tol_inner: float,
     max_iter: int,
@@ -598,8 +568,14 @@ def _solve(
             return A.adjoint(r) * sq
 
     exact = u_step == "exact"
+    lo_s, hi_s = box  # per-sample bounds in the scaled units of u, (B, C) tensors or None
+    bounded = lo_s is not None or hi_s is not None
+
+    def _project(u):
+        return u.clamp(min=None if lo_s is None else _i(lo_s),
+                       max=None if hi_s is None else _i(hi_s))
     if exact:
-        factors = _exact_factors(A, b)
+        factors = exact_factors(A, b, boundary)
     eps = torch.finfo(torch.float64).eps  # MATLAB eps in max(sy, eps)
     tiny = torch.finfo(b.dtype).tiny
     alphas = gamma ** torch.arange(_N_BACKTRACK + 1, dtype=b.dtype, device=b.device)
@@ -618,7 +594,7 @@ def _solve(
     mu_dlt = torch.where(constrained, torch.ones_like(mu_f), zeros)  # 0: TV-L2 (δ ≡ 0)
     atb = adj(b)
     u = atb
-    du = grad2(u)
+    du = grad2(u, boundary)
     sig = torch.zeros_like(du)
     dlt = torch.zeros_like(b)
     w = shrink_w(du, sig, bet)
@@ -626,7 +602,7 @@ def _solve(
     au = fwd(u)
     g = adj(au) - atb
     v = du - w
-    g2 = grad2_adjoint(v)
+    g2 = grad2_adjoint(v, boundary)
     f = objective(lam1, v, au - b, sig, dlt, bet, mu)
     st = dict(
         u=u,
@@ -655,7 +631,7 @@ def _solve(
     )
 
     def sd_length(d, rho):
-        dd_ = grad2(d)
+        dd_ = grad2(d, boundary)
         ad = fwd(d)
         return _dot_i(d, d) / (_dot_f(dd_, dd_) + rho * _dot_v(ad, ad)).clamp_min(tiny)
 
@@ -666,26 +642,23 @@ def _solve(
         up, gp, g2p, aup, dup = st["u"], st["g"], st["g2"], st["au"], st["du"]
         rho = mu / bet
         if exact:
-            rhs = grad2_adjoint(w) + _i(rho) * atb + dts
-            u, au = _exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
-            if nonneg:
-                u = u.clamp_min(0)
+            rhs = grad2_adjoint(w, boundary) + _i(rho) * atb + dts
+            u, au = exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
+            if bounded:
+                u = _project(u)
                 au = fwd(u)
-            du = grad2(u)
+            du = grad2(u, boundary)
             g = gp  # AᵀAu − Aᵀb is only needed at a multiplier update (computed there)
         else:
             # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
-            tau_sd = None
-            if (not adaptive) or bool((first & active).any()):
-                tau_sd = sd_length(d, rho)
-                tau = torch.where(first, tau_sd, st["tau_bb"])
-            else:
-                tau = st["tau_bb"]
+            # (both lengths always computed: choosing by mask needs no host read)
+            tau_sd = sd_length(d, rho)
+            tau = torch.where(first, tau_sd, st["tau_bb"])
             # 2. trial step
             u1 = up - _i(tau) * d
-            if nonneg:
-                u1 = u1.clamp_min(0)
-            du1 = grad2(u1)
+            if bounded:
+                u1 = _project(u1)
+            du1 = grad2(u1, boundary)
             au1 = fwd(u1)
             g1 = adj(au1) - atb
             # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
@@ -703,23 +676,20 @@ def _solve(
             au = aup + alpha[..., None] * dAu
             g = gp + _i(alpha) * (g1 - gp)
             gam = torch.where(fallback, gam * rate_gam, gam)
-            if (not adaptive) or bool((fallback & active).any()):
-                # five failed backtracks: steepest-descent step from up (ftvcs_alp)
-                if tau_sd is None:
-                    tau_sd = sd_length(d, rho)
-                usd = up - _i(tau_sd) * d
-                if nonneg:
-                    usd = usd.clamp_min(0)
-                ausd = fwd(usd)
-                u = _where(fallback, usd, u)
-                du = _where(fallback, grad2(usd), du)
-                au = _where(fallback, ausd, au)
-                g = _where(fallback, adj(ausd) - atb, g)
+            # five failed backtracks: steepest-descent step from up (ftvcs_alp)
+            usd = up - _i(tau_sd) * d
+            if bounded:
+                usd = _project(usd)
+            ausd = fwd(usd)
+            u = _where(fallback, usd, u)
+            du = _where(fallback, grad2(usd, boundary), du)
+            au = _where(fallback, ausd, au)
+            g = _where(fallback, adj(ausd) - atb, g)
         # 4. shrinkage w-step at the new u
         w = shrink_w(du, sig, bet)
         lam1 = _tv_of_w(w, isotropic)
         v = du - w
-        g2 = grad2_adjoint(v)
+        g2 = grad2_adjoint(v, boundary)
         r = au - b
         s = u - up
         ss = _dot_i(s, s)
@@ -751,53 +721,54 @@ def _solve(
             done=st["done"] | stop,
             n_iter=st["n_iter"] + 1,
         )
-        if (not adaptive) or bool(outer.any()):
-            # multiplier update, continuation, reset of the nonmonotone reference
-            if exact:
-                g = adj(au) - atb
-                d = g2 + _i(rho) * g - dts
-            else:
-                d = out["d"]
-            sig_o = sig - _f(bet) * v
-            dlt_o = dlt - (mu * mu_dlt)[..., None] * r
-            bet_o = torch.minimum(bet * rate_ctn, beta_f)
-            mu_o = torch.minimum(mu * rate_ctn, mu_f)
-            ratio = _i(bet / bet_o)
-            # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
-            dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
-            d_o = g2 + _i(mu_o / bet_o) * g - dts_o
+        # masked by ``outer``: no host read
+        # multiplier update, continuation, reset of the nonmonotone reference
+        if exact:
+            g = adj(au) - atb
+            d = g2 + _i(rho) * g - dts
+        else:
+            d = out["d"]
+        sig_o = sig - _f(bet) * v
+        dlt_o = dlt - (mu * mu_dlt)[..., None] * r
+        bet_o = torch.minimum(bet * rate_ctn, beta_f)
+        mu_o = torch.minimum(mu * rate_ctn, mu_f)
+        ratio = _i(bet / bet_o)
+        # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
+        dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
+        d_o = g2 + _i(mu_o / bet_o) * g - dts_o
+        out.update(
+            sig=_where(outer, sig_o, sig),
+            dlt=_where(outer, dlt_o, dlt),
+            bet=torch.where(outer, bet_o, bet),
+            mu=torch.where(outer, mu_o, mu),
+            dts=_where(outer, dts_o, dts),
+            d=_where(outer, d_o, out["d"]),
+        )
+        if not exact:
+            f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
             out.update(
-                sig=_where(outer, sig_o, sig),
-                dlt=_where(outer, dlt_o, dlt),
-                bet=torch.where(outer, bet_o, bet),
-                mu=torch.where(outer, mu_o, mu),
-                dts=_where(outer, dts_o, dts),
-                d=_where(outer, d_o, out["d"]),
+                f=torch.where(outer, f_o, out["f"]),
+                cref=torch.where(outer, f_o, out["cref"]),
+                q=torch.where(outer, torch.ones_like(f_o), out["q"]),
+                gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
             )
-            if not exact:
-                f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
-                out.update(
-                    f=torch.where(outer, f_o, out["f"]),
-                    cref=torch.where(outer, f_o, out["cref"]),
-                    q=torch.where(outer, torch.ones_like(f_o), out["q"]),
-                    gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
-                )
         return out
 
     for _ in range(max_iter):
+        # adaptive: the one host read per iteration (converged samples are frozen, so the
+        # read only decides whether another iteration can change anything)
         if adaptive and bool(st["done"].all()):
             break
         new = step(st)
-        if adaptive and not bool(st["done"].any()):
-            st = new
-        else:
-            active = ~st["done"]
-            st = {k: _where(active, new[k], st[k]) for k in st}
+        active = ~st["done"]
+        st = {k: _where(active, new[k], st[k]) for k in st}
     return _Out(st["u"], st["n_iter"], st["done"], st["count"], st["disc"])
 
 
 #: Keyword-only options of :func:`tval3` that :class:`TVAL3` accepts, with their defaults.
 _KW_OPTIONS = dict(
+    boundary="periodic",
+    bounds=None,
     tvl2=False,
     noise_sigma=None,
     max_outer=10,
@@ -815,12 +786,10 @@ class TVAL3(nn.Module):
     Args:
         A: measurement operator (registered as a submodule, so ``.to()`` moves its buffers).
         mu, beta, tol, tol_inner, max_iter, tv, nonneg: as in :func:`tval3`.
-        **options: the keyword-only options of :func:`tval3` (``tvl2``, ``noise_sigma``,
+        **options: the keyword-only options of :func:`tval3` (``boundary``, ``bounds``,
+            ``tvl2``, ``noise_sigma``,
             ``max_outer``, ``ctn_steps``, ``rate_ctn``, ``u_step``, ``adaptive``,
             ``discrepancy``).
-
-    Attributes:
-        last_result: the :class:`TVAL3Result` of the last call (``None`` before the first).
 
     Shape:
         ``(B, C, M) -> (B, C, n, n)``.
@@ -865,9 +834,11 @@ class TVAL3(nn.Module):
             opts["rate_ctn"],
             opts["u_step"],
         )
+        _check_boundary(opts["boundary"], "TVAL3")
+        _box(nonneg, opts["bounds"], "TVAL3")
         self.A = A
         if not A.orthonormal_rows:  # ScaleA's s₂, cached now so that tracing never computes it
-            _largest_eig_normal(A, torch.zeros(1))
+            largest_eig_normal(A, torch.zeros(1))
         self.options = dict(
             mu=mu,
             beta=beta,
@@ -878,12 +849,10 @@ class TVAL3(nn.Module):
             nonneg=nonneg,
             **opts,
         )
-        self.last_result: TVAL3Result | None = None
 
     def solve(self, y: torch.Tensor) -> TVAL3Result:
-        """Run :func:`tval3` and keep the result in :attr:`last_result`."""
-        self.last_result = tval3(y, self.A, **self.options)
-        return self.last_result
+        """Run :func:`tval3`: the :class:`TVAL3Result` (no state is kept between calls)."""
+        return tval3(y, self.A, **self.options)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.solve(y).x

@@ -15,6 +15,8 @@ the module, so ``forward`` is a plain feed-forward network that exports to ONNX.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -149,6 +151,22 @@ class UNet(nn.Module):
         for up, merge, skip in zip(self.up, self.merge, reversed(skips)):
             h = merge(torch.cat((up(h), skip), dim=1))
         return self.out(h)
+
+    @torch.no_grad()
+    def reset_parameters(self, generator: torch.Generator | None = None) -> None:
+        """Re-draw the weights as ``nn.Conv2d``/``nn.ConvTranspose2d`` initialise them
+        (Kaiming-uniform with ``a = √5``), from ``generator`` (``None``: the global RNG), and
+        reset the batch norms. With a fresh generator seeded ``s`` the weights equal those of
+        a ``UNet`` built after ``torch.manual_seed(s)`` (same draws, same module order)."""
+        for m in self.modules():
+            if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d)):
+                nn.init.kaiming_uniform_(m.weight, a=math.sqrt(5), generator=generator)
+                if m.bias is not None:
+                    fan_in, _ = nn.init._calculate_fan_in_and_fan_out(m.weight)
+                    bound = 1 / math.sqrt(fan_in) if fan_in > 0 else 0.0
+                    nn.init.uniform_(m.bias, -bound, bound, generator=generator)
+            elif isinstance(m, nn.BatchNorm2d):
+                m.reset_parameters()
 
     @torch.no_grad()
     def fold_batch_stats(self, x: torch.Tensor) -> None:

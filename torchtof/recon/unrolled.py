@@ -34,7 +34,7 @@ linearly, ``D(u − s p) = Du − s Dp``). ``c_k → ∞`` gives TVAL3's steepes
 
 Initialisation: TVAL3's published defaults ``μ = 2⁸``, ``β = 2⁵``, ``t = 1/β``, ``α = 1``
 (``ftvcs_al_opts.m``) and ``c = 4``, the mean eigenvalue of the periodic ``DᵀD``
-(:func:`~torchtof.recon._tv.laplacian_eigs`), so the untrained network is K iterations of
+(:func:`~torchtof.recon.tv.laplacian_eigs`), so the untrained network is K iterations of
 TVAL3's splitting with a preconditioned exact-line-search step (at ``n = 64``, 37.5 % SR,
 noise-free, it is 0.9 dB closer to converged TVAL3 than the unpreconditioned step, and it
 trains 1.6 dB better at 1 % noise).
@@ -65,15 +65,17 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_shape, check_tensor, is_tracing
+from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
-from ._tv import grad2, grad2_adjoint, shrink
+from .tv import grad2, grad2_adjoint, shrink
+from .base import ReconResult, direct_result, renamed_option
 
 __all__ = [
     "UnrolledTVAL3",
     "unrolled_tval3",
     "WEIGHTS_DIR",
+    "DEFAULT_N_LAYERS",
     "DEFAULT_N_ITER",
     "weight_path",
     "available_weights",
@@ -83,8 +85,10 @@ __all__ = [
 
 #: Folder of the shipped weight files.
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
-#: Iterations of the shipped weights (and the default ``n_iter``).
-DEFAULT_N_ITER = 12
+#: Layers (iterations) of the shipped weights (and the default ``n_layers``).
+DEFAULT_N_LAYERS = 12
+#: Old name of :data:`DEFAULT_N_LAYERS`.
+DEFAULT_N_ITER = DEFAULT_N_LAYERS
 #: TVAL3 defaults (``ftvcs_al_opts.m``): data penalty μ and TV splitting penalty β.
 TVAL3_MU, TVAL3_BETA = 2.0**8, 2.0**5
 #: Initial preconditioner weight ``c``: the mean eigenvalue of the periodic ``DᵀD``.
@@ -95,7 +99,7 @@ B_NORM = 1.5
 
 def unrolled_tval3(
     y: torch.Tensor,
-    op: LinearOperator,
+    A: LinearOperator,
     mu: torch.Tensor,
     beta: torch.Tensor,
     step: torch.Tensor,
@@ -106,8 +110,8 @@ def unrolled_tval3(
     """K unrolled TVAL3 iterations with per-iteration scalars (module docstring).
 
     Args:
-        y: measurements.
-        op: the measurement operator ``A`` with orthonormal rows (``A Aᵀ = I``), ``op.m == M``.
+        y: measurements ``(B, C, M)``, real floating point.
+        A: the measurement operator with orthonormal rows (``A Aᵀ = I``), ``A.m == M``.
         mu: data penalties ``μ_k > 0`` (TVAL3: ``2⁸``).
         beta: TV splitting penalties ``β_k > 0`` (TVAL3: ``2⁵``).
         step: step factors ``α_k > 0`` on the exact line-search step (TVAL3: 1).
@@ -119,10 +123,10 @@ def unrolled_tval3(
         The reconstruction in the units of the scene (``A x ≈ y``).
 
     Raises:
-        TypeError: if ``y`` or a scalar vector is not a floating tensor, or ``op`` is not a
-            :class:`~torchtof.operators.LinearOperator`.
-        ValueError: if ``op`` has no orthonormal rows, ``y`` is not ``(B, C, M)`` with
-            ``M = op.m`` or holds NaN/Inf (eager mode), or the five scalar vectors are not
+        TypeError: if ``y`` or a scalar vector is not a real floating tensor, or ``A`` is
+            not a :class:`~torchtof.operators.LinearOperator`.
+        ValueError: if ``A`` has no orthonormal rows, ``y`` is not ``(B, C, M)`` with
+            ``M = A.m`` or holds NaN/Inf (eager mode), or the five scalar vectors are not
             all of shape ``(K,)``, ``K >= 1``.
 
     Shape:
@@ -137,9 +141,12 @@ def unrolled_tval3(
         torch.Size([2, 1, 16, 16])
     """
     func = "unrolled_tval3"
-    _check_operator(op, func)
+    _check_operator(A, func)
     check_tensor(y, "y", func)
-    check_shape(y, (None, None, op.m), "y", func, "(B, C, M)")
+    if y.is_complex():
+        raise TypeError(f"{func}: expected y to be a real floating-point tensor, got dtype "
+                        f"{y.dtype} (reconstruct the real and imaginary parts separately)")
+    check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
     check_finite(y, "y", func)
     per_iter = (mu, beta, step, thresh, precond)
     for name, v in zip(("mu", "beta", "step", "thresh", "precond"), per_iter, strict=True):
@@ -150,7 +157,7 @@ def unrolled_tval3(
                 f"step, thresh and precond, got {tuple(v.shape)} (mu {tuple(mu.shape)})"
             )
     mu, beta, step, thresh, precond = (v.to(dtype=y.dtype, device=y.device) for v in per_iter)
-    fwd, adj = _operator_pair(op, y)
+    fwd, adj = _operator_pair(A, y)
     tiny = torch.finfo(y.dtype).tiny
 
     peak = y.abs().amax(dim=-1, keepdim=True).clamp_min(tiny)  # ‖y‖ without over/underflow
@@ -164,25 +171,26 @@ def unrolled_tval3(
     rho = mu / beta
     kappa = rho / (precond + rho)
     scalars = (mu, beta, 1.0 / beta, rho, kappa, 1.0 / precond, step, thresh)
-    for mu_k, beta_k, ib_k, rho_k, ka_k, ic_k, step_k, t_k in zip(
-        *(v.unbind() for v in scalars), strict=True
-    ):
-        v = du - sigma * ib_k  # Du − σ/β
-        w = shrink(v, t_k, isotropic=isotropic)
-        t = grad2_adjoint(v - w)  # d = t + Aᵀq
-        q = rho_k * (au - b) - delta * ib_k
-        at = fwd(t)
-        p = (t + adj((1 - ka_k) * q - ka_k * at)) * ic_k  # M⁻¹ d
-        ap = (1 - ka_k) * ic_k * (at + q)  # A p = (1 − κ) A d / c
-        dp = grad2(p)
-        num = (t * p).sum(dim=(-2, -1))[..., None] + (q * ap).sum(dim=-1, keepdim=True)  # dᵀp
-        den = (dp * dp).sum(dim=(-3, -2, -1))[..., None] + rho_k * (ap * ap).sum(-1, keepdim=True)
-        tau = step_k * num / (den + tiny)  # (B, C, 1)
-        u = u - tau[..., None] * p
-        du = du - tau[..., None, None] * dp
-        au = au - tau * ap
-        sigma = sigma - beta_k * (du - w)
-        delta = delta - mu_k * (au - b)
+    with unchecked():  # y checked above: the operator calls of the loop do no host sync
+        for mu_k, beta_k, ib_k, rho_k, ka_k, ic_k, step_k, t_k in zip(
+            *(v.unbind() for v in scalars), strict=True
+        ):
+            v = du - sigma * ib_k  # Du − σ/β
+            w = shrink(v, t_k, isotropic=isotropic)
+            t = grad2_adjoint(v - w)  # d = t + Aᵀq
+            q = rho_k * (au - b) - delta * ib_k
+            at = fwd(t)
+            p = (t + adj((1 - ka_k) * q - ka_k * at)) * ic_k  # M⁻¹ d
+            ap = (1 - ka_k) * ic_k * (at + q)  # A p = (1 − κ) A d / c
+            dp = grad2(p)
+            num = (t * p).sum(dim=(-2, -1))[..., None] + (q * ap).sum(dim=-1, keepdim=True)  # dᵀp
+            den = (dp * dp).sum(dim=(-3, -2, -1))[..., None] + rho_k * (ap * ap).sum(-1, keepdim=True)
+            tau = step_k * num / (den + tiny)  # (B, C, 1)
+            u = u - tau[..., None] * p
+            du = du - tau[..., None, None] * dp
+            au = au - tau * ap
+            sigma = sigma - beta_k * (du - w)
+            delta = delta - mu_k * (au - b)
     return u * s[..., None]
 
 
@@ -214,9 +222,9 @@ def sr_code(sr: float) -> str:
     return f"{round(sr * 10000):04d}"
 
 
-def weight_path(n: int, m: int, n_iter: int) -> Path:
+def weight_path(n: int, m: int, n_layers: int) -> Path:
     """Path of the shipped weight file for ``(n, SR = m/n², K)`` (it may not exist)."""
-    return WEIGHTS_DIR / f"unrolled_n{n}_sr{sr_code(m / (n * n))}_K{n_iter}.pt"
+    return WEIGHTS_DIR / f"unrolled_n{n}_sr{sr_code(m / (n * n))}_K{n_layers}.pt"
 
 
 def available_weights() -> list[str]:
@@ -228,10 +236,11 @@ def available_weights() -> list[str]:
 PARAM_NAMES = ("log_mu", "log_beta", "log_step", "log_thresh", "log_precond")
 
 
-def _raw_init(n_iter: int) -> dict[str, torch.Tensor]:
+def _raw_init(n_layers: int) -> dict[str, torch.Tensor]:
     """The initialisation (module docstring) as raw (log) parameters of shape ``(K,)``."""
     values = (TVAL3_MU, TVAL3_BETA, 1.0, 1.0 / TVAL3_BETA, PRECOND_INIT)
-    return {k: torch.full((n_iter,), math.log(v)) for k, v in zip(PARAM_NAMES, values, strict=True)}
+    return {k: torch.full((n_layers,), math.log(v))
+            for k, v in zip(PARAM_NAMES, values, strict=True)}
 
 
 class UnrolledTVAL3(nn.Module):
@@ -244,20 +253,26 @@ class UnrolledTVAL3(nn.Module):
     Args:
         A: measurement operator with orthonormal rows (e.g.
             :class:`~torchtof.operators.Hadamard`); held inside, so ``forward`` takes only ``y``.
-        n_iter: number of unrolled iterations ``K >= 1`` (shipped: :data:`DEFAULT_N_ITER`).
+        n_layers: number of unrolled iterations ``K >= 1`` (shipped:
+            :data:`DEFAULT_N_LAYERS`).
         pretrained: ``True`` loads the shipped file for ``(A.n, SR, order, K)`` when there is
             one and otherwise falls back to the untrained initialisation (TVAL3's defaults)
             with a ``UserWarning``; ``False`` starts from the initialisation silently; a path
-            loads that file (its metadata must match ``A``, ``n_iter`` and ``isotropic``).
+            loads that file (its metadata must match ``A``, ``n_layers`` and ``isotropic``).
         isotropic: isotropic TV (TVAL3's default) or anisotropic.
+        n_iter: old name of ``n_layers`` (``DeprecationWarning``; removed in the next release).
+
+    The operator's patterns and the scalars are in the ``state_dict``; :meth:`solve` returns a
+    :class:`~torchtof.recon.base.ReconResult` (``n_iter = K`` for every sample, stop reason
+    ``"fixed"``).
 
     Attributes:
         weights_file: the file the weights came from, or ``None``.
 
     Raises:
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
-            ``n_iter`` not an int.
-        ValueError: if ``A`` has no orthonormal rows, ``n_iter < 1``, or a given weight file
+            ``n_layers`` not an int.
+        ValueError: if ``A`` has no orthonormal rows, ``n_layers < 1``, or a given weight file
             does not match.
 
     Shape:
@@ -274,25 +289,28 @@ class UnrolledTVAL3(nn.Module):
     def __init__(
         self,
         A: LinearOperator,
-        n_iter: int = DEFAULT_N_ITER,
+        n_layers: int = DEFAULT_N_LAYERS,
         pretrained: bool | str | os.PathLike = True,
         isotropic: bool = True,
+        n_iter: int | None = None,
     ) -> None:
         super().__init__()
         func = "UnrolledTVAL3"
+        n_layers = renamed_option(func, "n_iter", "n_layers", n_iter, n_layers, DEFAULT_N_LAYERS)
         _check_operator(A, func)
-        if isinstance(n_iter, bool) or not isinstance(n_iter, int):
-            raise TypeError(f"{func}: expected n_iter to be an int, got {type(n_iter).__name__}")
-        if n_iter < 1:
-            raise ValueError(f"{func}: expected n_iter >= 1, got {n_iter}")
+        if isinstance(n_layers, bool) or not isinstance(n_layers, int):
+            raise TypeError(
+                f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
+        if n_layers < 1:
+            raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
         self.A = A
-        self.n_iter = n_iter
+        self.n_layers = n_layers
         self.isotropic = bool(isotropic)
-        for name, v in _raw_init(n_iter).items():
+        for name, v in _raw_init(n_layers).items():
             setattr(self, name, nn.Parameter(v))
         self.weights_file: str | None = None
         if pretrained is True:
-            path = weight_path(A.n, A.m, n_iter)
+            path = weight_path(A.n, A.m, n_layers)
             if path.is_file() and self._meta_matches(torch.load(path, weights_only=True)["meta"]):
                 self.load_weights(path)
             else:
@@ -309,7 +327,7 @@ class UnrolledTVAL3(nn.Module):
         A = self.A
         return (
             f"{type(A).__name__}(n={A.n}, m={A.m}, SR {A.m / A.n**2:.4g}, "
-            f"order={getattr(A, 'order', None)!r}), n_iter={self.n_iter}, "
+            f"order={getattr(A, 'order', None)!r}), n_layers={self.n_layers}, "
             f"isotropic={self.isotropic}"
         )
 
@@ -319,7 +337,7 @@ class UnrolledTVAL3(nn.Module):
             "n": self.A.n,
             "m": self.A.m,
             "order": getattr(self.A, "order", None),
-            "n_iter": self.n_iter,
+            "n_iter": self.n_layers,  # the files' key (shipped weights)
             "isotropic": self.isotropic,
         }
 
@@ -341,7 +359,7 @@ class UnrolledTVAL3(nn.Module):
                 f"{func}: weights file {os.fspath(path)!r} was trained for {meta}, "
                 f"not for {self._describe()}"
             )
-        shape = (self.n_iter,)
+        shape = (self.n_layers,)
         if set(state) != set(PARAM_NAMES) or any(v.shape != shape for v in state.values()):
             raise ValueError(
                 f"{func}: expected parameters {PARAM_NAMES} of shape {shape} in "
@@ -365,7 +383,13 @@ class UnrolledTVAL3(nn.Module):
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return unrolled_tval3(y, self.A, *self.scalars(), isotropic=self.isotropic)
 
+    def solve(self, y: torch.Tensor) -> ReconResult:
+        """``forward`` with its :class:`~torchtof.recon.base.ReconResult` (``K`` iterations
+        for every sample, ``"fixed"``; ``residual = ‖A x − y‖ / ‖y‖``)."""
+        return direct_result(self(y), y, self.A, self.n_layers, "fixed")
+
     def extra_repr(self) -> str:
         return (
-            f"n_iter={self.n_iter}, isotropic={self.isotropic}, weights_file={self.weights_file!r}"
+            f"n_layers={self.n_layers}, isotropic={self.isotropic}, "
+            f"weights_file={self.weights_file!r}"
         )

@@ -17,6 +17,7 @@ from .functional import (
 from .mixing import DMDToSensor, area_overlap_matrix, blur_phasor, dmd_to_sensor
 from .multipath import Multipath, add_multipath
 from .noise import SHOT_MODES, ToFNoise, adc_quantize, read_noise, shot_noise, tof_noise
+from .readout import CameraReadout, camera_readout
 from .scattering import (
     SCATTER_MODES,
     ScatteringMedium,
@@ -49,6 +50,8 @@ __all__ = [
     "ToFFrame",
     "cw_tof_sensor",
     "CWToFSensor",
+    "camera_readout",
+    "CameraReadout",
     # mixing / multipath
     "area_overlap_matrix",
     "dmd_to_sensor",

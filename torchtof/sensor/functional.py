@@ -112,7 +112,7 @@ def phasor_from_depth(
 
     Raises:
         TypeError: if ``depth_m`` (or a tensor ``amplitude``) is not a real floating tensor.
-        ValueError: if ``freq_hz`` is not positive.
+        ValueError: if ``freq_hz`` is not positive, or ``depth_m``/``amplitude`` hold NaN/Inf.
 
     Example:
         >>> p = phasor_from_depth(2.0, torch.zeros(1, 1, 2, 2), 30e6)
@@ -127,9 +127,18 @@ def phasor_from_depth(
             f"{func}: expected depth_m of dtype float32 or float64 (complex64/complex128 "
             f"phasors), got {depth_m.dtype}"
         )
+    check_finite(depth_m, "depth_m", func)
     if isinstance(amplitude, torch.Tensor):
         _check_real(amplitude, "amplitude", func)
+        check_finite(amplitude, "amplitude", func)
     else:
+        if isinstance(amplitude, bool) or not isinstance(amplitude, (int, float)):
+            raise TypeError(
+                f"{func}: expected amplitude to be a real tensor or a number, "
+                f"got {type(amplitude).__name__}"
+            )
+        if not math.isfinite(amplitude):
+            raise ValueError(f"{func}: expected a finite amplitude, got {amplitude}")
         amplitude = torch.as_tensor(float(amplitude), dtype=depth_m.dtype, device=depth_m.device)
     theta = depth_m * (4.0 * math.pi * f / SPEED_OF_LIGHT)
     amplitude, theta = torch.broadcast_tensors(amplitude.to(depth_m.dtype), theta)

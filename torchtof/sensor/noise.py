@@ -21,12 +21,17 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape
+from .._checks import check_finite, check_positive, check_shape, is_tracing
 from .functional import _check_real
 
 __all__ = ["SHOT_MODES", "shot_noise", "read_noise", "adc_quantize", "tof_noise", "ToFNoise"]
 
 SHOT_MODES = ("poisson", "gaussian")
+
+#: Means (e⁻) above which ``shot_noise(mode="poisson")`` draws the normal approximation
+#: ``N(c, c)`` instead of ``torch.poisson`` (2⁴⁰ ≈ 1.1e12: the skewness ``c^{-1/2}`` of
+#: the Poisson law is below 1e-6 there, while ``torch.poisson`` stays exact up to ~1e15).
+POISSON_MAX_MEAN = float(2**40)
 
 
 def _check_taps(taps: object, func: str) -> torch.Tensor:
@@ -80,7 +85,9 @@ def shot_noise(
 ) -> torch.Tensor:
     """Photon shot noise on each tap (Lange & Seitz, 2001).
 
-    ``"poisson"`` draws ``Poisson(c_k)`` exactly with ``torch.poisson``; its gradient is passed
+    ``"poisson"`` draws ``Poisson(c_k)`` exactly with ``torch.poisson`` (above
+    :data:`POISSON_MAX_MEAN` e⁻ from its normal approximation, rounded and never negative:
+    ``torch.poisson`` overflows near 1e19); its gradient is passed
     straight through (``∂/∂c`` of the mean, i.e. 1). ``"gaussian"`` is the reparameterised
     normal approximation ``c + sqrt(c)·ε``, ``ε ~ N(0, 1)``, whose pathwise gradient is exact
     for the approximation (good above ~10 e⁻). Negative taps are treated as 0 e⁻.
@@ -108,7 +115,17 @@ def shot_noise(
         raise ValueError(f"{func}: expected mode in {SHOT_MODES}, got {mode!r}")
     rate = taps.clamp_min(0)
     if mode == "poisson":
-        counts = torch.poisson(rate.detach(), generator=generator)
+        r = rate.detach()
+        big = r > POISSON_MAX_MEAN
+        if is_tracing() or not bool(big.any()):  # one check per call, not per pixel
+            counts = torch.poisson(r, generator=generator)
+        else:
+            # torch.poisson converts through int64 and wraps to −9.2e18 above ~9e18 (and
+            # its spread drifts from 1e17 on): above POISSON_MAX_MEAN draw the normal
+            # approximation N(c, c), rounded to counts and never negative
+            counts = torch.poisson(torch.where(big, torch.zeros_like(r), r), generator=generator)
+            approx = torch.round(r + _safe_sqrt(r) * _randn_like(r, generator)).clamp_min(0)
+            counts = torch.where(big, approx, counts)
         return rate + (counts - rate).detach()
     return rate + _safe_sqrt(rate) * _randn_like(rate, generator)
 

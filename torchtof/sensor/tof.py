@@ -23,13 +23,10 @@ from .functional import (
     _check_order,
     _check_phasor,
     _check_real,
-    camera_rules,
     correlation_taps,
-    phase_to_depth,
-    tap_amplitude,
-    tap_phase,
 )
 from .noise import _check_noise_config, tof_noise
+from .readout import camera_readout
 
 __all__ = ["ToFFrame", "cw_tof_sensor", "CWToFSensor"]
 
@@ -176,10 +173,9 @@ def cw_tof_sensor(
         check_finite(intensity, "intensity", func)
     taps = correlation_taps(phasor, float(ambient_e) + intensity, order)
     taps = tof_noise(taps, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn, generator)
-    amplitude = tap_amplitude(taps)
-    phase = tap_phase(taps)
-    depth = camera_rules(
-        phase_to_depth(phase, freq_hz), amplitude, min_m, max_m, amp_threshold, no_photon_m, step_m
+    amplitude, phase, depth = camera_readout(
+        taps, freq_hz=freq_hz, min_m=min_m, max_m=max_m, amp_threshold=amp_threshold,
+        no_photon_m=no_photon_m, step_m=step_m,
     )
     return ToFFrame(taps, amplitude, phase, depth)
 

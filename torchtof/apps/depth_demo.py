@@ -1,4 +1,4 @@
-"""``torchtof demo --depth`` and the depth part of ``torchtof reproduce`` (DESIGN.md §5).
+"""``torchtof demo --depth`` and the depth part of ``torchtof reproduce``.
 
 One simulated run of the paper's experiment (:class:`~torchtof.experiment.PaperExperiment`,
 default noise: shot, read and ADC noise, ambient light, stray returns, multipath; the
@@ -28,13 +28,14 @@ from pathlib import Path
 
 import torch
 
-from .experiment import PAPER_SRS, ExperimentData, PaperExperiment
-from .metrics import depth_rmse
-from .recon.depth import DepthResolved, JointTV
-from .recon.pinv import PseudoInverse
-from .recon.tval3 import TVAL3
+from ..experiment import PAPER_SRS, ExperimentData, PaperExperiment
+from ..metrics import depth_rmse
+from ..recon.depth import DepthResolved, JointTV
+from ..recon.pinv import PseudoInverse
+from ..recon.tval3 import TVAL3
 
-__all__ = ["DEPTH_METHODS", "affine_fit", "evaluate_depth", "run_depth_demo", "depth_curves"]
+__all__ = ["DEPTH_METHODS", "affine_fit", "evaluate_depth", "run_depth_demo", "depth_curves",
+           "plot_depth_maps"]
 
 #: Methods of the depth comparison, in table order (module docstring).
 DEPTH_METHODS = ("raw ToF", "depth-sum", "depth-sum gate", "I/Q pinv", "I/Q TVAL3",
@@ -104,7 +105,9 @@ def evaluate_depth(data: ExperimentData, sr: float, methods=DEPTH_METHODS):
     return rows, maps
 
 
-def _plot_maps(path: Path, truth: torch.Tensor, maps: dict, rows: list[dict], title: str) -> Path:
+def plot_depth_maps(path: Path, truth: torch.Tensor, maps: dict, rows: list[dict],
+                    title: str) -> Path:
+    """Save the true depth map and each method's map (metres, colour bar) as a PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,7 +131,7 @@ def _plot_maps(path: Path, truth: torch.Tensor, maps: dict, rows: list[dict], ti
 
 
 def _print(rows: list[dict]) -> None:
-    from .bench._timing import print_table
+    from ..report import print_table
 
     print_table([{
         "method": r["method"],
@@ -146,7 +149,7 @@ def run_depth_demo(args) -> int:
     exp = PaperExperiment(sr=args.sr, scattering=args.scattering, scene=scene, n=args.n,
                           roi_px=2 * args.n, srs=(args.sr,))
     print(f"torchtof demo --depth: {exp}")
-    data = exp.run(seed=args.seed, realisations=args.realisations)
+    data = exp.run(seed=args.seed, realisations=args.realisations, progress=True)
     rows, maps = evaluate_depth(data, args.sr)
     print(f"\nscene {scene!r}, SR {args.sr:.2%}, n={args.n}, "
           f"{'through the scattering sheet' if args.scattering else 'in air'}, default noise "
@@ -154,10 +157,12 @@ def run_depth_demo(args) -> int:
           f"{args.realisations} realisation(s)); depth-sum rows after an oracle affine fit")
     _print(rows)
     out = Path(args.out)
-    png = _plot_maps(out / "depth.png", data.depth_m, maps, rows,
-                     f"depth-resolved ghost imaging: {scene}, SR {args.sr:.2%}")
+    png = plot_depth_maps(out / "depth.png", data.depth_m, maps, rows,
+                          f"depth-resolved ghost imaging: {scene}, SR {args.sr:.2%}")
     (out / "depth.json").write_text(json.dumps(rows, indent=2))
-    print(f"\nwrote {png} and {out / 'depth.json'}; total {time.perf_counter() - t0:.1f} s")
+    best = min((r for r in rows if r["method"] != "raw ToF"), key=lambda r: r["rmse_m"])
+    print(f"\ntorchtof demo --depth: best {best['method']} {best['rmse_m']:.3f} m RMSE; wrote "
+          f"{png} and {out / 'depth.json'} in {time.perf_counter() - t0:.1f} s")
     return 0
 
 
@@ -213,7 +218,7 @@ def depth_curves(out: Path, quick: bool = False, realisations: int | None = None
                     row.update(scene=scene, multipath=mp)
                 scene_rows += rs
                 if mp == "on" and abs(sr - 0.25) < 1e-9:
-                    _plot_maps(out / f"depth_maps_{scene}.png", data.depth_m, maps, rs,
+                    plot_depth_maps(out / f"depth_maps_{scene}.png", data.depth_m, maps, rs,
                                f"{scene}, SR {sr:.2%}, default noise and multipath")
         _plot_curves(out / f"depth_rmse_{scene}.png", scene, scene_rows)
         rows += scene_rows

@@ -1,5 +1,5 @@
 """Benchmarks behind ``torchtof bench …``: each returns a JSON-able dict and prints a table."""
 
-from ._timing import time_call
+from .timing import time_call
 
 __all__ = ["time_call"]

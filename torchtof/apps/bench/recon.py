@@ -19,10 +19,10 @@ from pathlib import Path
 
 import torch
 
-from ..metrics import compare, depth_rmse
-from ..operators import Hadamard
-from ..scenes import get_scene
-from ._timing import print_table
+from ...metrics import compare, depth_rmse
+from ...operators import Hadamard
+from ...report import print_table
+from ...scenes import get_scene
 
 __all__ = ["KNOBS", "QUICK_KNOBS", "make_reconstructor", "sweep", "pareto", "bench_recon",
            "print_recon", "plot_sweep"]
@@ -48,25 +48,10 @@ SCENES = ("sky", "steps", "motorcycle", "binary:horse", "skimage:camera")
 
 def make_reconstructor(method: str, A: Hadamard, budget):
     """The reconstructor ``method`` on ``A`` at work ``budget`` (``None``: its default)."""
-    from .. import recon
+    from ... import recon
 
-    if method == "PINV":
-        return recon.PseudoInverse(A), False
-    if method == "BP":  # noise-aware BPDN (eps from the estimated noise level)
-        if budget is None:
-            return recon.BasisPursuit(A, eps="auto"), False
-        return recon.BasisPursuit(A, eps="auto", n_iter=budget, adaptive=False), False
-    if method == "TVAL3":
-        if budget is None:
-            return recon.TVAL3(A), False
-        return recon.TVAL3(A, max_iter=budget, adaptive=False), False
-    if method == "Unrolled":
-        if budget is None:
-            return recon.UnrolledTVAL3(A), False
-        return recon.UnrolledTVAL3(A, n_iter=budget), False
-    if method == "DIP":
-        return (recon.DIP(A) if budget is None else recon.DIP(A, n_iter=budget)), True
-    raise ValueError(f"make_reconstructor: unknown method {method!r}")
+    spec = recon.get(method)  # ValueError for an unknown method
+    return spec.build(A, **spec.budget_options(budget)), spec.per_sample
 
 
 def _images(scenes, n: int) -> tuple[torch.Tensor, list[bool]]:
@@ -82,7 +67,7 @@ def _images(scenes, n: int) -> tuple[torch.Tensor, list[bool]]:
 def sweep(ns=(32, 64, 128), srs=(0.0625, 0.125, 0.25, 0.375), scenes=SCENES, knobs=None,
           noise: float = 0.01, seed: int = 0, progress: bool = True) -> list[dict]:
     """Every (n, SR, method, budget) point, per scene; returns a list of row dicts."""
-    from tqdm.auto import tqdm
+    from ..._optional import progress_bar as tqdm
 
     knobs = knobs or KNOBS
     rows = []
@@ -114,14 +99,14 @@ def sweep(ns=(32, 64, 128), srs=(0.0625, 0.125, 0.25, 0.375), scenes=SCENES, kno
                         x_hat = torch.cat([rec(y[i : i + 1]).detach() for i in range(len(y))])
                     else:
                         with torch.no_grad():
-                            x_hat = rec(y)
+                            res = rec.solve(y) if hasattr(rec, "solve") else None
+                            x_hat = rec(y) if res is None else res.x
                     dt = (time.perf_counter() - t0) / len(y)
                     s = compare(x_hat, x, "positive")
                     rmse = depth_rmse(x_hat, x)
                     iters = None
-                    last = getattr(rec, "last_result", None)
-                    if last is not None and hasattr(last, "n_iter"):
-                        iters = float(torch.as_tensor(last.n_iter).float().mean())
+                    if not per_sample and res is not None and hasattr(res, "n_iter"):
+                        iters = float(torch.as_tensor(res.n_iter).float().mean())
                     for i, name in enumerate(scenes):
                         rows.append({
                             "n": n, "sr": sr, "method": method, "budget": budget,

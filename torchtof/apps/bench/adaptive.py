@@ -33,10 +33,11 @@ import time
 
 import torch
 
-from ..experiment import PaperExperiment
-from ..metrics import compare
-from ..scenes import Scene, get_scene
-from ._timing import print_table
+from ..._optional import progress_bar
+from ...experiment import PaperExperiment
+from ...metrics import compare
+from ...report import print_table
+from ...scenes import Scene, get_scene
 
 __all__ = ["SCENE_TYPES", "scene_type", "bench_adaptive", "print_adaptive", "flatness_psnr",
            "bucket_gains", "parse_seeds", "bench_adaptive_seeds", "print_adaptive_seeds"]
@@ -116,12 +117,14 @@ def bench_adaptive(realisations: int = 4, n: int = 32, sr: float = 0.375, block:
     ``overrides``: :class:`~torchtof.experiment.ExperimentConfig` fields (e.g.
     ``signal_e=4000`` for ten times the light); ``pipeline``: keyword arguments of
     :func:`~torchtof.adaptive.run_adaptive` (e.g. ``{"gate_level": 0.95}``)."""
-    from ..adaptive import run_adaptive
+    from ...adaptive import run_adaptive
 
     t_all = time.perf_counter()
     gains = bucket_gains(n=n, sr=sr, **overrides)
     rows, runs = [], []
-    for label, (name, scat, cls) in SCENE_TYPES.items():
+    bar = progress_bar(SCENE_TYPES.items(), total=len(SCENE_TYPES), desc="bench adaptive",
+                       disable=not progress, leave=False)
+    for label, (name, scat, cls) in bar:
         if scenes is not None and label not in scenes and name not in scenes:
             continue
         scene = scene_type(name, n)
@@ -129,7 +132,7 @@ def bench_adaptive(realisations: int = 4, n: int = 32, sr: float = 0.375, block:
         n_real = (empty_realisations or 4 * realisations) if flat else realisations
         exp = _SceneExperiment(scene, sr=sr, srs=(sr,), scattering=scat, n=n, roi_px=2 * n,
                                **overrides)
-        data = exp.run(seed=seed, realisations=n_real, progress=progress)
+        data = exp.run(seed=seed, realisations=n_real, progress=False)
         per = []
         for r in range(n_real):
             res = run_adaptive(data, r, block=block, fps=fps, **(pipeline or {}))

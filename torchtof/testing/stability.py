@@ -1,4 +1,4 @@
-"""``torchtof bench stability``: the numerical stress matrix of every public module.
+"""The numerical stress matrix of every public module (``torchtof bench stability``, tests).
 
 Rows are ``(module, edge case)``, columns the dtypes float16, bfloat16, float32, float64.
 Every cell builds its inputs in float64, rounds them to the column's dtype and runs the
@@ -74,6 +74,8 @@ from functools import partial
 
 import torch
 
+from .._optional import progress_bar
+
 __all__ = [
     "DTYPES",
     "TOLERANCES",
@@ -87,7 +89,6 @@ __all__ = [
     "stability_cases",
     "evaluate_case",
     "bench_stability",
-    "print_stability",
 ]
 
 F16, BF16, F32, F64 = torch.float16, torch.bfloat16, torch.float32, torch.float64
@@ -699,7 +700,7 @@ def _metric_cases() -> list[Case]:
 #: Fast DIP settings for the matrix (the fit is the cost; the numerics are those of 300 steps).
 # zeta=0: with the TV term, 20-step float32 and float64 fits on tiny fully sampled scenes
 # diverge chaotically (0.02–6 dB apart); the matrix tests arithmetic, not the prior
-DIP_FAST = {"n_iter": 20, "zeta": 0.0}
+DIP_FAST = {"max_iter": 20, "zeta": 0.0}
 #: Iteration cap of basis pursuit in the matrix (the ill-conditioned rows never converge).
 BP_FAST = {"n_iter": 300}
 
@@ -710,48 +711,23 @@ def _recon_makers() -> dict[str, tuple[bool, str, Callable]]:
     Imports are lazy, so a reconstructor that fails to import fails its own rows only.
     """
 
-    def corr(cls):
-        def make(A):
-            from ..recon import correlation
+    def make(name, **options):
+        def build(A):
+            from ..recon import registry
 
-            return getattr(correlation, cls)(A)
+            return registry.get(name).module(A, **options)
 
-        return make
-
-    def pinv(A):
-        from ..recon.pinv import PseudoInverse
-
-        return PseudoInverse(A)
-
-    def tval3(A):
-        from ..recon.tval3 import TVAL3
-
-        return TVAL3(A)
-
-    def bp(A):
-        from ..recon.bp import BasisPursuit
-
-        return BasisPursuit(A, **BP_FAST)
-
-    def unrolled(A):
-        from ..recon.unrolled import UnrolledTVAL3
-
-        return UnrolledTVAL3(A, pretrained=False)
-
-    def dip(A):
-        from ..recon.dip import DIP
-
-        return DIP(A, **DIP_FAST)
+        return build
 
     return {
-        "CGI": (True, "recon_direct", corr("CGI")),
-        "TGI": (True, "recon_direct", corr("TGI")),
-        "DGI": (True, "recon_direct", corr("DGI")),
-        "PseudoInverse": (False, "recon_direct", pinv),
-        "TVAL3": (False, "recon_iterative", tval3),
-        "BasisPursuit": (False, "recon_iterative", bp),
-        "UnrolledTVAL3": (False, "recon_iterative", unrolled),
-        "DIP": (False, "recon_dip", dip),
+        "CGI": (True, "recon_direct", make("CGI")),
+        "TGI": (True, "recon_direct", make("TGI")),
+        "DGI": (True, "recon_direct", make("DGI")),
+        "PseudoInverse": (False, "recon_direct", make("pinv")),
+        "TVAL3": (False, "recon_iterative", make("tval3")),
+        "BasisPursuit": (False, "recon_iterative", make("bp", **BP_FAST)),
+        "UnrolledTVAL3": (False, "recon_iterative", make("unrolled", pretrained=False)),
+        "DIP": (False, "recon_dip", make("dip", **DIP_FAST)),
     }
 
 
@@ -872,11 +848,12 @@ def stability_cases() -> list[Case]:
             + _recon_cases() + _experiment_cases())
 
 
-def bench_stability(cases: list[Case] | None = None) -> dict:
+def bench_stability(cases: list[Case] | None = None, progress: bool = False) -> dict:
     """Build the stress matrix (module docstring): one row per case, one cell per dtype.
 
     Args:
         cases: rows to run (default: :func:`stability_cases`).
+        progress: show a progress bar over the rows (stderr).
 
     Returns:
         JSON-able dict: ``rows`` (see :func:`evaluate_case`), ``counts`` per dtype and status,
@@ -891,7 +868,9 @@ def bench_stability(cases: list[Case] | None = None) -> dict:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny problems: two contending threads are ~10x slower
     try:
-        rows = [evaluate_case(c) for c in (stability_cases() if cases is None else cases)]
+        todo = stability_cases() if cases is None else cases
+        bar = progress_bar(todo, desc="stability rows", disable=not progress, leave=False)
+        rows = [evaluate_case(c) for c in bar]
     finally:
         torch.set_num_threads(threads)
     counts = {
@@ -911,39 +890,3 @@ def bench_stability(cases: list[Case] | None = None) -> dict:
         "time_s": time.perf_counter() - t0,
         "torch": torch.__version__,
     }
-
-
-def print_stability(result: dict) -> None:
-    """Print the matrix: one code per cell, numbered notes for every error, n/r, n/a and FAIL."""
-    dts = result["dtypes"]
-    notes: dict[str, int] = {}
-    table = []
-    for r in result["rows"]:
-        line = [r["module"], r["edge"]]
-        for d in dts:
-            cell = r["cells"][d]
-            code = cell["status"]
-            if code != "ok":
-                key = f"{code}: {cell['detail']}"
-                code = f"{code}[{notes.setdefault(key, len(notes) + 1)}]"
-            line.append(code)
-        table.append(line)
-    head = ["module", "edge case", *dts]
-    widths = [max(len(row[i]) for row in [head, *table]) for i in range(len(head))]
-    print(f"numerical stress matrix: {len(table)} rows x {len(dts)} dtypes, "
-          f"torch {result['torch']}, {result['time_s']:.1f} s")
-    print("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)))
-    print("  ".join("-" * w for w in widths))
-    for row in table:
-        print("  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip())
-    print("\ncounts:")
-    for d in dts:
-        print(f"  {d:9s} " + ", ".join(f"{v} {k}" for k, v in result["counts"][d].items()))
-    if notes:
-        print("\nnotes:")
-        for key, num in notes.items():
-            print(f"  [{num}] {key}")
-    print("\ntolerances (against float64 on the same rounded inputs):")
-    for fam, t in result["tolerances"].items():
-        vals = ", ".join(f"{d} {t[d]:g}" for d in dts if d in t)
-        print(f"  {fam:16s} {t['metric']:5s} {vals or '-'}")

@@ -1,5 +1,6 @@
 """``torchtof bench onnx``: latency of onnxruntime (CPU) against eager PyTorch and
-``torch.compile`` for every model of :data:`torchtof.onnx.MODELS`, as ratios from one run.
+``torch.compile`` for every model of :data:`torchtof.apps.onnx_models.MODELS`, as ratios
+from one run.
 
 Each model is exported once (batch 2, dynamic batch axis, the registry's exporter) into a
 temporary folder and run at every batch size on the same inputs by the three back ends,
@@ -17,8 +18,11 @@ from pathlib import Path
 
 import torch
 
-from .. import onnx as tt_onnx
-from ._timing import print_table, time_call
+from ... import onnx as tt_onnx
+from ..._optional import progress_bar
+from ...report import print_table
+from ..onnx_models import MODELS
+from .timing import time_call
 
 #: Iterations of the iterative models in the benchmark (latency grows linearly with them;
 #: the registry's defaults make graphs of 10⁴–10⁵ nodes that take minutes to compile).
@@ -55,14 +59,14 @@ def bench_onnx(
     """Median latency (s) of onnxruntime, eager PyTorch and ``torch.compile`` per model/batch.
 
     Args:
-        models: names of :data:`torchtof.onnx.MODELS` (default: all).
+        models: names of :data:`torchtof.apps.onnx_models.MODELS` (default: all).
         batches: batch sizes to time.
         n, sr: DMD side and sampling rate of every model.
         compile: also time ``torch.compile`` (inductor).
         repeat: timing samples (median) per measurement.
         n_iter: ``{name: n_iter}`` for iterative models (default :data:`BENCH_N_ITER`; the
             unrolled TVAL3 keeps the K of its shipped weights).
-        progress: print each row as it is measured.
+        progress: a progress bar over the models (stderr), each row written as measured.
         compile_skip: models not compiled (default :data:`COMPILE_SKIP`), reason recorded.
 
     Returns:
@@ -71,16 +75,18 @@ def bench_onnx(
         ``ort_speedup = eager_s / ort_s`` and ``compile_speedup = eager_s / compile_s``, the
         export and compile times, and ``compile_error`` where ``torch.compile`` failed.
     """
-    names = list(tt_onnx.MODELS) if models is None else list(models)
-    unknown = [m for m in names if m not in tt_onnx.MODELS]
+    names = list(MODELS) if models is None else list(models)
+    unknown = [m for m in names if m not in MODELS]
     if unknown:
-        raise ValueError(f"bench_onnx: unknown models {unknown}; known: {sorted(tt_onnx.MODELS)}")
+        raise ValueError(f"bench_onnx: unknown models {unknown}; known: {sorted(MODELS)}")
     n_iter = dict(BENCH_N_ITER if n_iter is None else n_iter)
     threads = torch.get_num_threads()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in names:
-            spec = tt_onnx.MODELS[name]
+        bar = progress_bar(names, desc="bench onnx", disable=not progress, leave=False)
+        for name in bar:
+            bar.set_postfix_str(name)
+            spec = MODELS[name]
             module, example = spec(n, sr, n_iter=n_iter.get(name))
             path = Path(tmp) / f"{name}.onnx"
             t0 = time.perf_counter()
@@ -125,10 +131,9 @@ def bench_onnx(
                         row["compile_speedup"] = row["eager_s"] / row["compile_s"]
                 rows.append(row)
                 if progress:
-                    print(
+                    bar.write(
                         f"{name} batch {batch}: eager {row['eager_s']:.3g} s, onnxruntime "
                         f"{row['ort_s']:.3g} s, compile {row['compile_s']} s",
-                        flush=True,
                     )
     return {
         "benchmark": "onnx",

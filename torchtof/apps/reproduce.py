@@ -7,7 +7,7 @@ reconstructor at SR 6.25 … 37.5 %), a PSNR-vs-SR plot (mean ± std over the no
 realisations), rows of a CSV, a Markdown table beside the paper's numbers, and the paper's
 claims marked held / not held by our numbers. Beyond the paper: depth maps and
 depth-RMSE-vs-SR curves of depth-resolved ghost imaging from the per-tap buckets
-(:func:`torchtof.depth_demo.depth_curves`).
+(:func:`torchtof.apps.depth_demo.depth_curves`).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import torch
 
-from .experiment import PAPER_PSNR, PAPER_SRS, PaperExperiment
-from .methods import evaluate, raw_tof_scores
+from ..experiment import PAPER_PSNR, PAPER_SRS, PaperExperiment
+from ..methods import evaluate, raw_tof_scores
 
 __all__ = ["reproduce", "CASES", "check_claims"]
 
@@ -143,16 +143,19 @@ def check_claims(
 
 def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
               realisations: int | None = None, methods=METHODS, seed: int = 0) -> dict:
-    """Run the four cases and write PNGs, ``psnr.csv``, ``table.md``, ``claims.md``, JSON."""
-    from tqdm.auto import tqdm
+    """Run the four cases and write PNGs, ``psnr.csv``, ``table.md``, ``claims.md``, JSON.
 
-    from .cli import save_grid
+    ``realisations``: noise realisations per case (default 5, ``quick`` 2; ``>= 1``)."""
+    from .._optional import progress_bar as tqdm
+    from ..report import save_grid
 
+    if realisations is not None and (isinstance(realisations, bool) or realisations < 1):
+        raise ValueError(f"reproduce: expected realisations >= 1, got {realisations!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    r = realisations or (2 if quick else 5)
+    r = realisations if realisations is not None else (2 if quick else 5)
     # --quick: 100 DIP steps instead of the default schedule (the DIP fits dominate the time)
-    options = {"DIP": {"n_iter": 100}} if quick else {}
+    options = {"DIP": {"max_iter": 100}} if quick else {}
     t0 = time.perf_counter()
     table: dict[str, list[dict]] = {}
     raw: dict[str, dict] = {}
@@ -202,12 +205,14 @@ def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
                 w.writerow([case, row["method"], row["sr"], f"{row['psnr']:.3f}",
                             f"{row['psnr_std']:.3f}", f"{row['ssim']:.4f}",
                             f"{row['ssim_std']:.4f}", f"{row['time_s']:.4f}", paper])
-    md = [f"PSNR (dB, mean ± std over {r} noise realisations, seed {seed}); paper values in "
-          "brackets (DESIGN.md §3). Scoring: README 'Scoring'."
+    pm = (lambda mean, std: f"{mean:.2f} ± {std:.2f}") if r > 1 else (lambda m, s: f"{m:.2f}")
+    md = [(f"PSNR (dB, mean ± std over {r} noise realisations" if r > 1 else
+           "PSNR (dB, one noise realisation") + f", seed {seed}); paper values in brackets "
+          "(torchtof.experiment.PAPER_PSNR). Scoring: README 'Scoring'."
           + (" Quick run: DIP with 100 steps." if quick else ""), ""]
     for case, rows in table.items():
-        md += [f"### {case} ({CASES[case][2]}) — raw ToF {raw[case]['psnr']:.2f} ± "
-               f"{raw[case]['psnr_std']:.2f} dB (paper 5.70)", "",
+        md += [f"### {case} ({CASES[case][2]}) — raw ToF "
+               f"{pm(raw[case]['psnr'], raw[case]['psnr_std'])} dB (paper 5.70)", "",
                "| method | " + " | ".join(f"{sr:.2%}" for sr in PAPER_SRS) + " |",
                "|---|" + "---|" * len(PAPER_SRS)]
         for m in methods:
@@ -215,7 +220,7 @@ def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
             for sr in PAPER_SRS:
                 row = next(x for x in rows if x["method"] == m and x["sr"] == sr)
                 p = PAPER_PSNR.get((case, sr), {}).get(m)
-                cells.append(f"{row['psnr']:.2f} ± {row['psnr_std']:.2f}"
+                cells.append(pm(row["psnr"], row["psnr_std"])
                              + (f" [{p:.2f}]" if p is not None else ""))
             md.append(f"| {m} | " + " | ".join(cells) + " |")
         md.append("")

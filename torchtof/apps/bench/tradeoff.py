@@ -1,6 +1,6 @@
 """``torchtof bench tradeoff``: run time against error over the paper's sampling rates.
 
-The same engine as ``bench recon`` (:func:`torchtof.bench.recon.sweep`), on the paper's SRs
+The same engine as ``bench recon`` (:func:`torchtof.apps.bench.recon.sweep`), on the paper's SRs
 (6.25 … 37.5 %) and the depth scenes (metres, so the depth RMSE is physical) plus the 天
 object; each reconstructor is swept over its work knob. Writes ``tradeoff.json`` and
 ``tradeoff.png`` (time on a log axis, the Pareto front dashed) and prints which method to use
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from ..experiment import PAPER_SRS
+from ...experiment import PAPER_SRS
 from .recon import KNOBS, pareto, plot_sweep, print_recon, sweep
 
 __all__ = ["bench_tradeoff", "print_tradeoff", "recommend"]
@@ -64,7 +64,7 @@ def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out") -> dict:
 def print_tradeoff(res: dict) -> None:
     print_recon(res)
     print("\nwhich method for which budget (best scene- and SR-averaged PSNR within the budget):")
-    from ._timing import print_table
+    from ...report import print_table
 
     print_table([{**r, "psnr": "-" if r["psnr"] is None else f"{r['psnr']:.2f}"}
                  for r in res["recommend"]], ["n", "budget_s", "method", "psnr", "time_s"])

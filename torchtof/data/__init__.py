@@ -1,0 +1,26 @@
+"""Procedural data for the learned reconstructor: seeded scenes and bucket noise (no downloads)."""
+
+from .noise import TRAIN_LEVELS, NoiseRecipe, noisy_buckets, training_noise
+from .scenes import (
+    EVAL_SEED_BASE,
+    FAMILIES,
+    HELD_OUT_IMAGES,
+    TRAIN_IMAGES,
+    draw_scene,
+    draw_scenes,
+    grey_image,
+)
+
+__all__ = [
+    "FAMILIES",
+    "TRAIN_IMAGES",
+    "HELD_OUT_IMAGES",
+    "EVAL_SEED_BASE",
+    "draw_scene",
+    "draw_scenes",
+    "grey_image",
+    "NoiseRecipe",
+    "noisy_buckets",
+    "training_noise",
+    "TRAIN_LEVELS",
+]

@@ -1,0 +1,466 @@
+"""Learned proximal-gradient reconstructor: one small CNN prior for every size, SR and order.
+
+An unrolled proximal-gradient iteration (deep unfolding: ISTA-Net, Zhang & Ghanem, CVPR
+2018; learned proximal gradient descent, Mardani et al., NeurIPS 2018) with the exact
+operator at every step and one convolutional prior shared by all ``K`` steps. From
+``x_0 = Aᵀ b`` (the pseudo-inverse for orthonormal rows, ``A Aᵀ = I``; Gong 2015):
+
+.. math::
+    z_k &= x_{k-1} - γ_k\\, Aᵀ(A x_{k-1} - b) \\\\
+    x_k &= z_k + R_θ(z_k;\\ c_k), \\qquad k = 1 … K
+
+``γ_k = 2 sigmoid(g_k) ∈ (0, 2)`` are learned step sizes (``A Aᵀ = I`` makes ``AᵀA`` a
+projector, so any ``γ`` in that interval is a contraction of the data term). ``R_θ`` is a
+residual two-scale CNN (a small U-Net, Ronneberger et al. 2015) whose weights are the same
+at every step; it is told what varies by a FiLM conditioning (Perez et al., AAAI 2018):
+``c_k = (log σ_n, log SR, k/K)`` goes through a two-layer MLP into a per-channel scale and
+shift of every hidden layer. ``σ_n`` is the bucket noise std in the normalised units below
+(``noise_sigma``: given, or estimated from the high-order tail of ``y`` by
+:func:`~torchtof.recon.tval3.bucket_noise_sigma`).
+
+Only convolutions, a stride-2 down- and a transposed up-sampling, and the fast operator act
+on the image, so one set of weights applies to every ``n`` divisible by 2 (the package's
+Hadamard sizes 32–256) and every ``(SR, order)``; the work per step is bounded
+(``O(n²)`` convolutions plus one ``A`` and one ``Aᵀ``) and there is no data-dependent control
+flow (it exports to ONNX).
+
+Scale: ``b = y / s`` with ``s = ‖y‖₂ / n`` (the RMS of ``Aᵀy`` over the ``n²`` pixels) and the
+sign of ``⟨1, Aᵀy⟩`` folded into ``s``, the output multiplied back by ``s``: the
+reconstructor is equivariant to any non-zero scale, ``f(c y) = c f(y)`` (trained on scenes
+in ``[0, 1]``, it applies to physical bucket units and to negative images alike). An
+all-zero ``y`` gives an all-zero image.
+
+:class:`~torchtof.operators.DMDSplit` buckets (``2M`` 0/1 frames) are first combined into
+the ±1 measurements ``(y⁺ − y⁻)/n`` of the underlying Hadamard operator
+(:func:`~torchtof.operators.combine_split`).
+
+Shipped weights: ``torchtof/weights/learned/learned.pt`` with ``recipe.json`` beside it
+(command, seed, data recipe, torch version, wall time); trained by
+:mod:`torchtof.recon.learned_train` on the procedural scenes of :mod:`torchtof.data`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .._checks import check_finite, check_shape, check_tensor, is_tracing
+from ..operators.base import LinearOperator
+from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
+from ..operators.split import DMDSplit, combine_split
+from .tval3 import bucket_noise_sigma
+
+__all__ = [
+    "Learned",
+    "LearnedResult",
+    "LearnedPrior",
+    "learned",
+    "WEIGHTS_FILE",
+    "DEFAULT_N_LAYERS",
+    "STOP_REASON",
+]
+
+#: The shipped weights (with ``recipe.json`` in the same folder).
+WEIGHTS_FILE = Path(__file__).resolve().parent.parent / "weights" / "learned" / "learned.pt"
+#: Unrolled steps ``K`` of the shipped weights.
+DEFAULT_N_LAYERS = 6
+#: ``LearnedResult.stop_reason``: the fixed depth ran out (there is no convergence test).
+STOP_REASON = "n_layers"
+#: Floor of ``σ_n`` inside the log of the conditioning (noise-free buckets).
+SIGMA_FLOOR = 1e-3
+
+
+class LearnedResult(NamedTuple):
+    """Output of :meth:`Learned.solve`.
+
+    Attributes:
+        x: reconstruction ``(B, C, n, n)``.
+        n_iter: ``(B, C)`` int64, the unrolled steps run (``n_layers`` for every sample).
+        residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)`` (0 for an all-zero ``y``), in the
+            measurement space of the operator given (``2M`` frames for a DMD split).
+        converged: ``(B, C)`` bool, always ``True``: a fixed-depth network has no stopping
+            test, every sample ran its ``n_layers`` steps.
+        stop_reason: ``"n_layers"`` per sample, a tuple of tuples ``[b][c]``.
+    """
+
+    x: torch.Tensor
+    n_iter: torch.Tensor
+    residual: torch.Tensor
+    converged: torch.Tensor
+    stop_reason: tuple
+
+
+# -- the prior network ----------------------------------------------------------------------
+
+
+class LearnedPrior(nn.Module):
+    """Residual two-scale CNN ``R_θ(z; c)`` with FiLM conditioning (module docstring).
+
+    Args:
+        width: channels at full resolution (``2·width`` at half resolution).
+        cond_dim: size of the conditioning vector ``c``.
+        hidden: hidden units of the FiLM MLP.
+
+    Shape:
+        - z: ``(N, 1, H, W)`` with even ``H, W``; c: ``(N, cond_dim)``.
+        - Output: ``(N, 1, H, W)``, the correction added to ``z``.
+
+    Parameters are stored in float32; :meth:`forward` casts them to the input's dtype (a no-op
+    for float32), so float64 inputs are computed in float64.
+    """
+
+    def __init__(self, width: int = 16, cond_dim: int = 3, hidden: int = 32) -> None:
+        super().__init__()
+        w = int(width)
+        self.width = w
+        self.inc = nn.Conv2d(1, w, 3, padding=1)
+        self.enc = nn.Conv2d(w, w, 3, padding=1)
+        self.down = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
+        self.mid1 = nn.Conv2d(2 * w, 2 * w, 3, padding=1)
+        self.mid2 = nn.Conv2d(2 * w, 2 * w, 3, padding=1)
+        self.up = nn.ConvTranspose2d(2 * w, w, 2, stride=2)
+        self.dec = nn.Conv2d(2 * w, w, 3, padding=1)
+        self.out = nn.Conv2d(w, 1, 3, padding=1)
+        # FiLM scale and shift for the six hidden activations (inc, enc, down, mid1, mid2, dec)
+        self.film_sizes = (w, w, 2 * w, 2 * w, 2 * w, w)
+        self.film = nn.Sequential(
+            nn.Linear(cond_dim, hidden), nn.SiLU(), nn.Linear(hidden, 2 * sum(self.film_sizes))
+        )
+        with torch.no_grad():  # start near the identity modulation and a zero correction
+            self.film[-1].weight.mul_(0.1)
+            self.film[-1].bias.zero_()
+            self.out.weight.mul_(0.1)
+            self.out.bias.zero_()
+
+    @staticmethod
+    def _conv(layer: nn.Module, x: torch.Tensor, **kw) -> torch.Tensor:
+        w, b = layer.weight.to(x.dtype), layer.bias.to(x.dtype)
+        if isinstance(layer, nn.ConvTranspose2d):
+            return F.conv_transpose2d(x, w, b, stride=layer.stride)
+        return F.conv2d(x, w, b, stride=layer.stride, padding=layer.padding)
+
+    def forward(self, z: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        dt = z.dtype
+        lin1, lin2 = self.film[0], self.film[2]
+        h = F.silu(F.linear(c, lin1.weight.to(dt), lin1.bias.to(dt)))
+        mod = F.linear(h, lin2.weight.to(dt), lin2.bias.to(dt))
+        scales, shifts = mod.split(sum(self.film_sizes), dim=-1)
+        sc = scales.split(self.film_sizes, dim=-1)
+        sh = shifts.split(self.film_sizes, dim=-1)
+
+        def act(x: torch.Tensor, i: int) -> torch.Tensor:
+            return F.silu(x * (1 + sc[i][..., None, None]) + sh[i][..., None, None])
+
+        h0 = act(self._conv(self.inc, z), 0)
+        h1 = act(self._conv(self.enc, h0), 1)
+        d = act(self._conv(self.down, h1), 2)
+        d = act(self._conv(self.mid1, d), 3)
+        d = act(self._conv(self.mid2, d), 4)
+        u = self._conv(self.up, d)
+        u = act(self._conv(self.dec, torch.cat((u, h1), dim=1)), 5)
+        return self._conv(self.out, u)
+
+
+# -- operator plumbing ------------------------------------------------------------------------
+
+
+def _check_operator(A: object, func: str) -> None:
+    if not isinstance(A, LinearOperator):
+        raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
+    if not (isinstance(A, DMDSplit) or A.orthonormal_rows):
+        raise ValueError(
+            f"{func}: expected A with orthonormal rows (A Aᵀ = I, e.g. Hadamard) or a DMDSplit, "
+            f"got {type(A).__name__} with orthonormal_rows=False"
+        )
+    if A.n % 2:
+        raise ValueError(f"{func}: expected A.n divisible by 2, got n={A.n}")
+
+
+def _base_operator(A: LinearOperator) -> LinearOperator:
+    """The orthonormal operator the iteration runs on (a DMD split's Hadamard)."""
+    return A.hadamard if isinstance(A, DMDSplit) else A
+
+
+def _operator_pair(op: LinearOperator, like: torch.Tensor):
+    """``(A, Aᵀ)`` callables; for :class:`Hadamard` without the per-call input checks."""
+    if not isinstance(op, Hadamard):
+        return op.forward, op.adjoint
+    h = op.transform_spec(like)
+    index, n = op.index, op.n
+    return (
+        lambda u: hadamard_forward(u, index, h),
+        lambda r: hadamard_adjoint(r, index, n, h),
+    )
+
+
+def _sigma_of(noise_sigma, y: torch.Tensor, func: str) -> torch.Tensor:
+    """``(B, C)`` noise std in the units of ``y`` (orthonormal measurements)."""
+    if isinstance(noise_sigma, str):
+        if noise_sigma not in ("auto", "tail"):
+            raise ValueError(
+                f"{func}: expected noise_sigma to be a number, a tensor or 'auto', "
+                f"got {noise_sigma!r}"
+            )
+        return bucket_noise_sigma(y)
+    if isinstance(noise_sigma, torch.Tensor):
+        check_tensor(noise_sigma, "noise_sigma", func)
+        s = noise_sigma.to(dtype=y.dtype, device=y.device)
+        if s.ndim == 1:
+            s = s[:, None]
+        return s.expand(y.shape[:-1])
+    if isinstance(noise_sigma, bool) or not isinstance(noise_sigma, (int, float)):
+        raise TypeError(
+            f"{func}: expected noise_sigma to be a float, a tensor or 'auto', "
+            f"got {type(noise_sigma).__name__}"
+        )
+    if not math.isfinite(noise_sigma) or noise_sigma < 0:
+        raise ValueError(f"{func}: expected noise_sigma >= 0 and finite, got {noise_sigma}")
+    return y.new_full(y.shape[:-1], float(noise_sigma))
+
+
+def _check_noise_tensor(noise_sigma, y: torch.Tensor, func: str) -> None:
+    if isinstance(noise_sigma, torch.Tensor) and not is_tracing():
+        s = noise_sigma
+        ok = s.ndim == 0 or (s.ndim == 1 and s.shape[0] == y.shape[0]) or (
+            s.ndim == 2 and tuple(s.shape) == tuple(y.shape[:2])
+        )
+        if not ok:
+            raise ValueError(
+                f"{func}: expected noise_sigma of shape (), (B,) or (B, C) = "
+                f"{tuple(y.shape[:2])}, got {tuple(s.shape)}"
+            )
+        if s.numel() and bool((s < 0).any()):
+            raise ValueError(f"{func}: expected noise_sigma >= 0, got a negative entry")
+
+
+def _unrolled(
+    y: torch.Tensor,
+    A: LinearOperator,
+    prior: LearnedPrior,
+    step_raw: torch.Tensor,
+    noise_sigma,
+    func: str,
+) -> torch.Tensor:
+    """The iteration of the module docstring; ``y`` already checked."""
+    if isinstance(A, DMDSplit):
+        if noise_sigma is not None and not isinstance(noise_sigma, str):
+            # σ of each frame → σ of (y⁺ − y⁻)/n: √2 σ / n
+            noise_sigma = noise_sigma * (math.sqrt(2.0) / A.n)
+        y = combine_split(y, A.n)
+    op = _base_operator(A)
+    n, m = op.n, op.m
+    fwd, adj = _operator_pair(op, y)
+    tiny = torch.finfo(y.dtype).tiny
+    B, C = y.shape[0], y.shape[1]
+
+    sigma = _sigma_of("auto" if noise_sigma is None else noise_sigma, y, func)  # (B, C)
+    peak = y.abs().amax(dim=-1, keepdim=True).clamp_min(tiny)  # ‖y‖ without over/underflow
+    norm = peak * (y / peak).norm(dim=-1, keepdim=True)  # (B, C, 1)
+    x0 = adj(y / norm.clamp_min(tiny))  # unit-norm Aᵀ b
+    sign = torch.where(x0.sum(dim=(-2, -1)) >= 0, 1.0, -1.0).to(y.dtype)[..., None]  # (B, C, 1)
+    s = sign * norm / n  # signed RMS scale of Aᵀ y
+    b = y / torch.where(s >= 0, s.clamp_min(tiny), s.clamp_max(-tiny))
+    x = adj(b)
+
+    sigma_n = sigma / norm[..., 0].clamp_min(tiny) * n  # σ / |s|
+    log_sigma = torch.log(sigma_n.clamp_min(0) + SIGMA_FLOOR)
+    log_sr = torch.full_like(log_sigma, math.log(m / (n * n)))
+    K = step_raw.shape[0]
+    steps = 2 * torch.sigmoid(step_raw.to(y.dtype))
+
+    flat = (B * C, 1, n, n)
+    bf = b
+    x = x.reshape(flat)
+    base = torch.stack((log_sigma, log_sr), dim=-1).reshape(B * C, 2)
+    for k, g in enumerate(steps.unbind()):
+        xi = x.reshape(B, C, n, n)
+        z = (xi - g * adj(fwd(xi) - bf)).reshape(flat)
+        tk = torch.full_like(base[:, :1], (k + 1) / K)
+        x = z + prior(z, torch.cat((base, tk), dim=-1))
+    return x.reshape(B, C, n, n) * s[..., None]
+
+
+# -- weights -------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=4)
+def _load_blob(path: str) -> dict:
+    return torch.load(path, weights_only=True, map_location="cpu")
+
+
+class Learned(nn.Module):
+    """Learned proximal-gradient reconstructor with a shared CNN prior (module docstring).
+
+    Args:
+        A: :class:`~torchtof.operators.Hadamard` (any ``n`` divisible by 2, any SR and
+            order), another operator with orthonormal rows, or a
+            :class:`~torchtof.operators.DMDSplit` of a Hadamard operator; held inside.
+        n_layers: unrolled steps ``K`` (the shipped weights: :data:`DEFAULT_N_LAYERS`).
+        noise_sigma: bucket noise std in the units of ``y`` (float, ``(B,)`` or ``(B, C)``
+            tensor; for a DMD split the std of one frame) or ``"auto"`` (estimated from the
+            high-order tail of ``y``, :func:`~torchtof.recon.tval3.bucket_noise_sigma`; meant
+            for low-to-high orders such as cake-cutting).
+        pretrained: ``True`` loads the shipped weights (:data:`WEIGHTS_FILE`), ``False``
+            keeps the random initialisation, a path loads that file.
+        width: channels of the prior (must match the weights file).
+
+    Raises:
+        TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
+            ``n_layers`` not an int.
+        ValueError: if ``A`` has no orthonormal rows (and is not a DMD split), ``A.n`` is
+            odd, ``n_layers < 1``, or the weights file does not match.
+        FileNotFoundError: if ``pretrained=True`` and the shipped file is missing.
+
+    Shape:
+        ``(B, C, M) -> (B, C, n, n)`` (``M = A.m``; ``2M`` frames for a DMD split).
+
+    Example:
+        >>> from torchtof.operators import Hadamard
+        >>> A = Hadamard(32, sr=0.125)
+        >>> net = Learned(A, pretrained=False)
+        >>> net(A(torch.rand(2, 1, 32, 32))).shape
+        torch.Size([2, 1, 32, 32])
+    """
+
+    def __init__(
+        self,
+        A: LinearOperator,
+        n_layers: int = DEFAULT_N_LAYERS,
+        noise_sigma: float | torch.Tensor | str = "auto",
+        pretrained: bool | str | os.PathLike = True,
+        width: int = 16,
+    ) -> None:
+        super().__init__()
+        func = "Learned"
+        _check_operator(A, func)
+        if isinstance(n_layers, bool) or not isinstance(n_layers, int):
+            raise TypeError(f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
+        if n_layers < 1:
+            raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
+        if isinstance(width, bool) or not isinstance(width, int) or width < 1:
+            raise ValueError(f"{func}: expected width to be an int >= 1, got {width!r}")
+        if not isinstance(noise_sigma, torch.Tensor):
+            _sigma_of(noise_sigma, torch.zeros(1, 1, 1), func)  # validate once here
+        self.A = A
+        self.n_layers = n_layers
+        self.noise_sigma = noise_sigma
+        self.prior = LearnedPrior(width=width)
+        self.step_raw = nn.Parameter(torch.zeros(n_layers))
+        self.weights_file: str | None = None
+        if pretrained is True:
+            if not WEIGHTS_FILE.is_file():
+                raise FileNotFoundError(
+                    f"{func}: shipped weights {os.fspath(WEIGHTS_FILE)!r} are missing; "
+                    "pass pretrained=False or train them with `torchtof train --model learned`"
+                )
+            self.load_weights(WEIGHTS_FILE)
+        elif pretrained is not False:
+            self.load_weights(pretrained)
+
+    def meta(self) -> dict:
+        """What a weights file must match: ``n_layers`` and ``width``."""
+        return {"model": "learned", "n_layers": self.n_layers, "width": self.prior.width}
+
+    def load_weights(self, path: str | os.PathLike) -> None:
+        """Load a file written by :meth:`save_weights` (``torch.load(weights_only=True)``).
+
+        Raises:
+            ValueError: if its ``n_layers``/``width`` differ from this module's.
+        """
+        blob = _load_blob(os.fspath(Path(path).resolve()))
+        meta = blob.get("meta", {})
+        want = self.meta()
+        if any(meta.get(k) != v for k, v in want.items()):
+            raise ValueError(
+                f"Learned.load_weights: weights file {os.fspath(path)!r} holds "
+                f"{ {k: meta.get(k) for k in want} }, expected {want}"
+            )
+        self.prior.load_state_dict(blob["prior"])
+        with torch.no_grad():
+            self.step_raw.copy_(blob["step_raw"])
+        self.weights_file = os.fspath(path)
+
+    def save_weights(self, path: str | os.PathLike, **meta: object) -> None:
+        """Save the prior, the step sizes and metadata (``meta`` adds training details)."""
+        blob = {
+            "prior": {k: v.detach().clone() for k, v in self.prior.state_dict().items()},
+            "step_raw": self.step_raw.detach().clone(),
+            "meta": {**self.meta(), **meta},
+        }
+        torch.save(blob, Path(path))
+        _load_blob.cache_clear()
+
+    def steps(self) -> torch.Tensor:
+        """The step sizes ``γ_k ∈ (0, 2)``, shape ``(K,)``."""
+        return 2 * torch.sigmoid(self.step_raw)
+
+    def _check_y(self, y: torch.Tensor, func: str) -> None:
+        check_tensor(y, "y", func)
+        check_shape(y, (None, None, self.A.m), "y", func, "(B, C, M)")
+        check_finite(y, "y", func)
+        _check_noise_tensor(self.noise_sigma, y, func)
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        func = "Learned.forward"
+        self._check_y(y, func)
+        if y.shape[0] == 0 and not is_tracing():
+            return y.new_zeros(0, y.shape[1], self.A.n, self.A.n)
+        return _unrolled(y, self.A, self.prior, self.step_raw, self.noise_sigma, func)
+
+    def solve(self, y: torch.Tensor) -> LearnedResult:
+        """:meth:`forward` plus the per-sample residual ``‖A x − y‖ / ‖y‖`` and the fields of
+        the reconstructor contract (:class:`LearnedResult`)."""
+        x = self.forward(y)
+        B, C = y.shape[0], y.shape[1]
+        with torch.no_grad():
+            r = self.A(x) - y if B else y
+            num = r.norm(dim=-1)
+            den = y.norm(dim=-1)
+            residual = torch.where(den > 0, num / den.clamp_min(torch.finfo(y.dtype).tiny), 0.0)
+        return LearnedResult(
+            x=x,
+            n_iter=torch.full((B, C), self.n_layers, dtype=torch.int64, device=y.device),
+            residual=residual,
+            converged=torch.ones(B, C, dtype=torch.bool, device=y.device),
+            stop_reason=tuple(tuple(STOP_REASON for _ in range(C)) for _ in range(B)),
+        )
+
+    def extra_repr(self) -> str:
+        return (
+            f"n_layers={self.n_layers}, noise_sigma={self.noise_sigma!r}, "
+            f"weights_file={self.weights_file!r}"
+        )
+
+
+def learned(
+    y: torch.Tensor,
+    A: LinearOperator,
+    n_layers: int = DEFAULT_N_LAYERS,
+    noise_sigma: float | torch.Tensor | str = "auto",
+    pretrained: bool | str | os.PathLike = True,
+) -> torch.Tensor:
+    """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
+
+    Args:
+        y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
+        A: the operator (see :class:`Learned`).
+        n_layers, noise_sigma, pretrained: as in :class:`Learned`.
+
+    Returns:
+        ``(B, C, n, n)`` reconstruction, dtype and device of ``y``.
+
+    Example:
+        >>> from torchtof.operators import Hadamard
+        >>> A = Hadamard(32, sr=0.25)
+        >>> learned(A(torch.rand(1, 1, 32, 32)), A, pretrained=False).shape
+        torch.Size([1, 1, 32, 32])
+    """
+    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained)
+    return net.to(y.device)(y)

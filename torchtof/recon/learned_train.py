@@ -1,0 +1,327 @@
+"""Training of the learned reconstructor (:class:`~torchtof.recon.learned.Learned`).
+
+Each step draws one operator for the whole global batch, from a generator seeded by
+``(seed, step)``: ``n`` from ``sizes`` (the largest with probability ``p_large``), the
+sampling rate uniform in ``sr_range`` and the Hadamard order uniform over ``orders``; then
+``batch_size`` procedural scenes (:func:`torchtof.data.draw_scenes`) and their noise
+(:func:`torchtof.data.training_noise`, :func:`torchtof.data.noisy_buckets`), each from its
+own generator seeded by ``(seed, step, index)``. The loss is the negative mean PSNR of the
+reconstructions against the clean scenes (:func:`psnr_loss`: ``10 log10`` of each sample's
+mean squared error, so that a noisy sample's large error does not drown the clean ones); Adam (Kingma & Ba, 2015) with a cosine decay of the
+learning rate (Loshchilov & Hutter, 2017) to 5 % of its peak and gradient-norm clipping at 1.
+
+Data parallel under ``torchrun`` exactly as :func:`torchtof.recon.train_unrolled` (same
+set-up, :func:`torchtof.recon.train.dist_setup`): rank ``r`` of ``W`` draws scenes
+``[r B/W, (r+1) B/W)`` of the same global batch, and DDP averages the gradients.
+
+Outputs in ``out``: ``checkpoint.pt`` (model, optimiser, scheduler, step; written every
+``checkpoint_every`` steps, ``resume=True`` continues from it), ``log.json`` (one record per
+logged step), and at the end ``learned.pt`` (:meth:`Learned.save_weights`) with
+``recipe.json`` (the command, seed, data recipe, torch version, wall time and load).
+
+Command line: ``torchtof train --model learned`` (:func:`add_arguments`, :func:`main`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from ..data import FAMILIES, TRAIN_IMAGES, TRAIN_LEVELS, draw_scenes, noisy_buckets, training_noise
+from ..operators.hadamard import Hadamard
+from ..operators.patterns import ORDERS
+from .learned import DEFAULT_N_LAYERS, Learned
+from .train import dist_setup
+
+__all__ = ["train_learned", "LearnedTrainResult", "step_config", "psnr_loss", "add_arguments", "main"]
+
+
+class LearnedTrainResult(NamedTuple):
+    """What :func:`train_learned` returns: the model (not DDP-wrapped), the per-step losses
+    of this run (from the resumed step on) and the wall time in seconds."""
+
+    model: Learned
+    losses: list[float]
+    wall_s: float
+
+
+#: Floor of the per-sample MSE inside :func:`psnr_loss` (PSNR 60 dB on [0, 1]).
+MSE_FLOOR = 1e-6
+
+
+def psnr_loss(x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``mean_i 10 log10(MSE_i + MSE_FLOOR)``: the negative mean PSNR (peak 1, paper Eqs.
+    13–14 without quantisation) over the samples of a batch ``(B, C, n, n)``."""
+    mse = ((x_hat - x) ** 2).mean(dim=(-3, -2, -1))
+    return 10 * torch.log10(mse + MSE_FLOOR).mean()
+
+
+def _seq(*ints: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(i) for i in ints]))
+
+
+def step_config(
+    seed: int,
+    step: int,
+    sizes: tuple[int, ...],
+    p_large: float,
+    sr_range: tuple[float, float],
+    orders: tuple[str, ...],
+) -> tuple[int, int, str]:
+    """``(n, m, order)`` of the operator of ``step`` (the same on every rank).
+
+    Example:
+        >>> step_config(0, 3, (32, 64), 0.3, (0.0625, 0.5), ("cake_cutting",))[2]
+        'cake_cutting'
+    """
+    r = _seq(seed, step, 2)
+    if len(sizes) == 1:
+        n = sizes[0]
+    elif r.random() < p_large:
+        n = sizes[-1]
+    else:
+        n = sizes[int(r.integers(0, len(sizes) - 1))]
+    sr = r.uniform(*sr_range)
+    m = max(1, min(n * n, int(round(sr * n * n))))
+    return n, m, orders[int(r.integers(0, len(orders)))]
+
+
+def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range):
+    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
+    gens = [torch.Generator().manual_seed(int(_seq(seed, step, i, 1).integers(0, 2**62))) for i in indices]
+    recipes = [training_noise(g) for g in gens]
+    A = Hadamard(n, m=m, order=order)
+    with torch.no_grad():
+        y = noisy_buckets(A, x, recipes, gens)
+    return A, x, y
+
+
+def train_learned(
+    steps: int = 1800,
+    batch_size: int = 12,
+    lr: float = 2e-3,
+    seed: int = 0,
+    sizes: tuple[int, ...] = (32, 64),
+    p_large: float = 0.3,
+    sr_range: tuple[float, float] = (0.0625, 0.5),
+    orders: tuple[str, ...] = ORDERS,
+    n_layers: int = DEFAULT_N_LAYERS,
+    width: int = 16,
+    out: str | os.PathLike | None = None,
+    checkpoint_every: int = 100,
+    resume: bool = False,
+    log_every: int = 10,
+    progress: bool = True,
+    distributed: bool | None = None,
+    max_minutes: float | None = None,
+    command: str | None = None,
+) -> LearnedTrainResult:
+    """Train :class:`Learned` from its random initialisation (module docstring).
+
+    Args:
+        steps: optimiser steps ``>= 1`` (the cosine schedule spans them).
+        batch_size: global batch, divisible by the number of processes.
+        lr: peak Adam learning rate.
+        seed: base seed of every draw (operators, scenes, noise, initialisation).
+        sizes: image sides drawn (powers of two, ``>= 8``).
+        p_large: probability of the largest size.
+        sr_range: ``(lo, hi)`` sampling rates, ``0 < lo <= hi <= 1``.
+        orders: Hadamard orders drawn.
+        n_layers, width: the network (:class:`Learned`).
+        out: folder of the checkpoint, log and final weights (``None``: nothing written).
+        checkpoint_every: steps between checkpoints (0: none).
+        resume: continue from ``out/checkpoint.pt`` if it exists.
+        log_every: steps between ``log.json`` records and progress updates.
+        progress: show a tqdm progress bar on rank 0.
+        distributed: ``None`` detects torchrun, ``True`` requires it, ``False`` never.
+        max_minutes: stop (and save) after that much wall time, even before ``steps``.
+        command: the command line recorded in ``recipe.json``.
+
+    Returns:
+        :class:`LearnedTrainResult`.
+
+    Raises:
+        ValueError: for invalid arguments (named in the message).
+    """
+    func = "train_learned"
+    for name, v, least in (("steps", steps, 1), ("batch_size", batch_size, 1),
+                           ("checkpoint_every", checkpoint_every, 0), ("log_every", log_every, 1)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < least:
+            raise ValueError(f"{func}: expected {name} to be an int >= {least}, got {v!r}")
+    if not (lr > 0 and math.isfinite(lr)):
+        raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
+    lo, hi = sr_range
+    if not 0 < lo <= hi <= 1:
+        raise ValueError(f"{func}: expected 0 < sr_range[0] <= sr_range[1] <= 1, got {sr_range}")
+    if not sizes or any(s < 8 or s & (s - 1) for s in sizes):
+        raise ValueError(f"{func}: expected sizes to be powers of two >= 8, got {sizes}")
+    bad = [o for o in orders if o not in ORDERS]
+    if not orders or bad:
+        raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
+    sizes = tuple(sorted(sizes))
+
+    torch.manual_seed(seed)
+    model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False, width=width)
+    params = list(model.prior.parameters()) + [model.step_raw]
+    opt = torch.optim.Adam(params, lr=lr)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: 0.05 + 0.475 * (1 + math.cos(math.pi * min(s, steps) / steps))
+    )
+    outdir = Path(out) if out is not None else None
+    start, log, wall0 = 0, [], 0.0
+    ckpt = outdir / "checkpoint.pt" if outdir is not None else None
+    if resume and ckpt is not None and ckpt.is_file():
+        state = torch.load(ckpt, weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        sched.load_state_dict(state["sched"])
+        start, log, wall0 = state["step"], state["log"], state["wall_s"]
+
+    is_dist, rank, world, created = dist_setup(distributed)
+    t0 = time.perf_counter()
+    losses: list[float] = []
+    try:
+        if batch_size % world:
+            raise ValueError(f"{func}: expected batch_size divisible by the world size {world}, "
+                             f"got {batch_size}")
+        shard = batch_size // world
+        indices = range(rank * shard, (rank + 1) * shard)
+        bar = None
+        if progress and rank == 0:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, initial=start, desc="train learned", file=sys.stderr,
+                       mininterval=5.0)
+
+        def save_checkpoint(step: int) -> None:
+            if ckpt is None or rank != 0:
+                return
+            outdir.mkdir(parents=True, exist_ok=True)
+            tmp = ckpt.with_suffix(".tmp")
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
+                        "sched": sched.state_dict(), "step": step, "log": log,
+                        "wall_s": wall0 + time.perf_counter() - t0}, tmp)
+            tmp.replace(ckpt)
+            (outdir / "log.json").write_text(json.dumps(log, indent=0))
+
+        net: nn.Module = model
+        if is_dist:  # A has no parameters: swapping it per step leaves DDP's buckets intact
+            net = nn.parallel.DistributedDataParallel(model, broadcast_buffers=False)
+        step = start
+        for step in range(start, steps):
+            n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
+            A, x, y = _batch(seed, step, n, m, order, indices)
+            model.A = A
+            loss = psnr_loss(net(y), x)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(params, 1.0)
+            opt.step()
+            sched.step()
+            mean = loss.detach().clone()
+            if is_dist:
+                dist.all_reduce(mean)
+                mean /= world
+            losses.append(float(mean))
+            if rank == 0 and ((step + 1) % log_every == 0 or step == steps - 1):
+                recent = losses[-log_every:]
+                log.append({"step": step + 1, "loss": float(np.mean(recent)), "n": n,
+                            "sr": m / (n * n), "order": order, "lr": sched.get_last_lr()[0],
+                            "wall_s": round(wall0 + time.perf_counter() - t0, 1)})
+                if bar is not None:
+                    bar.update(step + 1 - bar.n)
+                    bar.set_postfix(loss=f"{log[-1]['loss']:.5f}")
+            if checkpoint_every and (step + 1) % checkpoint_every == 0:
+                save_checkpoint(step + 1)
+            if max_minutes is not None and time.perf_counter() - t0 > 60 * max_minutes:
+                step += 1
+                break
+        else:
+            step = steps
+        save_checkpoint(step)
+        if bar is not None:
+            bar.close()
+        wall = wall0 + time.perf_counter() - t0
+        if outdir is not None and rank == 0:
+            recipe = {
+                "command": command,
+                "seed": seed,
+                "steps_run": step,
+                "steps": steps,
+                "batch_size": batch_size,
+                "world_size": world,
+                "lr": lr,
+                "sizes": list(sizes),
+                "p_large": p_large,
+                "sr_range": [lo, hi],
+                "orders": list(orders),
+                "n_layers": n_layers,
+                "width": width,
+                "data": {
+                    "families": FAMILIES,
+                    "train_images": list(TRAIN_IMAGES),
+                    "noise": {"p_clean": 0.2, "gaussian_levels": list(TRAIN_LEVELS),
+                              "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
+                },
+                "final_loss": float(np.mean(losses[-max(1, len(losses) // 10):])) if losses else None,
+                "torch_version": str(torch.__version__),
+                "wall_s": round(wall, 1),
+                "load_avg_end": list(os.getloadavg()),
+                "threads": torch.get_num_threads(),
+            }
+            model.A = Hadamard(sizes[0], sr=0.25)
+            model.save_weights(outdir / "learned.pt", seed=seed, steps=step,
+                               torch_version=str(torch.__version__))
+            (outdir / "recipe.json").write_text(json.dumps(recipe, indent=1))
+        if is_dist:
+            dist.barrier()
+    finally:
+        if created:
+            dist.destroy_process_group()
+    return LearnedTrainResult(model=model, losses=losses, wall_s=wall)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``torchtof train --model learned``."""
+    p.add_argument("--steps", type=int, default=1800)
+    p.add_argument("--batch-size", type=int, default=12)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64])
+    p.add_argument("--p-large", type=float, default=0.3)
+    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5])
+    p.add_argument("--orders", nargs="+", default=list(ORDERS))
+    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS)
+    p.add_argument("--width", type=int, default=16)
+    p.add_argument("--out", default="train_learned_out")
+    p.add_argument("--checkpoint-every", type=int, default=100)
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--log-every", type=int, default=10)
+    p.add_argument("--max-minutes", type=float, default=None)
+    p.add_argument("--no-progress", action="store_true")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run :func:`train_learned` from parsed :func:`add_arguments` options."""
+    r = train_learned(
+        steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+        sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
+        orders=tuple(args.orders), n_layers=args.n_layers, width=args.width, out=args.out,
+        checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
+        progress=not args.no_progress, max_minutes=args.max_minutes,
+        command=shlex.join(["torchtof", *sys.argv[1:]]) if sys.argv else None,
+    )
+    print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
+    return 0

@@ -1,0 +1,115 @@
+"""Tables and figures of the command-line tools: aligned text tables and labelled image grids.
+
+Used by the CLI, the demos, ``torchtof reproduce``, the benchmarks and the hardware
+commands; it imports nothing from them (the library proper never imports it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+__all__ = ["print_table", "print_method_rows", "save_grid"]
+
+
+def print_table(rows: list[dict], cols: list[str], floatfmt: str = "{:.3g}") -> None:
+    """Print ``rows`` as an aligned text table with the given column order.
+
+    Floats are formatted with ``floatfmt``, anything else with ``str``; a missing key prints
+    an empty cell.
+
+    Example:
+        >>> print_table([{"a": 1, "b": 0.5}, {"a": 22}], ["a", "b"])
+         a    b
+        --  ---
+         1  0.5
+        22
+    """
+    cells = [list(cols)] + [
+        [floatfmt.format(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols]
+        for r in rows
+    ]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
+    for k, row in enumerate(cells):
+        print("  ".join(v.rjust(w) for v, w in zip(row, widths)).rstrip())
+        if k == 0:
+            print("  ".join("-" * w for w in widths))
+
+
+_BUCKETS = {"raw": "raw ToF map", "depth": "depth", "depth_gated": "depth, 3 m gate",
+            "taps": "taps I/Q"}
+
+
+def print_method_rows(rows: list[dict]) -> None:
+    """Print the rows of :func:`torchtof.methods.evaluate` (method, gate, PSNR ± std, SSIM,
+    time) as a table; ``psnr_std`` is shown only when more than one realisation was run."""
+    table = []
+    for r in rows:
+        std = r.get("psnr_std")
+        table.append({
+            "method": r["method"],
+            "buckets": _BUCKETS.get(r.get("buckets"), "depth, 3 m gate" if r.get("gate")
+                                    else "depth"),
+            "PSNR dB": f"{r['psnr']:.2f}" + (f" ± {std:.2f}" if std else ""),
+            "SSIM": f"{r['ssim']:.3f}",
+            "time s": f"{r['time_s']:.3f}" if r.get("time_s") is not None else "-",
+        })
+    print_table(table, ["method", "buckets", "PSNR dB", "SSIM", "time s"])
+
+
+def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[str] | None = None,
+              title: str = "") -> Path:
+    """Save images as a labelled grid PNG (matplotlib; a plain montage without it).
+
+    Each image is min-max normalised (:func:`torchtof.metrics.normalize_image`) for display.
+
+    Args:
+        path: the PNG to write (parent folders are created).
+        columns: ``(label, tensor (R, 1, H, W))``; each tensor's first ``len(rows)`` images
+            fill the rows (row ``r`` uses image ``r`` or the last one).
+        rows: row labels (default one unlabelled row).
+        title: figure title.
+
+    Returns:
+        ``path``.
+    """
+    from .metrics import normalize_image
+
+    path = Path(path)
+    rows = rows or [""]
+    imgs = [[normalize_image(t[min(r, t.shape[0] - 1) : min(r, t.shape[0] - 1) + 1].float())[0, 0]
+             for r in range(len(rows))] for _, t in columns]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover - plot extra not installed
+        import numpy as np
+        from skimage.io import imsave
+
+        grid = np.concatenate(
+            [np.concatenate([c[r].numpy() for c in imgs], axis=1) for r in range(len(rows))]
+        )
+        imsave(str(path), (grid * 255).astype("uint8"), check_contrast=False)
+        return path
+    fig, axes = plt.subplots(len(rows), len(columns),
+                             figsize=(1.6 * len(columns), 1.75 * len(rows)), squeeze=False)
+    for c, (label, _) in enumerate(columns):
+        for r in range(len(rows)):
+            ax = axes[r][c]
+            ax.imshow(imgs[c][r].numpy(), cmap="gray", vmin=0, vmax=1)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(label, fontsize=8)
+            if c == 0 and rows[r]:
+                ax.set_ylabel(rows[r], fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
