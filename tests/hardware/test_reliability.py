@@ -80,10 +80,11 @@ def test_double_fault_in_one_sequence_gives_zero_wrong_buckets(pairs, ids, clean
 @pytest.mark.slow
 @pytest.mark.parametrize("ids", ["device", "count"])
 def test_every_single_and_double_fault_gives_zero_wrong_buckets(ids, clean, tmp_path):
-    """Every fault kind at every position of the 16-frame sequence, alone and in every pair
-    (positions 0, 1, 7, 8, 14, 15 for the pairs): 0 buckets wrong in every run."""
+    """Every fault kind at every position of the 16-frame sequence, alone (112 runs), and
+    every pair of faults at the first, middle and last positions 0, 7, 8, 15 (378 runs):
+    0 buckets wrong in every run."""
     singles = [((k, p),) for k in KINDS for p in range(16)]
-    spots = [(k, p) for k in KINDS for p in (0, 1, 7, 8, 14, 15)]
+    spots = [(k, p) for k in KINDS for p in (0, 7, 8, 15)]
     doubles = [c for c in itertools.combinations(spots, 2) if c[0] != c[1]]
     runs = 0
     for pairs in singles + doubles:
@@ -261,26 +262,27 @@ def _env():
 
 @pytest.mark.slow
 def test_kill_9_at_random_times_then_resume_is_bit_identical(tmp_path):
-    """A noisy CLI acquisition SIGKILLed at 10 random times (a new resume each time), then
-    resumed to the end: every array equals the uninterrupted run's."""
+    """A noisy CLI acquisition SIGKILLed at 10 random times (each attempt resumes the last),
+    then resumed to the end: every array equals the uninterrupted run's."""
     args = ["acquire", "--simulated", "--scene", "sky", "--sr", "0.5", "--n", "8",
             "--roi-px", "16", "--no-progress", "--seed", "7"]
     full = tmp_path / "full.zarr"
     assert main([*args, "-o", str(full)]) == 0
     path = tmp_path / "killed.zarr"
     rng = np.random.default_rng(11)
-    kills = 0
-    for _ in range(10):
+    kills = attempts = 0
+    while kills < 10 and attempts < 30:
+        attempts += 1
         extra = ["--resume"] if (path / "zarr.json").exists() else []
         proc = subprocess.Popen([sys.executable, "-m", "torchtof.cli", *args, "-o", str(path),
                                  *extra], env=_env(), cwd=tmp_path, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
-        time.sleep(float(rng.uniform(1.0, 4.0)))
+        time.sleep(float(rng.uniform(0.8, 3.0)))
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)
             kills += 1
         proc.wait(timeout=60)
-    assert kills >= 5
+    assert kills == 10
     assert main([*args, "-o", str(path), "--resume"]) == 0
     a, b = zarr.open_group(str(path), mode="r"), zarr.open_group(str(full), mode="r")
     for name in ("buckets_depth", "buckets_gated", "buckets_intensity", "buckets_taps",

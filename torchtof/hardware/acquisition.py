@@ -1,50 +1,37 @@
 """Acquisition: show each DMD pattern, grab its ToF frame, form the buckets, record safely.
 
-For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2`` (DESIGN
-§2, :class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns
-are loaded in sequences of at most 24 (one 24-bit video frame of bit planes); the DMD paces
-the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern.
+For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2``
+(:class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns are
+loaded in sequences of at most 24 (the bit planes of one 24-bit video frame); the projector
+paces them (VSYNC trigger by default) and its TRIG_OUT1 triggers the camera, one frame per
+pattern. The camera's frame time is programmed to fit one pattern period first.
 
-**Frame ids and checks** (``frame_ids``). The OPT8241's frames carry no header; two modes:
+**A sequence is recorded only once all its checks pass** (:class:`_Sequences`): one frame
+per pattern; byte-identical duplicates dropped; with ``frame_ids="device"`` (the OPT9221's
+``debug_frame_number_en``, :mod:`.opt8241`) consecutive device frame numbers; with
+``check_timing`` each frame's host arrival time on the pattern schedule (±40 % of the
+pattern spacing: a spurious frame arrives too early, a lost one leaves a gap — the check
+that sees a spurious *and* a lost frame in one sequence, whose device ids stay
+consecutive); and no frame after the last one. Any failed check, timeout, NACK or corrupt
+frame discards the whole sequence, stops the projector, flushes the camera and shows the
+sequence again (``retries`` times, then an error naming the pattern or command): no frame
+is ever recorded against the wrong pattern. A killed run loses at most the sequence in
+flight (≤ 24 frames).
 
-* ``"device"`` (default): the acquisition switches on the OPT9221's
-  ``debug_frame_number_en`` (:mod:`.opt8241`: byte 0 of every frame is the device's 8-bit
-  frame number; that sample of pixel (0, 0) is not a measurement, so the bucket ROI leaves
-  row 0 out). Each frame is checked as it arrives — id = previous + 1 (mod 256): good, record
-  it at once; same id and same bytes: a duplicated transfer, dropped; same id with other
-  bytes, or a gap (a lost frame): re-acquire from that frame's pattern pair — and recorded
-  before the next grab, so a killed run loses at most the frame in flight. The counter's
-  start value is unknown, so after the camera starts and after every retry the first frame
-  is an *anchor*: the first pattern pair is acquired as a sequence of its own, recorded as it
-  arrives but marked provisional (``frames_ok`` 2) until its count check passes (a pair is
-  re-acquired as a whole on resume anyway). As a second check every sequence ends with the
-  count check: no frame may follow the last pattern within 50 ms (a spurious frame the camera
-  makes itself gets the next number and is seen only here; the whole sequence is then
-  re-acquired — if the run is killed in between, that sequence's frames after the spurious
-  one stay recorded shifted: the one case device ids cannot make kill-safe).
-* ``"count"`` (cameras or firmware without the counter): the host numbers frames as TI's SDK
-  does, so a lost frame is seen only by the *count*: the frames of a sequence (≤ 24) are held
-  in memory until all of them (one per pattern) have arrived and no extra frame follows within
-  50 ms, and only then recorded — a killed run loses up to the sequence in flight (≤ 24
-  frames). A frame byte-identical to its predecessor is dropped. Blind to a lost *and* an
-  extra frame in the same sequence, and to a repeated frame that is not byte-identical.
-
-Any fault (missing, extra or out-of-order frame, timeout, NACK, corrupt frame) re-acquires
-(``retries`` times per sequence, then a clear error). Buckets per frame over the ROI ``roi``
-(paper Eq. 10, §3.1, DESIGN §2): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
+Buckets per frame over the ROI ``roi`` (paper Eq. 10, §3.1; per-tap buckets as
+:func:`torchtof.bucket.tap_buckets`): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
 ``Σ a`` and the four tap sums (NaN unless the camera sends raw quads).
 
-**Recording** (zarr v3, :func:`acquire`): every frame (its ROI) and its buckets are written
-as they are accepted (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``,
-``frames_taps``, ``frames_id`` (device number 0-255, or host count), ``frames_timestamp``,
-``buckets_depth``, ``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis
-last for buckets ``(1, C, 2M)``, first for frames, chunked per pattern sequence of ≤ 24
-frames) and then marked in ``frames_ok`` (1 recorded, 2 provisional, 0 not yet). zarr's
-local store replaces each chunk file atomically, so a killed run keeps every frame recorded
-before the kill;
-``resume=True`` continues at the first pattern pair not completely recorded. Needs zarr ≥ 3
-(Python ≥ 3.11): :func:`require_zarr3`. Patterns, order, timing, ROI, frame-id mode, camera
-settings and package versions are store attributes.
+**Recording** (zarr ≥ 3.1.6, :func:`acquire`): a checked sequence is written with one write
+per array (``frames_depth``, ``frames_amplitude``, ``frames_phase``, ``frames_taps``,
+``frames_id`` (device number 0-255, or host count), ``frames_timestamp``, ``buckets_depth``,
+``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis last for buckets
+``(1, C, 2M)``, first for frames, chunked per sequence) and then marked in ``frames_ok``.
+zarr 3.1.6's local store replaces each chunk file atomically and every chunk carries a
+CRC-32C (zarr's ``crc32c`` codec), checked on every read. ``resume=True`` verifies the whole
+store (:func:`_verify`), refuses one recorded with any other data-changing setting (naming
+it), and continues at the first sequence not recorded. Patterns, order, timing, ROI,
+frame-id mode, camera settings and package versions are store attributes.
 """
 
 from __future__ import annotations
@@ -127,7 +114,7 @@ def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
     if frame.taps is None:  # a frame without raw taps: NaN tap buckets, never made-up numbers
         taps = torch.full((1, 4, 1), float("nan"))
     else:
-        taps = tap_buckets(frame.taps[None, None])  # DESIGN §2 per-tap buckets
+        taps = tap_buckets(frame.taps[None, None])  # per-tap buckets
     return {
         "depth": depth_bucket(d),  # Eq. 10
         "gated": depth_bucket(d, gate_m=gate_m),  # §3.1 "low-pass filter"

@@ -1,7 +1,9 @@
 """DLP LightCrafter 4500 (DLPC350 controller) over USB HID: message codec and driver.
 
-Implemented from TI's command tables (DLPU010, DLPC350 programmer's guide; DLPU011,
-LightCrafter 4500 user's guide) as summarised in ``domain-notes.md`` §7; no GPL code.
+Implemented from TI's command tables (DLPU010, DLPC350 programmer's guide) and checked
+against pyCrafter4500 (``pycrafter4500.py``: ``dlpc350.command`` for the report layout, one
+method per command for the codes and payloads, ``pattern_mode`` for the video-mode order);
+no GPL code.
 
 **Message** (one or more 64-byte HID reports, OUT endpoint 0x01, IN endpoint 0x81)::
 
@@ -68,7 +70,7 @@ _HEADER = 4  # flags, seq, length (u16)
 
 FLAG_READ, FLAG_REPLY, FLAG_NACK = 0x80, 0x40, 0x20
 
-#: name -> (CMD2, CMD3, payload length or None for variable), domain-notes §7.
+#: name -> (CMD2, CMD3, payload length or None for variable) (DLPU010; pyCrafter4500 methods).
 COMMANDS: dict[str, tuple[int, int, int | None]] = {
     "POWER_CONTROL": (0x02, 0x00, 1),
     "GET_VERSION": (0x02, 0x05, 0),
@@ -330,7 +332,8 @@ def payload_mailbox_control(mode: str) -> bytes:
 def lut_entry(pattern: int, bit_depth: int = 1, leds: str = "RGB", trig: str = "internal",
               invert: bool = False, insert_black: bool = False, buffer_swap: bool = False,
               trig_out_prev: bool = False) -> int:
-    """One 24-bit pattern LUT entry (domain-notes §7).
+    """One 24-bit pattern LUT entry (pyCrafter4500 ``send_pattern_lut``: byte 0 trigger type
+    and pattern number, byte 1 bit depth and LEDs, byte 2 flags).
 
     bits 1:0 trigger type (0 internal, 1 external +, 2 external −, 3 none/continue),
     bits 7:2 pattern number (bit plane, 0–24; 25 = fill), bits 11:8 bit depth (1–8),
@@ -358,7 +361,7 @@ def pack_pattern_lut(entries: Sequence[int]) -> bytes:
 
 def pack_image_lut(indices: Sequence[int]) -> bytes:
     """Flash image indices as the image-LUT ``MBOX_DATA`` payload (one byte each); TI's API
-    sends a 2-entry table swapped (domain-notes §7)."""
+    sends a 2-entry table swapped."""
     idx = [int(_u8(i, "image index", 0, 255)[0]) for i in indices]
     if not 1 <= len(idx) <= 64:
         raise ValueError(f"pack_image_lut: expected 1 to 64 images, got {len(idx)}")

@@ -115,7 +115,7 @@ class FrameError(TransientError):
 
 
 class FrameSequenceError(TransientError):
-    """Frames out of sequence: more frames than patterns in a sequence (the count check of
+    """More frames than patterns in a sequence (the count check of
     :func:`~torchtof.hardware.acquire`: a lost frame shows as a missing one — a timeout — and
     an extra frame as this error); the acquisition re-acquires the sequence."""
 
@@ -129,7 +129,7 @@ class FrameSequenceError(TransientError):
 class FrameIdError(TransientError):
     """A device frame id (OPT9221 ``debug_frame_number_en``) that does not follow its
     predecessor: a gap (frames lost between camera and host) or a repeated id on a frame with
-    different bytes; the acquisition re-acquires from the pattern pair of ``pattern_index``."""
+    different bytes; the acquisition re-acquires the whole sequence."""
 
     def __init__(self, pattern_index: int, expected: int, got: int, detail: str = "") -> None:
         self.pattern_index, self.expected, self.got = pattern_index, expected, got

@@ -1,13 +1,13 @@
 """TI OPT8241 ToF camera (OPT8241-CDK-EVM, "TintinCDK", OPT9221 controller) over USB.
 
-Everything below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — facts only, no
-code — and **none of it was verified against a physical camera here**. File names refer to
-that repository.
+Every fact below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — facts only, no
+code; file and function are named at each. **None of it was verified against a physical
+camera here** (README "Real hardware" lists what only a device can confirm).
 
-**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, ``TI3DToF/VoxelUSBProgrammer.cpp``,
-domain-notes §5.3): VID 0x0451, PID 0x9105 is the custom bulk device; registers are read and
-written with vendor device control transfers, ``wValue = slave << shift``,
-``wIndex = reg << shift``, the register value little endian in ``nbytes`` bytes:
+**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, the constructor's slave table;
+``Voxel/USBIO.cpp``): VID 0x0451, PID 0x9105 is the bulk device; registers are read and
+written with vendor device control transfers, ``wValue = slave << shift``, ``wIndex = reg
+<< shift``, the value little endian in ``nbytes`` bytes:
 
 ====================  ============  ===========  =====  ======
 slave                 read request  write req.   shift  bytes
@@ -18,86 +18,75 @@ slave                 read request  write req.   shift  bytes
 ====================  ============  ===========  =====  ======
 
 **Register map** (``TI3DToF/OPT9221.dml``; bank 0 "TG" → slave 0x58, bank 3 "DE" → slave
-0x5C, address = ``slave << 8 | register`` as ``ToFTintinCamera.cpp`` remaps them). The
-OPT9221 registers are 24 bits wide; a named parameter is a bit field of one register
-(:data:`REGISTERS`), written by read-modify-write.
+0x5C, address ``slave << 8 | register`` as ``ToFTintinCamera::_init`` remaps them). A named
+parameter is a bit field of one 24-bit register (:data:`REGISTERS`), written by
+read-modify-write.
 
-* Modulation frequency (DML description of ``mod_m1``/``mod_n1``/``mod_ps1``, system clock
-  48 MHz from ``ToFTintinCamera::_getSystemClockFrequency``)::
+* Modulation frequency (DML description of ``mod_m1``; system clock 48 MHz,
+  ``ToFTintinCamera::_getSystemClockFrequency``)::
 
-      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1      (300 MHz < f_vco < 600 MHz)
+      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1
       f_mod = f_vco / ((1 + mod_ps1) · quad_cnt_max)
 
-  :meth:`OPT8241.set_modulation_frequency` programs it as ``TintinModulationFrequencyParameter``
-  and ``TintinVCOFrequency`` do (``ToFTintinCamera.cpp``): ``mod_ps1 = ⌊300 / quad_cnt_max /
-  f_MHz⌋``, ``f_vco = (mod_ps1 + 1) · quad_cnt_max · f``, ``mod_n1 = 2``, ``mod_m1`` and
-  ``mod_m_frac1`` the integer and 16-bit fractional parts of ``f_vco · 2 / 48``, the writes
-  framed by ``mod_pll_update`` = 1 … 0 (DML: "set this register to 1 and then back to 0 to
-  update the PLL frequency"); limits 37.5/quad … 600/quad MHz. The SDK computes in float32,
-  torchtof in float64: ``mod_m_frac1`` may differ in its last bit.
-* Integration time: ``intg_duty_cycle`` (6 bits), DML: "integration time = intg_duty_cycle ·
-  100/63" percent of the cycle; ``ToFCamera.cpp`` exposes it as "percentage of total cycle
-  time". The frame time is ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` system clock
-  cycles (DML description of ``pix_cnt_max``). **torchtof's own derivation** (no SDK formula
-  in µs): ``t_int[µs] = intg_duty_cycle / 63 · pix_cnt_max · quad_cnt_max · sub_frame_cnt_max
-  / 48``.
-* Streaming: ``tg_dis`` (``0x5880`` bit 0). The SDK writes ``tg_dis = 1`` while configuring
-  and ``0`` to run (``ToFTintinCamera::_init`` / ``_initStartParams``); the DML description of
-  that bit reads the other way round ("'0': TFC stops all processing") — unresolved here;
-  torchtof follows the SDK code. ``slave_mode`` (``0x5881`` bit 0, DML: "waits for external
-  sync through VD_IN pin for the start of frames") gives one frame per DMD trigger; that the
-  CDK board routes a trigger input to VD_IN is **not confirmed**.
-* **Device frame numbers.** The DML has no frame-counter register, but property 6363
-  ``debug_frame_number_en`` (bank 3 "DE" register 57 → ``0x5C39``, bit 12, default 0,
-  writable; GUI section ``output_block``/group ``mac`` next to ``frm_header_en`` and
-  ``blk_header_en``) reads: "Debug. Replaces first byte of each frame with the current frame
-  number when set to '1'." :meth:`OPT8241.configure` sets it when ``frame_ids=True`` and
-  :meth:`OPT8241.grab` takes byte 0 of the transfer as the frame's id (0-255) and sets that
-  byte to 0 before decoding (:func:`split_frame_id`), so the overwritten sample — the low byte
-  of the first 16-bit word of pixel (row 0, column 0): tap c₁ in ``"quad"``, ``I`` in
-  ``"iq"``, the amplitude word in ``"depth"``/``"depth8"``, the phase word in ``"depth2"`` —
-  has a defined value (its high byte as sent, low byte 0) and is **not a measurement**;
-  :func:`~torchtof.hardware.acquire` leaves row 0 out of the bucket ROI. What the DML does
-  not say and torchtof **assumes**: the number is the low 8 bits of a counter that advances by
-  one per frame the OPT9221 outputs (so a frame lost after the OPT9221 leaves a gap), the
-  byte is byte 0 of the USB transfer (true with ``blk_header_en = frm_header_en = 0``, which
-  :meth:`configure` sets), and its start value is unknown (the acquisition never relies on it).
-  torchtof found no SDK code that sets the bit (a search of the SDK sources, not
-  exhaustive): the feature is documented by the DML only.
+  programmed as ``TintinModulationFrequencyParameter`` / ``TintinVCOFrequency`` do
+  (ToFTintinCamera.cpp): ``mod_ps1 = ⌊300 / quad_cnt_max / f_MHz⌋``, ``mod_n1 = 2``,
+  ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0; then
+  ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML; ``TintinUnambiguousRangeParameter::set``).
+* Frame time: ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` cycles at 48 MHz (DML
+  description of ``pix_cnt_max``; ``ToFCamera::_getFrameRate``), 33.3 ms at the DML defaults;
+  ``ToFCamera::_setFrameRate`` sets ``pix_cnt_max`` and reads ``pix_cnt_max_set_failed``. The
+  TintinCDK board limits ``pix_cnt_max`` ≥ 50000 and ``intg_duty_cycle`` ≤ 20
+  (``TintinCDKCamera::_init``). ``quad_cnt_max`` takes 4 or 6, ``sub_frame_cnt_max`` 1, 2, 4 or
+  8 (DML descriptions).
+* Integration time: ``intg_duty_cycle · 100/64`` percent (DML description;
+  ``IntegrationTimeParameter``, ToFCamera.cpp, which reads ``intg_duty_cycle_set_failed``
+  after each write). The µs value torchtof reports is that share of the frame time (the SDK
+  gives only the percentage).
+* De-aliasing off for one frequency: ``dealias_en = 0``, ``dealias_16bit_op_enable = 0``
+  (``TintinUnambiguousRangeParameter::set``).
+* Streaming: ``tg_dis`` (``0x5880`` bit 0), DML: "'1': TFC stops all processing. Streaming
+  comes to a halt … '0': TFC is in normal operation"; the SDK writes 1 while configuring and 0
+  to run (``ToFTintinCamera::_init``, ``_initStartParams``). ``slave_mode`` (``0x5881`` bit
+  0, DML: "waits for external sync through VD_IN pin for the start of frames") gives one
+  frame per DMD trigger.
+* Board initialisation (potentiometer, illumination driver, current monitors, profile) is
+  TI's (``TintinCDKCamera::_init`` and the profile's parameters); torchtof requires it to have
+  run and checks ``tillum_slv_addr`` (DML default 0x71, written 0x72 by TintinCDKCamera::_init).
+* **Device frame numbers.** DML property 6363 ``debug_frame_number_en`` (bank 3 register 57
+  → ``0x5C39``, bit 12): "Debug. Replaces first byte of each frame with the current frame
+  number when set to '1'." With ``frame_ids=True`` :meth:`OPT8241.configure` sets it and
+  :meth:`OPT8241.grab` takes byte 0 of the transfer as the frame's id and sets that byte to 0
+  (:func:`split_frame_id`): the low byte of the first word of pixel (0, 0), which is then no
+  measurement (the acquisition leaves row 0 out of the bucket ROI). **Assumed:** an 8-bit
+  counter advancing once per output frame, in byte 0 of the transfer (no header enabled).
 
-**Frames** (``Voxel/USBBulkStreamer.cpp``, ``TI3DToF/ToFFrameGenerator.cpp``,
+**Frames** (``Voxel/USBBulkStreamer.cpp``, ``ToFFrameGenerator.cpp``,
 ``TintinCDKCamera::_setStreamerFrameSize``): one bulk IN transfer on endpoint 0x82 is one
-frame of exactly ``width · height · bytes_per_pixel`` bytes — no header, no frame id, no
-timestamp, no checksum (the SDK asks for 255 extra bytes and drops any transfer of another
-size; the bulk device runs with ``blk_header_en = 0``). The SDK numbers frames on the host
-(``_currentID++`` per complete transfer) and time-stamps them with the host clock in µs;
-:class:`OPT8241` does the same unless ``frame_ids=True`` (device frame numbers, above) — with
-host ids a lost frame cannot be seen from its id (:mod:`~torchtof.hardware.acquisition` then
-checks frame counts per pattern sequence only).
-Pixel layouts, little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
+frame — no header, id, timestamp or checksum; the SDK asks for 255 extra bytes, drops a
+transfer of another size, reads on its own capture thread (200 ms transfer timeout), resets
+the endpoint at start and after three failed transfers, and drops the oldest buffer when the
+consumer is slow (``USBBulkStreamer::putBuffer``). :class:`OPT8241` does the same on a reader
+thread, but reports dropped and wrong-sized transfers instead of hiding them. Layouts,
+little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
 
 * ``"depth"`` (``output_mode`` 0, ``pixel_data_size`` 4, ``op_data_arrange_mode`` 0): per
   pixel ``amplitude12 | ambient4 << 12`` then ``phase12 | flags4 << 12``;
-* ``"depth8"`` (same, ``op_data_arrange_mode`` 2, the DML default): per row, per group of 8
-  pixels, 8 amplitude/ambient words then 8 phase/flags words;
-* ``"depth2"`` (``pixel_data_size`` 2): ``phase12 | amplitude_msb4 << 12`` (amplitude =
-  top nibble ``<< 8``);
-* ``"iq"`` (``output_mode`` 1 "raw IQ data", 4 bytes): int16 ``I`` then int16 ``Q``; the SDK
-  takes ``phase = arg(I + jQ)``. torchtof uses ``I = c₁ − c₂``, ``Q = c₄ − c₃`` (Eq. 7) and
-  amplitude ``|I + jQ| / 2`` (Eq. 8); the device's I/Q scale is **not confirmed**;
-* ``"quad"`` (``output_mode`` 15 "raw quad data" in the DML): **layout not documented in the
-  SDK**. torchtof assumes 8 bytes per pixel, four uint16 correlation samples in the Fig. 1
-  order with 12 significant bits (the datasheet's 12-bit outputs). It is the only mode that
-  carries the four taps (per-tap buckets); the simulator uses it by default.
+* ``"depth8"`` (``op_data_arrange_mode`` 2, the DML default): per row, per group of 8 pixels,
+  8 amplitude/ambient words then 8 phase/flags words;
+* ``"depth2"`` (``pixel_data_size`` 2): ``phase12 | amplitude_msb4 << 12``;
+* ``"iq"`` (``output_mode`` 1): int16 ``I`` then int16 ``Q``; phase ``arg(I + jQ)``;
+* ``"quad"`` (``output_mode`` 15, ``ToFFrameGenerator::_generateToFRawIQFrame``):
+  ``quad_cnt_max`` words per pixel (the transfer is ``2 · quad_cnt_max`` bytes per pixel,
+  ``_setStreamerFrameSize``), each a **signed** 12-bit sample (``(int16)(w << 4) >> 4``), word
+  ``k`` at phase ``2πk/N``: ``I = Σ d_k cos(2πk/N)``, ``Q = Σ d_k sin(2πk/N)``, phase
+  ``arg(I + jQ)`` (:func:`sdk_quad_iq`, :func:`decode_frame`).
 
 12-bit phase to depth: ``θ = 2π · phase12 / 4096``, ``depth = θ · c / (4π f)`` (Eq. 1), then
-the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`). The SDK's ambient and
-flag bit meanings are not documented; they are passed through.
+the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`).
 
-**Corrupt frames**: without a checksum the decoder can check only what the format fixes — the
-exact size, the unused top bits of the 12-bit quad samples and the ±(2^12 − 1) range of I/Q.
-A flipped bit inside a depth-mode word is undetectable (USB's own packet CRC is the real
-protection on the wire).
+**Corrupt frames**: without a checksum only the size can be checked (and the ±(2^12 − 1)
+range of I/Q); a flipped bit inside a word is undetectable (USB's packet CRC protects the
+wire).
 """
 
 from __future__ import annotations
