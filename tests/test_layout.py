@@ -152,6 +152,10 @@ def test_library_does_not_import_the_tools():
     assert not bad, bad
 
 
+#: the package's internal utilities, private to users but shared by its modules.
+SHARED_INTERNALS = ("torchtof._checks", "torchtof._optional", "torchtof._memory")
+
+
 def _private_imports() -> list[tuple[str, str, str]]:
     found = []
     for mod in MODULES:
@@ -162,8 +166,7 @@ def _private_imports() -> list[tuple[str, str, str]]:
             # a package may use its own private modules; no one else may
             own = target.rpartition(".")[0] == mod.rpartition(".")[0] or _is_ancestor(
                 target.rpartition(".")[0], mod)
-            if private_name or (private_mod and not own and target != "torchtof._checks"
-                                and target != "torchtof._optional"):
+            if private_name or (private_mod and not own and target not in SHARED_INTERNALS):
                 found.append((mod, target, name or ""))
     return found
 
