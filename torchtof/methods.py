@@ -34,7 +34,7 @@ from .recon import registry
 from .recon.registry import ReconSpec
 
 __all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores",
-           "scores"]
+           "score_image"]
 
 
 @dataclass
@@ -105,9 +105,7 @@ def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: s
     return _build(spec, data, sr, gate, kind, **options)
 
 
-def scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
-    """Mean ± std PSNR and SSIM of the images ``img (R, C, n, n)`` against the run's object
-    with the buckets' ``polarity`` (:func:`torchtof.metrics.compare`)."""
+def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
     x = data.x.to(img.dtype).expand(img.shape[0], -1, -1, -1)
     s = compare(img, x, polarity)
     p, q = s["psnr"], s["ssim"]
@@ -116,9 +114,14 @@ def scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, 
             "ssim_std": std(q)}
 
 
+def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+    """Mean ± std PSNR/SSIM of ``img`` (one image per realisation) against the object."""
+    return _scores(img, data, polarity)
+
+
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
     """Scores of the raw ToF depth image (negative polarity: near = small depth)."""
-    return scores(data.raw_tof_image, data, "negative")
+    return _scores(data.raw_tof_image, data, "negative")
 
 
 def evaluate(
@@ -144,5 +147,5 @@ def evaluate(
         img = img.detach()
         images[name] = img
         rows.append({"method": name, "sr": sr, "gate": gate, "time_s": dt,
-                     **scores(img, data, polarity)})
+                     **_scores(img, data, polarity)})
     return rows, images

@@ -1,4 +1,4 @@
-"""Direct checks of the stress issue's edge cases (one function per edge-case family).
+"""Direct checks of the numerical stress edge cases (one function per edge-case family).
 
 The matrix (``test_matrix.py``) runs every module × dtype × edge case; these tests pin the
 expected *values* where the physics or the math gives them.

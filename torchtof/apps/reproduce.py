@@ -68,7 +68,7 @@ def _plot_curves(path: Path, case: str, rows: list[dict], raw: dict) -> None:
 def check_claims(
     table: dict[str, list[dict]], raw: dict[str, dict]
 ) -> list[tuple[str, bool | None, str]]:
-    """The paper's claims (DESIGN.md §3) against our numbers: (claim, held, evidence);
+    """The paper's claims against our numbers: (claim, held, evidence);
     ``held`` is ``None`` when a method the claim needs was not evaluated."""
     def psnr(case, m, sr):
         for r in table[case]:
