@@ -306,6 +306,11 @@ def fit_dip(
       output already meets the bound, so this rule tends to stop too early;
     - ``None``: runs ``max_iter`` iterations and returns the last output.
 
+    Host syncs: the inputs are checked once at entry; a step of the loop reads nothing back
+    to the host except the early-stopping test itself, one value per step (the ES-WMV window
+    variance once the window is full, or the calibrated residual for ``"discrepancy"``);
+    ``early_stop=None`` makes none.
+
     Defaults (``base=16, depth=3, kernel=3`` at 32×32, ``lr=0.05``, ``betas=(0.5, 0.9)``,
     ``zeta="auto"``, ES-WMV with ``W=20, P=50``, 300 iterations) were chosen on binary 32×32
     scenes: the character 天 and the scikit-image horse and camera silhouettes, cake-cutting
