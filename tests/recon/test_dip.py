@@ -151,7 +151,7 @@ def test_calibrated_image_units(A):
     x = _scene()
     for scene in (x, 3 - 2 * x):
         y = A(scene)
-        res = fit_dip(y, A, max_iter=80)
+        res = fit_dip(y, A, max_iter=40)
         assert torch.linalg.vector_norm(A(res.x_cal) - y) < 0.25 * torch.linalg.vector_norm(y)
         assert torch.corrcoef(torch.stack([res.x_cal.flatten(), scene.flatten()]))[0, 1] > 0.9
 
