@@ -3,6 +3,7 @@
 :func:`get` and :func:`names` read the one table of reconstructors (:mod:`.registry`).
 """
 
+from .base import ReconResult
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
 from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
@@ -28,6 +29,7 @@ from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
+    "ReconResult",
     "REGISTRY",
     "ReconSpec",
     "get",
