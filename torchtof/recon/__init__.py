@@ -25,6 +25,7 @@ from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
+from .auto import Auto, AutoResult, auto  # noqa: E402,I001
 from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
@@ -47,6 +48,9 @@ __all__ = [
     "BPResult",
     "basis_pursuit",
     "TVAL3",
+    "Auto",
+    "AutoResult",
+    "auto",
     "TVAL3Result",
     "tval3",
     "bucket_noise_sigma",
