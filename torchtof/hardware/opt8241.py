@@ -646,25 +646,35 @@ class OPT8241:
                              f"{nbytes}-byte register 0x{address:04x}")
         data = int(value).to_bytes(nbytes, "little")
         name = f"write register 0x{address:04x}"
-        try:
-            n = self.dev.ctrl_transfer(rtype, req, wvalue, windex, data, 1000)
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        n = self._ctrl(name, rtype, req, wvalue, windex, data)
         if n != nbytes:
             raise ProtocolError(name, f"device accepted {n} of {nbytes} bytes")
+
+    #: attempts of a control transfer that stalls (EPIPE); register reads and writes are
+    #: idempotent, so a stalled one is simply repeated
+    ctrl_attempts = 3
+
+    def _ctrl(self, name: str, *request):
+        for attempt in range(self.ctrl_attempts):
+            try:
+                return self.dev.ctrl_transfer(*request, 1000)
+            except HardwareError:
+                raise
+            except Exception as exc:
+                if getattr(exc, "errno", None) in (32, -9) and attempt + 1 < self.ctrl_attempts:
+                    continue
+                err = translate_usb_error(exc, self.what, name)
+                if getattr(exc, "errno", None) in (32, -9):
+                    err = ProtocolError(name, f"the device stalled the request "
+                                        f"{self.ctrl_attempts} times (a value the register "
+                                        f"map calls invalid?): {exc}")
+                raise err from exc
 
     def read_register(self, address: int) -> int:
         """Read a whole register (``slave << 8 | reg``)."""
         rtype, req, wvalue, windex, nbytes = register_request(int(address), write=False)
         name = f"read register 0x{address:04x}"
-        try:
-            data = bytes(self.dev.ctrl_transfer(rtype, req, wvalue, windex, nbytes, 1000))
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        data = bytes(self._ctrl(name, rtype, req, wvalue, windex, nbytes))
         if len(data) != nbytes:
             raise ProtocolError(name, f"expected {nbytes} bytes, got {len(data)}")
         return int.from_bytes(data, "little")
