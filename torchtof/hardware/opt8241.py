@@ -407,7 +407,7 @@ def sdk_quad_iq(words: np.ndarray, quads: int) -> tuple[np.ndarray, np.ndarray, 
     sin(2πk/N)`` in float64 (the SDK's sine/cosine tables, ``ToFFrameGenerator::
     setParameters``). The top 4 bits are ignored, as the SDK ignores them."""
     w = np.ascontiguousarray(words, dtype=np.uint16)
-    d = ((w << 4).view(np.int16) >> 4).astype(np.int64)
+    d = ((w << 4).view(np.int16) >> 4).astype(np.int32)
     phi = 2 * np.pi * np.arange(quads) / quads
     return d, d @ np.cos(phi), d @ np.sin(phi)
 
@@ -502,10 +502,11 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     limit = (1 << adc_bits) - 1
     if mode == "quad":
         n = int(quads)
-        d, i_sdk, q_sdk = sdk_quad_iq(np.frombuffer(raw, dtype="<u2").reshape(h, w, n), n)
-        if n == 4:
-            t = d[..., [0, 2, 3, 1]]
+        words = np.frombuffer(raw, dtype="<u2").reshape(h, w, n)
+        if n == 4:  # the samples themselves: I = d0 - d2, Q = d1 - d3 exactly
+            t = ((words << 4).view(np.int16) >> 4)[..., [0, 2, 3, 1]]
         else:
+            d, i_sdk, q_sdk = sdk_quad_iq(words, n)
             m = d.mean(axis=-1)
             i4, q4 = i_sdk * (2.0 / n), q_sdk * (2.0 / n)
             t = np.stack([m + i4, m - i4, m - q4, m + q4], axis=-1)
