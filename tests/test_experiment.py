@@ -153,3 +153,19 @@ def test_bad_sr_request(air):
         air.operator(0.5)
     with pytest.raises(ValueError, match="kind"):
         air.split_buckets(0.125, kind="phase")
+
+
+def test_run_refuses_a_chunk_beyond_the_memory_limit():
+    import torchtof
+    from torchtof.experiment import FRAME_BYTES_FACTOR, frame_memory
+
+    exp = PaperExperiment(sr=0.125, n=16, roi_px=64, srs=(0.125,), chunk_frames=64)
+    # 64 frames x 64² pixels x 4 bytes x FRAME_BYTES_FACTOR
+    assert frame_memory(exp.config, 64) == FRAME_BYTES_FACTOR * 64 * 64 * 64 * 4
+    torchtof.set_memory_limit(frame_memory(exp.config, 64) - 1)
+    try:
+        with pytest.raises(ValueError, match=r"PaperExperiment.run: simulating 64 frames of "
+                                             r"64x64 sensor pixels .* lower chunk_frames"):
+            exp.run()
+    finally:
+        torchtof.set_memory_limit(None)

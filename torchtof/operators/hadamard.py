@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from .._memory import check_memory
 from .base import LinearOperator
 from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
 from .patterns import _check_n_order, hadamard_order, num_patterns
@@ -44,6 +45,25 @@ def _transform(x: torch.Tensor, h: Transform) -> torch.Tensor:
         n1, n2 = x.shape[-2], x.shape[-1]
         return fwht_kron(x.reshape(*x.shape[:-2], n1 * n2), h).reshape(x.shape)
     return fwht2_matmul(x, h)
+
+
+def _itemsize(dtype: torch.dtype) -> int:
+    if not isinstance(dtype, torch.dtype):
+        raise TypeError(f"expected dtype to be a torch.dtype, got {type(dtype).__name__}")
+    return torch.empty((), dtype=dtype).element_size()
+
+
+def _check_range(start: object, stop: object, total: int, func: str) -> tuple[int, int]:
+    """``0 <= start <= stop <= total`` as ints (``stop=None``: ``total``)."""
+    stop = total if stop is None else stop
+    for name, v in (("start", start), ("stop", stop)):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
+    if not 0 <= start <= stop <= total:
+        raise ValueError(
+            f"{func}: expected 0 <= start <= stop <= {total}, got start={start}, stop={stop}"
+        )
+    return start, stop
 
 
 def _to_float(h: Transform) -> Transform:
@@ -152,21 +172,34 @@ class Hadamard(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "Hadamard.forward")
-        return hadamard_forward(x, self.index, self.transform_spec(x))
+        return hadamard_forward(x, self.index.to(x.device), self.transform_spec(x))
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "Hadamard.adjoint")
-        return hadamard_adjoint(y, self.index, self.n, self.transform_spec(y))
+        return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
         return self.adjoint(y)
 
-    def patterns(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    def patterns(
+        self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
+    ) -> torch.Tensor:
         """The selected ±1 patterns ``(M, n, n)`` (unnormalised: row ``r`` of ``A`` is
-        ``patterns[r] / n``)."""
+        ``patterns[r] / n``), or only rows ``start:stop`` (``(stop − start, n, n)``: stream a
+        large set in chunks instead of materialising all ``M·n²`` entries).
+
+        Raises:
+            ValueError: for a range outside ``[0, M]`` or a stack larger than the memory
+                limit (:func:`torchtof.set_memory_limit`).
+        """
+        start, stop = _check_range(start, stop, self.m, "Hadamard.patterns")
+        check_memory((stop - start) * self.n**2 * _itemsize(dtype),
+                     f"{stop - start} patterns of {self.n}x{self.n}", "Hadamard.patterns",
+                     "ask for rows start:stop in chunks")
         h = self.h.to(dtype)
-        i, j = self.index // self.n, self.index % self.n
+        idx = self.index[start:stop]
+        i, j = idx // self.n, idx % self.n
         return h[i][:, :, None] * h[j][:, None, :]
 
     def extra_repr(self) -> str:

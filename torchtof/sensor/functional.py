@@ -303,6 +303,7 @@ def phase_to_depth(phase: torch.Tensor, freq_hz: float) -> torch.Tensor:
     func = "phase_to_depth"
     _check_real(phase, "phase", func)
     f = check_positive(freq_hz, "freq_hz", func)
+    check_finite(phase, "phase", func)
     return phase * (SPEED_OF_LIGHT / (4.0 * math.pi * f))
 
 
@@ -363,6 +364,8 @@ def camera_rules(
             f"{func}: expected amplitude of shape {tuple(depth.shape)} (as depth), "
             f"got {tuple(amplitude.shape)}"
         )
+    check_finite(depth, "depth", func)
+    check_finite(amplitude, "amplitude", func)
     for name, v in (("min_m", min_m), ("max_m", max_m), ("no_photon_m", no_photon_m)):
         check_positive(v, name, func, strict=False)
     if not max_m > min_m:

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_positive, check_rank, check_tensor
+from .._memory import check_memory
 
 __all__ = ["area_overlap_matrix", "dmd_to_sensor", "DMDToSensor", "blur_phasor"]
 
@@ -100,6 +101,7 @@ def area_overlap_matrix(
     func = "area_overlap_matrix"
     _check_size(n_in, "n_in", func)
     _check_size(n_out, "n_out", func)
+    check_memory(3 * n_in * n_out * 8, f"an {n_out}x{n_in} overlap matrix", func)
     dtype = torch.get_default_dtype() if dtype is None else dtype
     return _overlap_cpu(n_in, n_out).to(dtype=dtype, device=device, copy=True)
 

@@ -117,7 +117,7 @@ def shot_noise(
     if mode == "poisson":
         r = rate.detach()
         big = r > POISSON_MAX_MEAN
-        if is_tracing() or not bool(big.any()):  # one check per call, not per pixel
+        if is_tracing() or r.is_meta or not bool(big.any()):  # one check per call
             counts = torch.poisson(r, generator=generator)
         else:
             # torch.poisson converts through int64 and wraps to −9.2e18 above ~9e18 (and

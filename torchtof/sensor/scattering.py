@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_in_range, check_positive, check_rank, check_tensor
+from .._memory import check_memory
 from .functional import SPEED_OF_LIGHT, _check_phasor, _check_real
 from .mixing import _pair, blur_phasor
 
@@ -99,6 +100,7 @@ def dust_map(
     """
     func = "dust_map"
     h, w = _pair(size, "size", func)
+    check_memory(4 * h * w * 8, f"a {h}x{w} dust map", func)
     sigma = check_positive(sigma_px, "sigma_px", func)
     noise = torch.randn((1, 1, h, w), generator=generator, dtype=torch.float64)
     if min(h, w) > 1:
@@ -181,6 +183,8 @@ def scatter_phasor(
     b = _check_term(backscatter, phasor, "backscatter", func)
     d_s = check_positive(sheet_m, "sheet_m", func, strict=False)
     f = check_positive(freq_hz, "freq_hz", func)
+    if blur_sigma is not None:
+        check_positive(blur_sigma, "blur_sigma", func)
     direct = phasor if blur_sigma is None else blur_phasor(phasor, blur_sigma)
     theta = 4.0 * math.pi * f * d_s / SPEED_OF_LIGHT
     return a * direct + b * complex(math.cos(theta), math.sin(theta))
