@@ -200,7 +200,8 @@ def test_no_private_name_imported_from_another_module(case, request):
 
 # -- the core install: `import torchtof` needs none of the extras ---------------------------
 #: Modules of the extras (pyproject.toml): onnx, hardware, plot.
-EXTRA_MODULES = ("onnx", "onnxruntime", "onnxscript", "usb", "zarr", "tqdm", "matplotlib")
+EXTRA_MODULES = ("onnx", "onnxruntime", "onnxscript", "usb", "zarr", "pygame", "tqdm",
+                 "matplotlib")
 
 _BLOCKED = """
 import sys
