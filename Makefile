@@ -14,7 +14,7 @@ TORCH_INDEX ?=
 STAMP := $(VENV)/.installed
 PYTEST := $(BIN)/python -m pytest -q
 
-.PHONY: demo test test-slow test-all doctest check-core stress bench reproduce lint clean
+.PHONY: demo test test-slow test-all doctest check-core stress bench reproduce docs lint clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -60,6 +60,10 @@ bench: $(STAMP)
 
 reproduce: $(STAMP)
 	$(BIN)/torchtof reproduce --quick --out reproduce_out
+
+# rerun the documented commands and rewrite the README's generated tables from their JSON
+docs: $(STAMP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python docs/build.py --run
 
 lint: $(STAMP)
 	$(BIN)/ruff check torchtof tests examples export benchmarks

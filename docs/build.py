@@ -73,6 +73,20 @@ def render_stray_light(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def render_stability(res: dict) -> str:
+    rows, dts = res["rows"], res["dtypes"]
+    heads = {"ok": "ok", "error": "clear error", "n/r": "out of range (explained)", "n/a": "n/a",
+             "FAIL": "FAIL"}
+    out = [f"{len(rows)} rows (module × edge case) × {len(dts)} dtypes, torch {res['torch']}:",
+           "", "| dtype | " + " | ".join(heads.values()) + " |", "|---" * (len(heads) + 1) + "|"]
+    for d in dts:
+        c = res["counts"][d]
+        cells = [str(c.get(k, 0)) for k in heads]
+        cells[-1] = f"**{cells[-1]}**"
+        out.append(f"| {d} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 SECTIONS: dict[str, Section] = {
     "demo": Section(
         "docs/demo/demo.json", render_demo,
@@ -83,6 +97,12 @@ SECTIONS: dict[str, Section] = {
         "docs/stray_light/stray_light.json", render_stray_light,
         (sys.executable, "benchmarks/stray_light.py", "--out", "docs/stray_light"),
         "share of 天 recovered per bucket kind, SR 100 %, exact inverse",
+    ),
+    "stability": Section(
+        "docs/bench/stability.json", render_stability,
+        (sys.executable, "-m", "torchtof.cli", "bench", "stability", "--json",
+         "docs/bench/stability.json"),
+        "the numerical stress matrix",
     ),
 }
 
