@@ -47,7 +47,9 @@ def test_recon_sweep_and_pareto():
 def test_reproduce_writes_everything(tmp_path):
     from torchtof.apps.reproduce import reproduce
 
-    res = reproduce(tmp_path, quick=True, realisations=1, methods=("CGI", "TVAL3"))
+    # n = 16, direct methods, no depth curves (tests/test_depth_demo.py runs those): plumbing
+    res = reproduce(tmp_path, quick=True, realisations=1, methods=("CGI", "PINV"), n=16,
+                    depth=False)
     for case in ("air", "air+gate", "scatter", "scatter+gate"):
         assert (tmp_path / f"images_{case}.png").exists()
         assert (tmp_path / f"psnr_{case}.png").exists()

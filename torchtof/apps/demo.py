@@ -93,7 +93,8 @@ def demo_figure(path: Path, data, images: dict, rows: list[dict], methods, title
         if r == 0:
             ax.imshow(data.x[0, 0].float().numpy(), cmap="gray", vmin=0, vmax=1)
             ax.set_title("object (truth)", fontsize=7)
-        ax.set_xticks([]); ax.set_yticks([])
+        ax.set_xticks([])
+        ax.set_yticks([])
         ax.set_ylabel(_ROW_LABELS[kind], fontsize=7)
         if r > 0:
             ax.axis("off")
@@ -107,7 +108,8 @@ def demo_figure(path: Path, data, images: dict, rows: list[dict], methods, title
             cb.ax.tick_params(labelsize=6)
             s = score[("raw ToF", "raw")]
             ax.set_title(f"raw ToF map\n{s['psnr']:.2f} dB / {s['ssim']:.2f}", fontsize=7)
-            ax.set_xticks([]); ax.set_yticks([])
+            ax.set_xticks([])
+            ax.set_yticks([])
         else:
             ax.axis("off")
         for c, group in enumerate(groups):
@@ -124,7 +126,8 @@ def demo_figure(path: Path, data, images: dict, rows: list[dict], methods, title
             ax.imshow(img.numpy(), cmap="gray", vmin=0, vmax=1)
             s = score[(m, kind)]
             ax.set_title(f"{' = '.join(group)}\n{s['psnr']:.2f} dB / {s['ssim']:.2f}", fontsize=7)
-            ax.set_xticks([]); ax.set_yticks([])
+            ax.set_xticks([])
+            ax.set_yticks([])
     note = "PSNR (8-bit) / SSIM per panel"
     if any(len(g) > 1 for g in groups):
         note += "; '=' merges methods with identical images (affine in Aᵀ(y⁺ − y⁻))"
