@@ -78,7 +78,9 @@ def test_deterministic_given_seed():
     assert not torch.equal(a.buckets["depth"], c.buckets["depth"])
 
 
-def test_stray_light_cancels_in_differential():
+def test_stray_light_map_shape_and_peak():
+    """The stray-light phasor map is one complex (1, 1, P, P) frame whose peak amplitude is
+    ``stray_e`` (whether it cancels in the differentials: tests/test_stray_light.py)."""
     cfg = ExperimentConfig(n=16, roi_px=32).validate()
     s = stray_light(cfg)
     assert s.shape == (1, 1, 32, 32) and s.is_complex()
@@ -86,8 +88,18 @@ def test_stray_light_cancels_in_differential():
 
 
 def test_split_operator_matches_patterns(air):
+    """The split operator at SR 6.25 % shows each of the first M Hadamard rows h as the DMD
+    pair φ⁺ = (1 + h)/2, φ⁻ = (1 − h)/2, interleaved in acquisition order; the first
+    cake-cutting row is constant, so the first pair is all mirrors on, then all off."""
     S = air.split_operator(0.0625)
-    assert isinstance(S, DMDSplit) and S.m == 2 * air.m(0.0625)
+    A, _ = air.measurements(0.0625)
+    h, p = A.patterns(), S.patterns()
+    assert isinstance(S, DMDSplit) and S.m == 2 * A.m == 2 * air.m(0.0625)
+    assert p.shape == (2 * A.m, 32, 32)
+    torch.testing.assert_close(p[0::2], (1 + h) / 2, rtol=0, atol=0)
+    torch.testing.assert_close(p[1::2], (1 - h) / 2, rtol=0, atol=0)
+    assert set(p.unique().tolist()) == {0.0, 1.0}
+    assert bool((p[0] == 1).all()) and bool((p[1] == 0).all())
 
 
 @pytest.mark.parametrize(

@@ -1,5 +1,5 @@
 """torchtof: depth imaging with time-of-flight cameras as bucket detectors of computational
-ghost imaging, as PyTorch modules (see README and DESIGN.md)."""
+ghost imaging, as PyTorch modules (see the README)."""
 
 from . import bucket, experiment, metrics, operators, recon, scenes, sensor
 from ._memory import memory_limit, set_memory_limit

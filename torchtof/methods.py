@@ -33,7 +33,8 @@ from .metrics import compare
 from .recon import registry
 from .recon.registry import ReconSpec
 
-__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores"]
+__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores",
+           "score_image"]
 
 
 @dataclass
@@ -111,6 +112,11 @@ def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str,
     std = (lambda t: float(t.std())) if p.numel() > 1 else (lambda t: 0.0)
     return {"psnr": float(p.mean()), "psnr_std": std(p), "ssim": float(q.mean()),
             "ssim_std": std(q)}
+
+
+def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+    """Mean ± std PSNR/SSIM of ``img`` (one image per realisation) against the object."""
+    return _scores(img, data, polarity)
 
 
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:

@@ -29,9 +29,9 @@ from torch import nn
 from .._checks import check_finite, check_positive, check_shape, check_tensor, unchecked
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from .tv import tv_norm
 from .base import ReconResult, relative_residual, renamed_option
 from .noise import tail_noise_sigma
+from .tv import tv_norm
 from .unet import UNet
 
 __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", "fit_dip"]
@@ -248,6 +248,7 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
     Returns:
         ``ζ`` as a Python float.
     """
+    y = y.detach()
     sigma = float(tail_noise_sigma(y)) if noise_sigma is None else float(noise_sigma)
     ratio = sigma / max(float(y.std(unbiased=False)), torch.finfo(y.dtype).tiny)
     return min(max(ZETA_KAPPA * ratio, ZETA_MIN), ZETA_MAX)
