@@ -43,9 +43,9 @@ from dataclasses import asdict, dataclass, field, replace
 import torch
 
 from ._checks import check_in_range, check_positive, check_power_of_two
+from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
 from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
-from ._memory import check_memory
 from .operators import DMDSplit, Hadamard
 from .operators.patterns import ORDERS, num_patterns
 from .scenes import Scene, get_scene

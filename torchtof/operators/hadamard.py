@@ -22,7 +22,7 @@ import torch
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
-from .patterns import _check_n_order, hadamard_order, num_patterns
+from .patterns import check_n_order, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
 
@@ -118,7 +118,7 @@ class Hadamard(LinearOperator):
         order: str = "cake_cutting",
         method: str = "auto",
     ) -> None:
-        _check_n_order(n, order, "Hadamard")
+        check_n_order(n, order, "Hadamard")
         if sr is None and m is None:
             m = n * n
         m = num_patterns(n, sr, m, func="Hadamard")
