@@ -146,6 +146,8 @@ def test_report_tables():
     means = pb.method_means({"cells": cells})
     assert "| torchtof tval3 | 2 | 25.00 | 0 |" in means
     assert "| pylops SB-TV | 2 | 25.75 | 2 |" in means
+    grid = pb.winners({"cells": cells})
+    assert "| sky | -2.50 (pylops SB-TV) | +1.00 (pylops SB-TV) |" in grid
 
 
 # --------------------------------------------------------------------------- adapters

@@ -30,6 +30,7 @@ from types import MappingProxyType
 
 from torch import nn
 
+from .auto import Auto, auto
 from .bp import BasisPursuit, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, tgi
 from .depth import JointTV, joint_tv
@@ -96,6 +97,8 @@ _SPECS = (
     _spec("tval3", "TVAL3", tval3, TVAL3, iterative=True, exportable=True, budget="max_iter",
           fixed_budget={"adaptive": False},
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
+    _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
+          summary="TV with prior, bounds and weight chosen by cross-validation on the buckets"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
           differentiable=True, exportable=True, budget="n_layers",
           summary="unrolled TVAL3, K layers with learned per-layer scalars"),
