@@ -241,6 +241,7 @@ def train_learned(
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False, width=width)
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
+    model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
     opt = torch.optim.Adam(params, lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -324,6 +325,7 @@ def train_learned(
         if bar is not None:
             bar.close()
         wall = wall0 + time.perf_counter() - t0
+        model.log_tau.requires_grad_(True)
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
                               orders=orders) if calibrate else None
         if outdir is not None and rank == 0:
