@@ -19,29 +19,7 @@ ROOT = Path(__file__).resolve().parents[1] / "torchtof"
 #: Private names imported across modules that other parts of the redesign still have to
 #: remove: (importing module, imported module, name) -> reason. Each runs as an xfail;
 #: delete the entry when the import is gone.
-_SENSOR = "sensor's shared argument checks, to be made public (sensor owner)"
-PENDING: dict[tuple[str, str, str], str] = {
-    ("torchtof.hardware.cli", "torchtof.methods", "_scores"):
-        "hardware reconstruct scores with methods._scores (hardware/recon registry owners)",
-    ("torchtof.operators.hadamard", "torchtof.operators.patterns", "_check_n_order"):
-        "operators' shared check (operators owner)",
-    ("torchtof.experiment", "torchtof.operators.patterns", "_check_n_order"):
-        "operators' shared check (operators owner)",
-    ("torchtof.operators.split", "torchtof.operators.hadamard", "_check_range"):
-        "operators' shared check (operators owner)",
-    ("torchtof.operators.split", "torchtof.operators.hadamard", "_itemsize"):
-        "operators' shared helper (operators owner)",
-    ("torchtof.sensor.multipath", "torchtof.sensor.functional", "_check_phasor"): _SENSOR,
-    ("torchtof.sensor.multipath", "torchtof.sensor.functional", "_check_real"): _SENSOR,
-    ("torchtof.sensor.noise", "torchtof.sensor.functional", "_check_real"): _SENSOR,
-    ("torchtof.sensor.scattering", "torchtof.sensor.functional", "_check_phasor"): _SENSOR,
-    ("torchtof.sensor.scattering", "torchtof.sensor.functional", "_check_real"): _SENSOR,
-    ("torchtof.sensor.scattering", "torchtof.sensor.mixing", "_pair"): _SENSOR,
-    ("torchtof.sensor.tof", "torchtof.sensor.functional", "_check_order"): _SENSOR,
-    ("torchtof.sensor.tof", "torchtof.sensor.functional", "_check_phasor"): _SENSOR,
-    ("torchtof.sensor.tof", "torchtof.sensor.functional", "_check_real"): _SENSOR,
-    ("torchtof.sensor.tof", "torchtof.sensor.noise", "_check_noise_config"): _SENSOR,
-}
+PENDING: dict[tuple[str, str, str], str] = {}
 
 
 def _module_name(path: Path) -> str:

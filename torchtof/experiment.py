@@ -42,12 +42,12 @@ from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
-from ._checks import check_in_range, check_positive
+from ._checks import check_in_range, check_positive, check_power_of_two
 from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
 from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
 from .operators import DMDSplit, Hadamard
-from .operators.patterns import _check_n_order, num_patterns
+from .operators.patterns import ORDERS, num_patterns
 from .scenes import Scene, get_scene
 from .sensor import (
     add_multipath,
@@ -145,7 +145,9 @@ class ExperimentConfig:
 
     def validate(self) -> ExperimentConfig:
         func = "ExperimentConfig"
-        _check_n_order(self.n, self.order, func)
+        check_power_of_two(self.n, "n", func, lo=4, hi=256)
+        if self.order not in ORDERS:
+            raise ValueError(f"{func}: expected order in {ORDERS}, got {self.order!r}")
         for name in ("roi_px", "chunk_frames"):
             _check_int(getattr(self, name), name, func, lo=1)
         for name in ("stray_seed", "dust_seed"):

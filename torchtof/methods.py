@@ -119,6 +119,12 @@ def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[
     return _scores(img, data, polarity)
 
 
+def _synchronize(t: torch.Tensor) -> None:
+    """Wait for the device of ``t`` (CUDA kernels run asynchronously)."""
+    if t.device.type == "cuda":
+        torch.cuda.synchronize(t.device)
+
+
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
     """Scores of the raw ToF depth image (negative polarity: near = small depth)."""
     return _scores(data.raw_tof_image, data, "negative")
@@ -141,8 +147,10 @@ def evaluate(
             with torch.no_grad():
                 method.module(method.y[:1])
         with torch.enable_grad() if registry.get(name).per_sample else torch.no_grad():
+            _synchronize(method.y)
             t0 = time.perf_counter()
             img = method()
+            _synchronize(img)  # the wall time of the work, not of its launch
             dt = time.perf_counter() - t0
         img = img.detach()
         images[name] = img

@@ -324,9 +324,14 @@ def depth_rmse(
         )
     check_finite(depth_hat, "depth_hat", func)
     check_finite(depth, "depth", func)
-    err = (depth_hat - depth).pow(2)
+    # RMSE = 2·s·sqrt(mean((h/s)²)) with h = (ẑ − z)/2, s = max|h| per image: no square or
+    # difference overflows (a 1e30 m error is 1e30, not inf, in float32)
+    h = depth_hat / 2 - depth / 2
+    s = h.abs().flatten(1).amax(1) if h[0].numel() else h.new_zeros(h.shape[0])
+    s = torch.where(s > 0, s, torch.ones_like(s))
+    err = (h / s.view(-1, *([1] * (h.ndim - 1)))).pow(2)
     if mask is None:
-        return _reduce(err.flatten(1).mean(1).sqrt(), reduction, func)
+        return _reduce(2 * s * err.flatten(1).mean(1).sqrt(), reduction, func)
     if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
         got = mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__
         raise TypeError(f"{func}: expected mask to be a bool tensor or None, got {got}")
@@ -340,7 +345,7 @@ def depth_rmse(
     if not bool((count > 0).all()):
         raise ValueError(f"{func}: mask selects no pixel in some image")
     sq = torch.where(m, err, torch.zeros_like(err)).flatten(1).sum(1)
-    return _reduce((sq / count.to(err.dtype)).sqrt(), reduction, func)
+    return _reduce(2 * s * (sq / count.to(err.dtype)).sqrt(), reduction, func)
 
 
 class DepthRMSE(nn.Module):
@@ -525,6 +530,10 @@ def affine_fit(x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     _check_pair(x_hat, x, func)
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
+    # fit on x̂/s, s = max|x̂| per image (the same affine map, without squares of 1e30 values)
+    scale = x_hat.abs().flatten(1).amax(1) if x_hat[0].numel() else x_hat.new_ones(x_hat.shape[0])
+    scale = torch.where(scale > 0, scale, torch.ones_like(scale)).view(-1, 1, 1, 1)
+    x_hat = x_hat / scale
     u, v = x_hat.flatten(1), x.flatten(1)
     du = u - u.mean(1, keepdim=True)
     var = du.pow(2).sum(1)

@@ -64,6 +64,7 @@ def test_acquire_refuses_existing_store_and_unknown_method(uninterrupted, capsys
         main(["reconstruct", str(uninterrupted), "--method", "nope"])
 
 
+@pytest.mark.slow  # kill and resume in the default run: test_reliability.py (inside a write)
 @pytest.mark.parametrize("ids,hang,kept", [
     # SIGKILL while the host waits for frame 27 (frames 0-26 have arrived, 27 is in flight)
     # or while the camera renders it: the sequence 24-31 in flight is lost, 0-23 recorded

@@ -288,3 +288,138 @@ def test_kill_9_at_random_times_then_resume_is_bit_identical(tmp_path):
     for name in ("buckets_depth", "buckets_gated", "buckets_intensity", "buckets_taps",
                  "frames_depth", "frames_amplitude", "frames_phase", "frames_taps", "frames_ok"):
         np.testing.assert_array_equal(a[name][:], b[name][:], err_msg=name)
+
+
+# -- bad inputs to the bench, a full disk, control-transfer failures --------------------------
+@pytest.mark.parametrize("kw,error,match", [
+    ({"config": replace(TINY, chunk_frames=0)}, ValueError, "chunk_frames"),
+    ({"config": replace(TINY, chunk_frames=-1)}, ValueError, "chunk_frames"),
+    ({"config": replace(TINY, gain_e_per_dn=0.0)}, ValueError, "gain_e_per_dn"),
+    ({"seed": 1.5}, TypeError, "seed"),
+    ({"speed": 0.0}, ValueError, "speed"),
+    ({"fifo_frames": 0}, ValueError, "fifo_frames"),
+])
+def test_bench_refuses_bad_settings_naming_them(kw, error, match):
+    kw = {"config": TINY, **kw}
+    with pytest.raises(error, match=match):
+        SimulatedBench(**kw)
+
+
+def test_full_disk_marks_the_store_interrupted(tmp_path, monkeypatch):
+    import errno
+
+    import zarr.core.array as za
+
+    calls = {"n": 0}
+    real = za.Array.__setitem__
+
+    def full(self, key, value):
+        if self.path == "frames_depth":
+            calls["n"] += 1
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, key, value)
+
+    monkeypatch.setattr(za.Array, "__setitem__", full)
+    with pytest.raises(OSError, match="No space left"):
+        run(tmp_path / "full.zarr")
+    monkeypatch.undo()
+    g = zarr.open_group(str(tmp_path / "full.zarr"), mode="r")
+    assert calls["n"] == 1 and g.attrs["status"] == "interrupted"
+    assert not g["frames_ok"][:].any()  # nothing marked recorded
+    res, _ = run(tmp_path / "full.zarr", resume=True)  # space again: resume completes it
+    assert res.m_acquired == 8
+
+
+def test_a_stalled_control_transfer_is_repeated(clean, tmp_path):
+    """Two stalled control transfers (EPIPE) while configuring: each register access is
+    repeated (reads and writes are idempotent) and the run is the clean one."""
+    run(tmp_path / "c.zarr", faults={"ctrl_fail": {3, 10}})
+    got = load_buckets(tmp_path / "c.zarr")[0]
+    for k in clean:
+        assert torch.equal(got[k], clean[k]), k
+
+
+# a CLI acquisition that hangs inside its n-th chunk write: half the chunk's bytes are in
+# zarr's temporary file when the test kills it (zarr >= 3.1.6 renames the file over the chunk
+# only when it is complete)
+_HANG_IN_WRITE = """
+import os, sys, time
+import zarr.storage._local as L
+orig, count = L._put, [0]
+def put(path, value, exclusive=False):
+    if "/c/" in str(path).replace(os.sep, "/"):
+        count[0] += 1
+        if count[0] == int(os.environ["HANG_AT_WRITE"]):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with L._atomic_write(path, "wb", exclusive=exclusive) as f:
+                data = value.to_bytes()
+                f.write(data[: len(data) // 2])
+                f.flush()
+                open(os.environ["HANG_FLAG"], "w").close()
+                time.sleep(120)
+    return orig(path, value, exclusive)
+L._put = put
+from torchtof.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+KILL_ARGS = ["acquire", "--simulated", "--scene", "sky", "--sr", "0.25", "--n", "8",
+             "--roi-px", "16", "--no-progress", "--seed", "3"]
+
+
+def _kill_inside_write(tmp_path, path, write):
+    flag = tmp_path / f"hang{write}"
+    extra = ["--resume"] if (path / "zarr.json").exists() else []
+    proc = subprocess.Popen([sys.executable, "-c", _HANG_IN_WRITE, *KILL_ARGS, "-o", str(path),
+                             *extra], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL,
+                            env={**_env(), "HANG_AT_WRITE": str(write), "HANG_FLAG": str(flag)})
+    try:
+        t0 = time.monotonic()
+        while not flag.exists():
+            if proc.poll() is not None:  # finished before that many writes
+                return False
+            assert time.monotonic() - t0 < 120
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert list(path.rglob("*.partial"))  # killed with a half-written temporary chunk file
+    return True
+
+
+def _same_as(path, full):
+    a, b = zarr.open_group(str(path), mode="r"), zarr.open_group(str(full), mode="r")
+    assert a.attrs["status"] == "complete"
+    for name in ("buckets_depth", "buckets_gated", "buckets_intensity", "buckets_taps",
+                 "frames_depth", "frames_amplitude", "frames_phase", "frames_taps", "frames_ok"):
+        np.testing.assert_array_equal(a[name][:], b[name][:], err_msg=name)
+
+
+@pytest.fixture(scope="module")
+def noisy_full(tmp_path_factory):
+    full = tmp_path_factory.mktemp("full") / "full.zarr"
+    assert main([*KILL_ARGS, "-o", str(full)]) == 0
+    return full
+
+
+def test_kill_inside_a_chunk_write_then_resume_is_bit_identical(noisy_full, tmp_path):
+    path = tmp_path / "k.zarr"
+    # chunk writes: 1 the patterns, 2-12 the first sequence's arrays (frames_ok last), 13-23
+    # the second's: killed while writing the second sequence's frames_taps chunk
+    assert _kill_inside_write(tmp_path, path, 16)
+    assert main([*KILL_ARGS, "-o", str(path), "--resume"]) == 0
+    _same_as(path, noisy_full)
+
+
+@pytest.mark.slow
+def test_ten_kills_inside_chunk_writes_then_resume_is_bit_identical(noisy_full, tmp_path):
+    """Killed inside 10 different chunk writes — each of the first sequence's 11 arrays but
+    one, frames_ok (the commit) included, each run resuming the last — then resumed to the
+    end: bit-identical to the uninterrupted run."""
+    path = tmp_path / "k10.zarr"
+    # a fresh run writes the patterns first (write 1); a resumed one starts at the sequence
+    kills = sum(_kill_inside_write(tmp_path, path, w) for w in (2, 3, 4, 5, 6, 7, 8, 9, 10, 11))
+    assert kills == 10
+    assert main([*KILL_ARGS, "-o", str(path), "--resume"]) == 0
+    _same_as(path, noisy_full)

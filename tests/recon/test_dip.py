@@ -151,7 +151,7 @@ def test_calibrated_image_units(A):
     x = _scene()
     for scene in (x, 3 - 2 * x):
         y = A(scene)
-        res = fit_dip(y, A, max_iter=80)
+        res = fit_dip(y, A, max_iter=40)
         assert torch.linalg.vector_norm(A(res.x_cal) - y) < 0.25 * torch.linalg.vector_norm(y)
         assert torch.corrcoef(torch.stack([res.x_cal.flatten(), scene.flatten()]))[0, 1] > 0.9
 
@@ -451,3 +451,16 @@ def test_old_argument_order_and_names_warn(A):
         assert DIP(A, n_iter=4).fit_kwargs == {"max_iter": 4}
     with pytest.raises(TypeError, match="got both max_iter= and its old name n_iter="):
         fit_dip(y, A, max_iter=5, n_iter=4)
+
+
+def test_noise_sigma_auto_is_the_tail_estimate(A):
+    from torchtof.recon.noise import tail_noise_sigma
+
+    g = torch.Generator().manual_seed(0)
+    y = A(_scene()) + 0.05 * torch.randn(1, 1, A.m, generator=g)
+    sigma = float(tail_noise_sigma(y)[0, 0])
+    kw = dict(max_iter=30, early_stop="discrepancy")
+    assert torch.equal(fit_dip(y, A, noise_sigma="auto", **kw).x,
+                       fit_dip(y, A, noise_sigma=sigma, **kw).x)
+    with pytest.raises(ValueError, match="fit_dip: expected noise_sigma > 0, None or 'auto'"):
+        fit_dip(y, A, noise_sigma="pairs")

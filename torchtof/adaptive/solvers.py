@@ -117,6 +117,8 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
     b, c, m = y.shape
     conv = None  # TVAL3, BP: their own flag; else: not stopped by the iteration cap
     sig = None if noise_sigma is None else _per_sample(noise_sigma, (b, c)).to(y.dtype)
+    if y.device.type == "cuda":  # time the work, not its launch
+        torch.cuda.synchronize(y.device)
     t0 = time.perf_counter()
     if method == "PINV":
         with torch.no_grad():
@@ -173,6 +175,8 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
             iters.append(ir)
             reasons.append(rr)
         x = torch.cat(xs)
+    if x.device.type == "cuda":
+        torch.cuda.synchronize(x.device)
     dt = time.perf_counter() - t0
     reasons = tuple(tuple(str(r) for r in row) for row in reasons)
     with torch.no_grad():

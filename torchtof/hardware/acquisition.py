@@ -526,6 +526,12 @@ def acquire(
                 break
         camera.stop()
     except (HardwareError, KeyboardInterrupt, OSError):  # recorded sequences stay valid: resume
+        for halt in (getattr(lightcrafter, "stop", None), getattr(camera, "stop", None)):
+            try:  # leave the devices idle (best effort: one of them may be gone)
+                if halt is not None:
+                    halt()
+            except Exception:  # noqa: BLE001 - never mask the error that stopped the run
+                pass
         try:
             group.attrs.update({"status": "interrupted", **stats})
         except OSError:  # a full disk: the status cannot be written; frames_ok still holds

@@ -144,7 +144,7 @@ def _method_name(name: str) -> str:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from ..methods import _scores, build_method
+    from ..methods import build_method, score_image
     from ..report import save_grid
     from .acquisition import StoreDamagedError, load_run
 
@@ -167,7 +167,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     png = save_grid(out / f"{tag}.png", [(name, img)], title=f"{args.store}: {name}, SR {sr:.2%}")
     line = f"{name} from {data.hadamard.m} pattern pairs (SR {sr:.2%}): wrote {png}"
     if data.x.abs().sum() > 0:  # simulated run: the object is known
-        s = _scores(img, data, data.polarity(args.gate, args.kind))
+        s = score_image(img, data, data.polarity(args.gate, args.kind))
         line += f"; PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f} vs the simulated object"
     print(line)
     return 0

@@ -407,7 +407,7 @@ def sdk_quad_iq(words: np.ndarray, quads: int) -> tuple[np.ndarray, np.ndarray, 
     sin(2πk/N)`` in float64 (the SDK's sine/cosine tables, ``ToFFrameGenerator::
     setParameters``). The top 4 bits are ignored, as the SDK ignores them."""
     w = np.ascontiguousarray(words, dtype=np.uint16)
-    d = ((w << 4).view(np.int16) >> 4).astype(np.int64)
+    d = ((w << 4).view(np.int16) >> 4).astype(np.int32)
     phi = 2 * np.pi * np.arange(quads) / quads
     return d, d @ np.cos(phi), d @ np.sin(phi)
 
@@ -502,10 +502,11 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     limit = (1 << adc_bits) - 1
     if mode == "quad":
         n = int(quads)
-        d, i_sdk, q_sdk = sdk_quad_iq(np.frombuffer(raw, dtype="<u2").reshape(h, w, n), n)
-        if n == 4:
-            t = d[..., [0, 2, 3, 1]]
+        words = np.frombuffer(raw, dtype="<u2").reshape(h, w, n)
+        if n == 4:  # the samples themselves: I = d0 - d2, Q = d1 - d3 exactly
+            t = ((words << 4).view(np.int16) >> 4)[..., [0, 2, 3, 1]]
         else:
+            d, i_sdk, q_sdk = sdk_quad_iq(words, n)
             m = d.mean(axis=-1)
             i4, q4 = i_sdk * (2.0 / n), q_sdk * (2.0 / n)
             t = np.stack([m + i4, m - i4, m - q4, m + q4], axis=-1)
@@ -646,25 +647,35 @@ class OPT8241:
                              f"{nbytes}-byte register 0x{address:04x}")
         data = int(value).to_bytes(nbytes, "little")
         name = f"write register 0x{address:04x}"
-        try:
-            n = self.dev.ctrl_transfer(rtype, req, wvalue, windex, data, 1000)
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        n = self._ctrl(name, rtype, req, wvalue, windex, data)
         if n != nbytes:
             raise ProtocolError(name, f"device accepted {n} of {nbytes} bytes")
+
+    #: attempts of a control transfer that stalls (EPIPE); register reads and writes are
+    #: idempotent, so a stalled one is simply repeated
+    ctrl_attempts = 3
+
+    def _ctrl(self, name: str, *request):
+        for attempt in range(self.ctrl_attempts):
+            try:
+                return self.dev.ctrl_transfer(*request, 1000)
+            except HardwareError:
+                raise
+            except Exception as exc:
+                if getattr(exc, "errno", None) in (32, -9) and attempt + 1 < self.ctrl_attempts:
+                    continue
+                err = translate_usb_error(exc, self.what, name)
+                if getattr(exc, "errno", None) in (32, -9):
+                    err = ProtocolError(name, f"the device stalled the request "
+                                        f"{self.ctrl_attempts} times (a value the register "
+                                        f"map calls invalid?): {exc}")
+                raise err from exc
 
     def read_register(self, address: int) -> int:
         """Read a whole register (``slave << 8 | reg``)."""
         rtype, req, wvalue, windex, nbytes = register_request(int(address), write=False)
         name = f"read register 0x{address:04x}"
-        try:
-            data = bytes(self.dev.ctrl_transfer(rtype, req, wvalue, windex, nbytes, 1000))
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        data = bytes(self._ctrl(name, rtype, req, wvalue, windex, nbytes))
         if len(data) != nbytes:
             raise ProtocolError(name, f"expected {nbytes} bytes, got {len(data)}")
         return int.from_bytes(data, "little")

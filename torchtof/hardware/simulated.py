@@ -693,6 +693,15 @@ class SimulatedBench:
                  sdk_initialised: bool = True, video_hz: float = 60.0,
                  mode_latency_s: float = 0.0) -> None:
         cfg = (config or ExperimentConfig()).validate()
+        if cfg.gain_e_per_dn is not None and not (isinstance(cfg.gain_e_per_dn, (int, float))
+                                             and math.isfinite(cfg.gain_e_per_dn)
+                                             and cfg.gain_e_per_dn > 0):
+            raise ValueError(f"SimulatedBench: expected a positive finite gain_e_per_dn, got "
+                             f"{cfg.gain_e_per_dn!r}")
+        if isinstance(cfg.chunk_frames, bool) or not isinstance(cfg.chunk_frames, int) or \
+                cfg.chunk_frames < 1:
+            raise ValueError(f"SimulatedBench: expected chunk_frames a positive int, got "
+                             f"{cfg.chunk_frames!r}")
         if cfg.adc_bits is None or cfg.adc_bits > 12:
             raise ValueError(f"SimulatedBench: the OPT8241 sends 12-bit samples: expected "
                              f"adc_bits in [1, 12], got {cfg.adc_bits}")

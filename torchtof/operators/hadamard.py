@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import torch
 
-from .._memory import check_memory
+from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
-from .patterns import _check_n_order, hadamard_order, num_patterns
+from .patterns import check_n_order, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
 
@@ -45,25 +45,6 @@ def _transform(x: torch.Tensor, h: Transform) -> torch.Tensor:
         n1, n2 = x.shape[-2], x.shape[-1]
         return fwht_kron(x.reshape(*x.shape[:-2], n1 * n2), h).reshape(x.shape)
     return fwht2_matmul(x, h)
-
-
-def _itemsize(dtype: torch.dtype) -> int:
-    if not isinstance(dtype, torch.dtype):
-        raise TypeError(f"expected dtype to be a torch.dtype, got {type(dtype).__name__}")
-    return torch.empty((), dtype=dtype).element_size()
-
-
-def _check_range(start: object, stop: object, total: int, func: str) -> tuple[int, int]:
-    """``0 <= start <= stop <= total`` as ints (``stop=None``: ``total``)."""
-    stop = total if stop is None else stop
-    for name, v in (("start", start), ("stop", stop)):
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
-    if not 0 <= start <= stop <= total:
-        raise ValueError(
-            f"{func}: expected 0 <= start <= stop <= {total}, got start={start}, stop={stop}"
-        )
-    return start, stop
 
 
 def _to_float(h: Transform) -> Transform:
@@ -137,7 +118,7 @@ class Hadamard(LinearOperator):
         order: str = "cake_cutting",
         method: str = "auto",
     ) -> None:
-        _check_n_order(n, order, "Hadamard")
+        check_n_order(n, order, "Hadamard")
         if sr is None and m is None:
             m = n * n
         m = num_patterns(n, sr, m, func="Hadamard")
@@ -193,8 +174,8 @@ class Hadamard(LinearOperator):
             ValueError: for a range outside ``[0, M]`` or a stack larger than the memory
                 limit (:func:`torchtof.set_memory_limit`).
         """
-        start, stop = _check_range(start, stop, self.m, "Hadamard.patterns")
-        check_memory((stop - start) * self.n**2 * _itemsize(dtype),
+        start, stop = check_rows(start, stop, self.m, "Hadamard.patterns")
+        check_memory((stop - start) * self.n**2 * itemsize(dtype, "Hadamard.patterns"),
                      f"{stop - start} patterns of {self.n}x{self.n}", "Hadamard.patterns",
                      "ask for rows start:stop in chunks")
         h = self.h.to(dtype)

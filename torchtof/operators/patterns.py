@@ -74,7 +74,7 @@ def _order_cpu(n: int, order: str) -> torch.Tensor:
     return torch.argsort(key, stable=True)
 
 
-def _check_n_order(n: int, order: str, func: str) -> None:
+def check_n_order(n: int, order: str, func: str) -> None:
     check_power_of_two(n, "n", func, lo=N_MIN, hi=N_MAX)
     if order not in ORDERS:
         raise ValueError(f"{func}: expected order in {ORDERS}, got {order!r}")
@@ -98,7 +98,7 @@ def hadamard_order(n: int, order: str = "cake_cutting") -> torch.Tensor:
         >>> hadamard_order(4, "natural")[:3]
         tensor([0, 1, 2])
     """
-    _check_n_order(n, order, "hadamard_order")
+    check_n_order(n, order, "hadamard_order")
     return _order_cpu(n, order).clone()
 
 
@@ -130,7 +130,7 @@ def hadamard_patterns(
     Pattern ``r`` is ``h_i h_jᵀ`` with ``(i, j) = divmod(order[r], n)``; only the
     requested patterns are materialised (never the full ``N × N`` basis).
     """
-    _check_n_order(n, order, "hadamard_patterns")
+    check_n_order(n, order, "hadamard_patterns")
     m = n * n if m is None else num_patterns(n, m=m, func="hadamard_patterns")
     check_memory(m * n * n * torch.empty((), dtype=dtype).element_size(),
                  f"{m} patterns of {n}x{n}", "hadamard_patterns")

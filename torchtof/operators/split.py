@@ -13,9 +13,9 @@ from __future__ import annotations
 import torch
 
 from .._checks import check_finite, check_rank, check_shape
-from .._memory import check_memory
+from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
-from .hadamard import Hadamard, _check_range, _itemsize
+from .hadamard import Hadamard
 
 #: ±1 rows split at a time by :meth:`DMDSplit.patterns`.
 PATTERN_CHUNK = 256
@@ -102,10 +102,10 @@ class DMDSplit(LinearOperator):
                 limit (:func:`torchtof.set_memory_limit`).
         """
         func = "DMDSplit.patterns"
-        start, stop = _check_range(start, stop, self.m, func)
+        start, stop = check_rows(start, stop, self.m, func)
         n = self.n
         rows = stop - start + min(2 * PATTERN_CHUNK, stop - start + 2)  # result + one chunk
-        check_memory(rows * n * n * _itemsize(dtype),
+        check_memory(rows * n * n * itemsize(dtype, func),
                      f"{stop - start} DMD patterns of {n}x{n}", func,
                      "stream them with DMDSplit.iter_patterns(chunk) or ask for rows "
                      "start:stop")

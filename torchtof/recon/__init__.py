@@ -3,6 +3,7 @@
 :func:`get` and :func:`names` read the one table of reconstructors (:mod:`.registry`).
 """
 
+from .base import ReconResult
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
 from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
@@ -24,10 +25,12 @@ from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
+from .auto import Auto, AutoResult, auto  # noqa: E402,I001
 from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
+    "ReconResult",
     "REGISTRY",
     "ReconSpec",
     "get",
@@ -45,6 +48,9 @@ __all__ = [
     "BPResult",
     "basis_pursuit",
     "TVAL3",
+    "Auto",
+    "AutoResult",
+    "auto",
     "TVAL3Result",
     "tval3",
     "bucket_noise_sigma",

@@ -12,7 +12,7 @@ operator at every step and one convolutional prior shared by all ``K`` steps. Fr
 followed by one noise-weighted data-consistency step
 
 .. math::
-    x = x_K + w\, Aᵀ(b - A x_K), \qquad w = \frac{1}{1 + (σ_n / τ)^2},
+    x = x_K + w\\, Aᵀ(b - A x_K), \\qquad w = \\frac{1}{1 + (σ_n / τ)^2},
 
 the exact projection onto ``{A x = b}`` for noise-free buckets (``w = 1``) and a Wiener-like
 shrinkage of it as the noise grows (``τ``: one scalar, set by

@@ -30,6 +30,7 @@ from types import MappingProxyType
 
 from torch import nn
 
+from .auto import Auto, auto
 from .bp import BasisPursuit, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, tgi
 from .depth import JointTV, joint_tv
@@ -96,12 +97,13 @@ _SPECS = (
     _spec("tval3", "TVAL3", tval3, TVAL3, iterative=True, exportable=True, budget="max_iter",
           fixed_budget={"adaptive": False},
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
+    _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
+          summary="TV with prior, bounds and weight chosen by cross-validation on the buckets"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
           differentiable=True, exportable=True, budget="n_layers",
           summary="unrolled TVAL3, K layers with learned per-layer scalars"),
-    _spec("learned", "Learned", learned, Learned, iterative=True, differentiable=True,
-          exportable=True, budget="n_layers",
-          summary="learned proximal gradient: K steps with one shared CNN prior"),
+    _spec("learned", "Learned", learned, Learned, differentiable=True, exportable=True,
+          summary="learned proximal gradient: shared FiLM CNN prior, one weights file, any n/SR"),
     # a DIP budget is a cap: ES-WMV still stops the fit earlier
     _spec("dip", "DIP", dip, DIP, iterative=True, budget="max_iter", per_sample=True,
           positive_prior=True,

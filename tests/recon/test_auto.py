@@ -1,0 +1,135 @@
+"""auto: prior, bounds and weight chosen by cross-validation on the buckets."""
+
+import pytest
+import torch
+
+from torchtof.operators import Hadamard
+from torchtof.recon import Auto, auto, get, tval3
+from torchtof.recon.auto import AUTO_WEIGHTS, _folds, candidates, default_split
+
+
+def _square(n=16, dtype=torch.float64):
+    x = torch.zeros(1, 1, n, n, dtype=dtype)
+    x[..., 4:12, 3:10] = 1.0
+    return x
+
+
+def _noisy(A, x, level, seed=0):
+    y0 = A(x)
+    g = torch.Generator().manual_seed(seed)
+    return y0 + level * (y0.max() - y0.min()) * torch.randn(y0.shape, dtype=y0.dtype, generator=g)
+
+
+def test_folds_partition_and_keep_the_mean_row():
+    A = Hadamard(16, sr=0.25)
+    held, train = _folds(A, 3, torch.zeros(1, dtype=torch.float64), 0, "random")
+    assert held.shape == (3, A.m) and torch.equal(train, ~held)
+    assert held.sum(0).max() == 1  # each row held out at most once
+    ones = A(torch.ones(1, 1, 16, 16, dtype=torch.float64)).reshape(-1)
+    dc = ones.abs() > 1e-9
+    assert dc.sum() == 1 and not held[:, dc].any()  # the all-ones row is always trained on
+    assert held.sum() == A.m - 1  # every other row is held out once
+    assert (held.sum(1) - held.sum(1).float().mean()).abs().max() <= 1  # balanced folds
+
+
+def test_tail_split_predicts_later_rows_from_earlier_ones():
+    A = Hadamard(16, sr=0.25)  # M = 64, cake-cutting: tail split by default
+    assert default_split(A) == "tail"
+    assert default_split(Hadamard(16, sr=0.25, order="natural")) == "random"
+    held, train = _folds(A, 3, torch.zeros(1), 0, "tail")  # K − 1 = 2 folds of h = 16 rows
+    assert held.shape == (2, 64)
+    assert held[0].nonzero().flatten().tolist() == list(range(48, 64))
+    assert held[1].nonzero().flatten().tolist() == list(range(32, 48))
+    assert train[0].nonzero().flatten().tolist() == list(range(48))
+    assert train[1].nonzero().flatten().tolist() == list(range(32))
+
+
+def test_candidates_and_cv_error_layout():
+    assert len(candidates()) == 2 * 2 * len(AUTO_WEIGHTS)
+    assert len(candidates((0.0, 1.0))) == 2 * 3 * len(AUTO_WEIGHTS)
+    A = Hadamard(16, sr=0.5)
+    r = auto(A(_square()), A, return_result=True, cv_iter=60, slack=0.0)
+    assert r.cv_error.shape == (1, 1, len(r.candidates))
+    k = int(r.cv_error[0, 0].argmin())  # slack 0: the smallest CV error wins
+    assert r.choice[0][0]["tv"] == r.candidates[k]["tv"]
+    assert r.choice[0][0]["mu"] == r.candidates[k]["mu"]
+    assert r.stop_reason[0][0] in ("tol", "max_outer", "max_iter")
+
+
+def test_noise_free_binary_square_is_recovered():
+    A = Hadamard(16, sr=0.5)
+    x = _square()
+    out = auto(A(x), A, cv_iter=150)
+    assert (out - x).abs().max() < 0.05
+
+
+def test_slack_prefers_the_least_regularised_near_tie():
+    A = Hadamard(16, sr=0.375)
+    y = _noisy(A, _square(), 0.01)
+    r = auto(y, A, return_result=True, cv_iter=40, slack=0.5)
+    e = r.cv_error[0, 0]
+    ok = e <= 1.5 * e.min()
+    w = torch.tensor([float("inf") if c["mu"] is None else c["mu"] for c in r.candidates])
+    top = w[ok].max()
+    assert (float("inf") if r.choice[0][0]["mu"] is None else r.choice[0][0]["mu"]) == top
+
+
+def test_chooses_per_sample_and_batch_equals_singles():
+    A = Hadamard(8, sr=0.5)
+    x = torch.cat([_square(8), torch.rand(1, 1, 8, 8, dtype=torch.float64,
+                                          generator=torch.Generator().manual_seed(1))])
+    y = _noisy(A, x, 0.01)
+    both = auto(y, A, cv_iter=30, max_iter=200, return_result=True)
+    for i in range(2):
+        one = auto(y[i : i + 1], A, cv_iter=30, max_iter=200, return_result=True)
+        torch.testing.assert_close(one.x[0], both.x[i], rtol=1e-9, atol=1e-9)
+        assert one.choice[0][0] == both.choice[i][0]
+
+
+def test_beats_the_isotropic_default_on_a_noisy_binary_silhouette():
+    # a binary pixel-grid object at 1 % noise: the cross-validated choice (anisotropic TV,
+    # x ≥ 0, a finite weight) beats TVAL3's isotropic default
+    n = 32
+    A = Hadamard(n, sr=0.25)
+    x = torch.zeros(1, 1, n, n, dtype=torch.float64)
+    x[..., 5:20, 4:12] = 1.0
+    x[..., 10:28, 16:27] = 1.0
+    y = _noisy(A, x, 0.01)
+    r = auto(y, A, return_result=True)
+    err_auto = float((r.x.clamp(0, 1) - x).pow(2).mean())
+    err_def = float((tval3(y, A).x.clamp(0, 1) - x).pow(2).mean())
+    assert err_auto < 0.7 * err_def
+    assert r.choice[0][0]["tv"] == "anisotropic"
+
+
+def test_empty_batch_dtype_and_module():
+    A = Hadamard(8, sr=0.5)
+    assert auto(torch.zeros(0, 1, A.m), A).shape == (0, 1, 8, 8)
+    y = A(_square(8, torch.float32))
+    rec = Auto(A, cv_iter=30)
+    out = rec(y)
+    assert out.dtype == torch.float32 and out.shape == (1, 1, 8, 8)
+    torch.testing.assert_close(rec.solve(y).x, out)
+    rec2 = Auto(Hadamard(8, sr=0.5), cv_iter=30)
+    rec2.load_state_dict(rec.state_dict())
+    torch.testing.assert_close(rec2(y), out)
+    assert get("auto").module is Auto and get("auto").function is auto
+
+
+def test_errors():
+    A = Hadamard(8, sr=0.5)
+    y = torch.zeros(1, 1, A.m)
+    with pytest.raises(ValueError, match="auto: expected folds >= 2"):
+        auto(y, A, folds=1)
+    with pytest.raises(TypeError, match="auto: expected cv_iter to be an int"):
+        auto(y, A, cv_iter=1.5)
+    with pytest.raises(ValueError, match="auto: expected split in"):
+        auto(y, A, split="odd")
+    with pytest.raises(ValueError, match="auto: expected slack >= 0"):
+        auto(y, A, slack=-1.0)
+    with pytest.raises(ValueError, match="auto: expected bounds with lo < hi"):
+        auto(y, A, bounds=(1.0, 0.0))
+    with pytest.raises(ValueError, match=r"auto: expected y of shape \(\*, \*, 32\)"):
+        auto(torch.zeros(1, 1, 31), A)
+    with pytest.raises(TypeError, match="Auto: expected A to be a LinearOperator"):
+        Auto("A")
