@@ -197,8 +197,13 @@ def tt_pinv(P: Problem, _p=None):
 
 
 def tt_auto(P: Problem, _p=None):
-    auto = tt.recon.auto
-    out = auto(P.y, P.A)
+    out = tt.recon.auto(P.y, P.A)
+    return getattr(out, "x", out)
+
+
+def tt_auto_box(P: Problem, _p=None):
+    """``auto`` told the box ``[0, 1]`` (an image normalised by a calibration frame)."""
+    out = tt.recon.auto(P.y, P.A, bounds=(0.0, 1.0))
     return getattr(out, "x", out)
 
 
@@ -400,6 +405,7 @@ def method_table(P: Problem, dip: bool):
     }
     if hasattr(tt.recon, "auto"):
         table["torchtof auto"] = ("torchtof", tt_auto, None, None)
+        table["torchtof auto [0,1]"] = ("torchtof", tt_auto_box, None, None)
     vers = peer_versions()
     if vers.get("deepinv"):
         table["deepinv FISTA-TV"] = ("deepinv", dinv_fista_tv, geometric(s), refine2)
@@ -560,12 +566,28 @@ def winners(data: dict) -> str:
 
 
 def merge(runs: list[dict]) -> dict:
-    """One document from several runs (cells concatenated; each run's header kept)."""
+    """One document from several runs (each run's header kept). Cells of the same problem
+    (scene, n, SR, order, noise, seed) are united: a later run's methods are added beside
+    the earlier ones (a method in both keeps the earlier result) and the headline is
+    recomputed."""
     if len(runs) == 1:
         return runs[0]
     out = {"runs": [{k: v for k, v in r.items() if k != "cells"} for r in runs], "cells": []}
+    index: dict = {}
     for r in runs:
-        out["cells"] += r["cells"]
+        seed = r.get("args", {}).get("seed", 0)
+        for c in r["cells"]:
+            key = (*_cell_key(c), seed)
+            if key in index:
+                old = index[key]
+                for name, v in c["results"].items():
+                    if name not in old["results"]:
+                        old["results"][name] = {**v, "other_process": True}
+                old["headline"] = headline(old["results"])
+            else:
+                c = {**c, "results": dict(c["results"])}
+                index[key] = c
+                out["cells"].append(c)
     return out
 
 

@@ -150,6 +150,27 @@ def test_report_tables():
     assert "| sky | -2.50 (pylops SB-TV) | +1.00 (pylops SB-TV) |" in grid
 
 
+def test_merge_unites_cells_of_the_same_problem():
+    def cell(results):
+        c = {"scene": "sky", "n": 32, "sr": 0.25, "order": "sequency", "level": 0.01,
+             "results": results}
+        c["headline"] = pb.headline(results)
+        return c
+
+    peer = {"peer": "pylops", "psnr": 25.0, "time_s": 1.0, "edge": False}
+    run1 = {"cells": [cell({"torchtof tval3": {"peer": "torchtof", "psnr": 20.0},
+                            "pylops SB-TV": peer})]}
+    run2 = {"cells": [cell({"torchtof tval3": {"peer": "torchtof", "psnr": 99.0},
+                            "torchtof auto": {"peer": "torchtof", "psnr": 26.0}})]}
+    m = pb.merge([run1, run2])
+    assert len(m["cells"]) == 1
+    r = m["cells"][0]["results"]
+    assert r["torchtof tval3"]["psnr"] == 20.0  # the earlier run's result is kept
+    assert r["torchtof auto"]["other_process"]
+    h = m["cells"][0]["headline"]
+    assert h["default"] == "torchtof auto" and h["gap_db"] == pytest.approx(1.0)
+
+
 # --------------------------------------------------------------------------- adapters
 @pytest.mark.skipif(not _has("pylops"), reason="pylops not installed (pip install -e '.[peers]')")
 def test_pylops_operator_is_the_hadamard_operator():
