@@ -430,7 +430,7 @@ def method_table(P: Problem, dip: bool):
 def run_cell(P: Problem, repeats: int, dip: bool, only: set | None = None) -> dict:
     table = method_table(P, dip)
     if only:
-        table = {k: v for k, v in table.items() if k in only or v[0] == "torchtof"}
+        table = {k: v for k, v in table.items() if k in only or k == "torchtof tval3"}
     res: dict = {}
     for name, (peer, fn, grid, refine) in table.items():
         t0 = time.perf_counter()
@@ -637,7 +637,8 @@ def parse(argv=None):
                    help="interleaved timing rounds after tuning (the median also counts the "
                         "tuning run of the chosen point; --quick: 0)")
     p.add_argument("--dip", action="store_true", help="add deepinv DIP at n = 32 (slow)")
-    p.add_argument("--only", nargs="*", default=None, help="only these peer methods")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="only these methods (names as in the JSON) besides torchtof tval3")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
     p.add_argument("--report", type=Path, nargs="+", default=None,
                    help="print the markdown tables of these JSONs (merged) and write the PNG, "
@@ -691,8 +692,9 @@ def main(argv=None) -> int:
                         h = cell["headline"]
                         print(f"n={n} noise={level:g} {order} {scene} SR={sr:g}: "
                               + ", ".join(f"{k} {v['psnr']:.2f}" for k, v in res.items())
-                              + f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
-                              f" [{cell['cell_time_s']:.0f} s]", flush=True)
+                              + (f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
+                                 if h["best_peer"] else "")
+                              + f" [{cell['cell_time_s']:.0f} s]", flush=True)
                         if a.out is not None:
                             data["machine_end"] = machine()
                             data["total_time_s"] = time.perf_counter() - t_all
