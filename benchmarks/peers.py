@@ -149,14 +149,15 @@ def tune(run, x: torch.Tensor, grid: list, refine=None) -> dict:
 
 
 def _on_edge(best, params: list) -> bool:
-    """Whether the best point sits at the end of the grid in any of its coordinates."""
+    """Whether the best point sits at the end of the grid in a coordinate that was scanned
+    (three values or more; a two-value check such as the split-Bregman ρ is not a scan)."""
     if best is None:
         return False
-    b = best if isinstance(best, tuple) else (best,)
-    pts = [p if isinstance(p, tuple) else (p,) for p in params]
+    b = tuple(best) if isinstance(best, (tuple, list)) else (best,)
+    pts = [tuple(p) if isinstance(p, (tuple, list)) else (p,) for p in params]
     for i, v in enumerate(b):
         vals = sorted({p[i] for p in pts})
-        if len(vals) > 1 and v in (vals[0], vals[-1]):
+        if len(vals) > 2 and v in (vals[0], vals[-1]):
             return True
     return False
 
@@ -501,6 +502,12 @@ def _cell_key(c):
     return (c["n"], c["level"], c["order"], c["scene"], c["sr"])
 
 
+def _edge(r: dict) -> bool:
+    if "trace" not in r:
+        return bool(r.get("edge"))
+    return _on_edge(r["param"], [t["param"] for t in r["trace"]])
+
+
 def markdown(data: dict) -> str:
     cells = sorted(data["cells"], key=_cell_key)
     lines = [
@@ -515,7 +522,7 @@ def markdown(data: dict) -> str:
             f"| {c['n']} | {100 * c['level']:g} % | {c['order']} | {c['scene']} | "
             f"{100 * c['sr']:g} | {h['default'].replace('torchtof ', '')} | {h['default_psnr']:.2f} | "
             f"{h['best_ours'].replace('torchtof ', '')} | {r[h['best_ours']]['psnr']:.2f} | "
-            f"{bp}{' (edge)' if bp and r[bp]['edge'] else ''} | "
+            f"{bp}{' (edge)' if bp and _edge(r[bp]) else ''} | "
             f"{h['best_peer_psnr']:.2f} | {h['gap_db']:+.2f} | "
             f"{r[h['default']]['time_s']:.3f} | {r[bp]['time_s']:.3f} |"
         )

@@ -108,8 +108,11 @@ def test_tune_picks_the_oracle_point_and_flags_edges():
     assert r["param"] == 0.0 and not r["edge"] and len(r["trace"]) == 4
     r = pb.tune(lambda p: x + p, x, [0.0, 0.1, 0.2])
     assert r["param"] == 0.0 and r["edge"]
-    r = pb.tune(lambda p: x + p[0] * p[1], x, [(a, b) for a in (0.1, 0.2) for b in (0.0, 1.0)])
+    grid = [(a, b) for a in (0.1, 0.2) for b in (0.0, 1.0, 2.0)]
+    r = pb.tune(lambda p: x + p[0] * p[1], x, grid)
     assert r["param"][1] == 0.0 and r["edge"]  # edge in the second coordinate
+    r = pb.tune(lambda p: x + p[0] * (p[1] - 1.0), x, grid)
+    assert r["param"][1] == 1.0 and not r["edge"]  # two values of the first: not a scan
     r = pb.tune(lambda p: x + p, x, [0.4, 0.2], refine=lambda b: [b / 2])
     assert r["param"] == 0.1 and len(r["trace"]) == 3
 
