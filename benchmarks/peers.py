@@ -614,6 +614,9 @@ def plot(data: dict, path: Path) -> None:
     for c, di, bi in zip(cells, d, b):
         ax[0].scatter(bi, di, marker=marks.get(c["scene"], "x"),
                       c="C0" if c["n"] == 32 else ("C1" if c["n"] == 64 else "C2"), s=22)
+    for sc, mk in marks.items():
+        ax[0].scatter([], [], marker=mk, c="grey", s=22, label=sc)
+    ax[0].legend(fontsize=8, loc="upper left")
     ax[0].plot([lo, hi], [lo, hi], "k--", lw=0.8)
     ax[0].set_xlabel("best oracle-tuned peer, PSNR dB")
     ax[0].set_ylabel(f"torchtof {cells[0]['headline']['default'].split()[-1]} default, PSNR dB")
