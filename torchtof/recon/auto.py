@@ -46,9 +46,9 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
-from .tval3 import STOP_REASONS, check_buckets, tval3
+from .tval3 import STOP_REASONS, MaskedRows, check_buckets, default_split, holdout_split, tval3
 
-__all__ = ["auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "candidates", "default_split"]
+__all__ = ["auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "candidates"]
 
 #: TV-L2 weights tried (on the buckets scaled as TVAL3's ``Scaleb``); ``inf``: the published
 #: equality-constrained model with ``μ = 2⁸``.
@@ -82,29 +82,6 @@ class AutoResult(NamedTuple):
     candidates: tuple
 
 
-class _Masked(LinearOperator):
-    """``A`` with a 0/1 row mask per channel: ``forward(u) = m ⊙ A u``, ``adjoint(r) = Aᵀ(m ⊙ r)``.
-
-    ``normal`` is ``A``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``A``'s largest eigenvalue.
-    """
-
-    def __init__(self, A: LinearOperator, mask: torch.Tensor) -> None:
-        super().__init__(A.n, A.m)
-        self.inner = A
-        self.orthonormal_rows = A.orthonormal_rows
-        self.register_buffer("mask", mask)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.inner(x) * self.mask.to(x.dtype)
-
-    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
-        return self.inner.adjoint(y * self.mask.to(y.dtype))
-
-    def normal(self, x: torch.Tensor) -> torch.Tensor:
-        return self.inner.normal(x)
-
-
 def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
     """The candidate list of :func:`auto`: dicts ``tv``, ``bounds``, ``mu`` (``None``: the
     constrained model with ``μ = 2⁸``)."""
@@ -115,42 +92,6 @@ def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
             for mu in AUTO_WEIGHTS:
                 out.append(dict(tv=tv, bounds=box, mu=None if mu == float("inf") else mu))
     return tuple(out)
-
-
-def _folds(A: LinearOperator, k: int, like: torch.Tensor, seed: int, split: str = "random"
-           ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(held, train)``, each ``(F, M)`` bool, one row per fold.
-
-    ``"random"``: ``k`` folds of a random partition (rows that alone carry the mean, i.e.
-    ``A·1`` nonzero on at most a quarter of the rows, are never held out); train = the rest.
-    ``"tail"``: for rows in a low-to-high order, fold ``j < k − 1`` holds out the block
-    ``[M − (j+1)h, M − jh)``, ``h = ⌈M/(2(k−1))⌉``, trained on the rows before it only; each
-    fold predicts the next rows of the order from the earlier ones, as the final
-    reconstruction predicts the unmeasured rows from the measured ones.
-    """
-    m = A.m
-    if split == "tail":
-        nf = max(1, k - 1)
-        h = max(1, -(-m // (2 * nf)))
-        held = torch.zeros(nf, m, dtype=torch.bool, device=like.device)
-        train = torch.zeros_like(held)
-        for j in range(nf):
-            lo, hi = max(1, m - (j + 1) * h), m - j * h
-            held[j, lo:hi] = True
-            train[j, :lo] = True
-        return held, train
-    with torch.no_grad():
-        ones = torch.ones(1, 1, A.n, A.n, dtype=like.dtype, device=like.device)
-        a = A(ones).reshape(-1).abs()
-    dc = a > 1e-6 * a.max()
-    keep = dc if int(dc.sum()) <= m // 4 else torch.zeros_like(dc)
-    idx = torch.nonzero(~keep).reshape(-1)
-    g = torch.Generator().manual_seed(seed)
-    perm = idx[torch.randperm(len(idx), generator=g).to(idx.device)]
-    held = torch.zeros(k, m, dtype=torch.bool, device=like.device)
-    for j in range(k):
-        held[j, perm[j::k]] = True
-    return held, ~held
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
@@ -168,15 +109,6 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
     if split not in (None, "random", "tail"):
         raise ValueError(f"{fn}: expected split in (None, 'random', 'tail'), got {split!r}")
     check_positive(slack, "slack", fn, strict=False)
-
-
-#: Hadamard orders whose rows run from low to high sequency (cross-validation holds out the tail).
-_ORDERED = ("cake_cutting", "sequency", "russian_doll")
-
-
-def default_split(A: LinearOperator) -> str:
-    """``"tail"`` for Hadamard rows in a low-to-high order, else ``"random"``."""
-    return "tail" if getattr(A, "order", None) in _ORDERED else "random"
 
 
 def auto(
@@ -251,10 +183,10 @@ def auto(
     nw = len(AUTO_WEIGHTS)
     boxes = [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
     pairs = [(tv, box) for tv in ("isotropic", "anisotropic") for box in boxes]
-    held, train = _folds(A, folds, y, seed, split)  # (F, M)
+    held, train = holdout_split(A, folds, y, seed, split)  # (F, M)
     nf = held.shape[0]
     mask = train.repeat_interleave(nw, dim=0)  # channel j: fold j // nw, weight j % nw
-    op = _Masked(A, mask)
+    op = MaskedRows(A, mask)
     wts = torch.tensor(AUTO_WEIGHTS, dtype=y.dtype, device=y.device)
     mus = torch.where(wts.isinf(), torch.full_like(wts, _CONSTRAINED_MU), wts).repeat(nf)
     tvl2 = (~wts.isinf()).repeat(nf)
