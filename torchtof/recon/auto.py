@@ -120,21 +120,20 @@ def auto(
     max_iter: int = 1025,
     *,
     split: str | None = None,
-    slack: float = 0.1,
+    slack: float = 0.0,
     seed: int = 0,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
     """TV reconstruction with prior, bounds and weight chosen by cross-validation (module doc).
 
-    Choice: the least regularised candidate (largest ``μ``; the constrained model counts as
-    ``μ = ∞``) whose CV error is within ``1 + slack`` of the smallest, the lowest CV error
-    among those. The folds fit fewer rows than the refit, and CV with smaller training sets is
-    known to over-regularise (Shao 1993, JASA 88, "Linear model selection by
-    cross-validation"; the bias of K-fold CV, Hastie, Tibshirani & Friedman 2009 §7.10.1), so
-    near-ties are broken towards less smoothing (``slack = 0.1``, measured in
-    ``docs/auto.md``). The refit runs the chosen TV-L2 model to convergence (``max_iter``),
-    the constrained model with the ``cv_iter`` budget that was validated (its iteration count
-    is its regulariser: run longer, it fits more noise).
+    Choice: the candidate with the smallest CV error; with ``slack > 0`` the least
+    regularised one (largest ``μ``; the constrained model counts as ``μ = ∞``) whose CV error
+    is within ``1 + slack`` of the smallest (CV with fewer training rows tends to
+    over-regularise, Shao 1993, JASA 88; but measured over the scenes of ``docs/auto.md``
+    ``slack = 0.1`` lost up to 10 dB on smooth images, ``slack = 0`` is the default). The
+    refit runs a chosen TV-L2 model to convergence (``max_iter``) and the constrained model
+    with the ``cv_iter`` budget that was validated (its iteration count is its regulariser:
+    run longer, it fits more noise).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``, float32/float64; every sample chooses alone.
@@ -252,7 +251,7 @@ class Auto(nn.Module):
 
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int = 2,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
-                 slack: float = 0.1, seed: int = 0) -> None:
+                 slack: float = 0.0, seed: int = 0) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
