@@ -149,14 +149,15 @@ def tune(run, x: torch.Tensor, grid: list, refine=None) -> dict:
 
 
 def _on_edge(best, params: list) -> bool:
-    """Whether the best point sits at the end of the grid in any of its coordinates."""
+    """Whether the best point sits at the end of the grid in a coordinate that was scanned
+    (three values or more; a two-value check such as the split-Bregman ρ is not a scan)."""
     if best is None:
         return False
-    b = best if isinstance(best, tuple) else (best,)
-    pts = [p if isinstance(p, tuple) else (p,) for p in params]
+    b = tuple(best) if isinstance(best, (tuple, list)) else (best,)
+    pts = [tuple(p) if isinstance(p, (tuple, list)) else (p,) for p in params]
     for i, v in enumerate(b):
         vals = sorted({p[i] for p in pts})
-        if len(vals) > 1 and v in (vals[0], vals[-1]):
+        if len(vals) > 2 and v in (vals[0], vals[-1]):
             return True
     return False
 
@@ -197,8 +198,13 @@ def tt_pinv(P: Problem, _p=None):
 
 
 def tt_auto(P: Problem, _p=None):
-    auto = tt.recon.auto
-    out = auto(P.y, P.A)
+    out = tt.recon.auto(P.y, P.A)
+    return getattr(out, "x", out)
+
+
+def tt_auto_box(P: Problem, _p=None):
+    """``auto`` told the box ``[0, 1]`` (an image normalised by a calibration frame)."""
+    out = tt.recon.auto(P.y, P.A, bounds=(0.0, 1.0))
     return getattr(out, "x", out)
 
 
@@ -400,6 +406,7 @@ def method_table(P: Problem, dip: bool):
     }
     if hasattr(tt.recon, "auto"):
         table["torchtof auto"] = ("torchtof", tt_auto, None, None)
+        table["torchtof auto [0,1]"] = ("torchtof", tt_auto_box, None, None)
     vers = peer_versions()
     if vers.get("deepinv"):
         table["deepinv FISTA-TV"] = ("deepinv", dinv_fista_tv, geometric(s), refine2)
@@ -424,7 +431,7 @@ def method_table(P: Problem, dip: bool):
 def run_cell(P: Problem, repeats: int, dip: bool, only: set | None = None) -> dict:
     table = method_table(P, dip)
     if only:
-        table = {k: v for k, v in table.items() if k in only or v[0] == "torchtof"}
+        table = {k: v for k, v in table.items() if k in only or k == "torchtof tval3"}
     res: dict = {}
     for name, (peer, fn, grid, refine) in table.items():
         t0 = time.perf_counter()
@@ -495,6 +502,12 @@ def _cell_key(c):
     return (c["n"], c["level"], c["order"], c["scene"], c["sr"])
 
 
+def _edge(r: dict) -> bool:
+    if "trace" not in r:
+        return bool(r.get("edge"))
+    return _on_edge(r["param"], [t["param"] for t in r["trace"]])
+
+
 def markdown(data: dict) -> str:
     cells = sorted(data["cells"], key=_cell_key)
     lines = [
@@ -509,7 +522,7 @@ def markdown(data: dict) -> str:
             f"| {c['n']} | {100 * c['level']:g} % | {c['order']} | {c['scene']} | "
             f"{100 * c['sr']:g} | {h['default'].replace('torchtof ', '')} | {h['default_psnr']:.2f} | "
             f"{h['best_ours'].replace('torchtof ', '')} | {r[h['best_ours']]['psnr']:.2f} | "
-            f"{bp}{' (edge)' if bp and r[bp]['edge'] else ''} | "
+            f"{bp}{' (edge)' if bp and _edge(r[bp]) else ''} | "
             f"{h['best_peer_psnr']:.2f} | {h['gap_db']:+.2f} | "
             f"{r[h['default']]['time_s']:.3f} | {r[bp]['time_s']:.3f} |"
         )
@@ -560,12 +573,28 @@ def winners(data: dict) -> str:
 
 
 def merge(runs: list[dict]) -> dict:
-    """One document from several runs (cells concatenated; each run's header kept)."""
+    """One document from several runs (each run's header kept). Cells of the same problem
+    (scene, n, SR, order, noise, seed) are united: a later run's methods are added beside
+    the earlier ones (a method in both keeps the earlier result) and the headline is
+    recomputed."""
     if len(runs) == 1:
         return runs[0]
     out = {"runs": [{k: v for k, v in r.items() if k != "cells"} for r in runs], "cells": []}
+    index: dict = {}
     for r in runs:
-        out["cells"] += r["cells"]
+        seed = r.get("args", {}).get("seed", 0)
+        for c in r["cells"]:
+            key = (*_cell_key(c), seed)
+            if key in index:
+                old = index[key]
+                for name, v in c["results"].items():
+                    if name not in old["results"]:
+                        old["results"][name] = {**v, "other_process": True}
+                old["headline"] = headline(old["results"])
+            else:
+                c = {**c, "results": dict(c["results"])}
+                index[key] = c
+                out["cells"].append(c)
     return out
 
 
@@ -585,6 +614,9 @@ def plot(data: dict, path: Path) -> None:
     for c, di, bi in zip(cells, d, b):
         ax[0].scatter(bi, di, marker=marks.get(c["scene"], "x"),
                       c="C0" if c["n"] == 32 else ("C1" if c["n"] == 64 else "C2"), s=22)
+    for sc, mk in marks.items():
+        ax[0].scatter([], [], marker=mk, c="grey", s=22, label=sc)
+    ax[0].legend(fontsize=8, loc="upper left")
     ax[0].plot([lo, hi], [lo, hi], "k--", lw=0.8)
     ax[0].set_xlabel("best oracle-tuned peer, PSNR dB")
     ax[0].set_ylabel(f"torchtof {cells[0]['headline']['default'].split()[-1]} default, PSNR dB")
@@ -615,7 +647,8 @@ def parse(argv=None):
                    help="interleaved timing rounds after tuning (the median also counts the "
                         "tuning run of the chosen point; --quick: 0)")
     p.add_argument("--dip", action="store_true", help="add deepinv DIP at n = 32 (slow)")
-    p.add_argument("--only", nargs="*", default=None, help="only these peer methods")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="only these methods (names as in the JSON) besides torchtof tval3")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
     p.add_argument("--report", type=Path, nargs="+", default=None,
                    help="print the markdown tables of these JSONs (merged) and write the PNG, "
@@ -669,8 +702,9 @@ def main(argv=None) -> int:
                         h = cell["headline"]
                         print(f"n={n} noise={level:g} {order} {scene} SR={sr:g}: "
                               + ", ".join(f"{k} {v['psnr']:.2f}" for k, v in res.items())
-                              + f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
-                              f" [{cell['cell_time_s']:.0f} s]", flush=True)
+                              + (f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
+                                 if h["best_peer"] else "")
+                              + f" [{cell['cell_time_s']:.0f} s]", flush=True)
                         if a.out is not None:
                             data["machine_end"] = machine()
                             data["total_time_s"] = time.perf_counter() - t_all
