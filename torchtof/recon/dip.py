@@ -29,9 +29,9 @@ from torch import nn
 from .._checks import check_finite, check_positive, check_shape, check_tensor, unchecked
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
+from .tv import tv_norm
 from .base import ReconResult, relative_residual, renamed_option
 from .noise import tail_noise_sigma
-from .tv import tv_norm
 from .unet import UNet
 
 __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", "fit_dip"]

@@ -68,8 +68,8 @@ from torch import nn
 from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
-from .base import ReconResult, direct_result, renamed_option
 from .tv import grad2, grad2_adjoint, shrink
+from .base import ReconResult, direct_result, renamed_option
 
 __all__ = [
     "UnrolledTVAL3",
