@@ -552,7 +552,8 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     :data:`AUTO_CV_MAX_ITER` iterations, batched as four channels of one call (cost: at
     most 4 × 300 batched iterations, run only when the estimate chose TV-L2). A tail noise
     estimate reads signal as noise where the high-order rows still carry signal (low SR,
-    smooth or textured scenes); this check keeps the published model there (``docs/auto.md``: the loss on noise-free buckets).
+    smooth or textured scenes); this check keeps the published model there
+    (``docs/auto.md``: the loss on noise-free buckets).
     """
     b, c, m = y.shape
     held, train = holdout_split(A, 3, y, 0, default_split(A))  # (F, M), F = 2 or 3
