@@ -14,7 +14,7 @@ TORCH_INDEX ?=
 STAMP := $(VENV)/.installed
 PYTEST := $(BIN)/python -m pytest -q
 
-.PHONY: demo test test-slow test-all doctest stress bench reproduce lint clean
+.PHONY: demo test test-slow test-all doctest check-core stress bench reproduce docs lint clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -42,6 +42,15 @@ test-all: $(STAMP)
 	$(PYTEST) -n 2 tests
 	$(PYTEST) --doctest-modules torchtof
 
+# `import torchtof` in a fresh venv holding only the core dependencies (no extras)
+check-core:
+	rm -rf .venv-core
+	$(PY) -m venv .venv-core
+	.venv-core/bin/python -m pip install -q "torch==$(TORCH_VERSION)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
+	.venv-core/bin/python -m pip install -q .
+	cd /tmp && $(CURDIR)/.venv-core/bin/python -c "import torchtof, torchtof.cli; \
+		torchtof.cli.build_parser(); print('import torchtof with the core dependencies: ok')"
+
 stress: $(STAMP)
 	$(PYTEST) tests/stress
 
@@ -52,8 +61,12 @@ bench: $(STAMP)
 reproduce: $(STAMP)
 	$(BIN)/torchtof reproduce --quick --out reproduce_out
 
+# rerun the documented commands and rewrite the README's generated tables from their JSON
+docs: $(STAMP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python docs/build.py --run
+
 lint: $(STAMP)
 	$(BIN)/ruff check torchtof tests examples export benchmarks
 
 clean:
-	rm -rf $(VENV) demo_out reproduce_out bench_out export_out .pytest_cache
+	rm -rf $(VENV) .venv-core demo_out reproduce_out bench_out export_out .pytest_cache

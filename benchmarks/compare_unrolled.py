@@ -70,9 +70,9 @@ def main():
         for sr in a.sr:
             A = Hadamard(n, sr=sr)
             if a.train:
-                net = train_unrolled(n=n, sr=sr, n_iter=a.K, steps=a.train).model.eval()
+                net = train_unrolled(n=n, sr=sr, n_layers=a.K, steps=a.train).model.eval()
             else:
-                net = UnrolledTVAL3(A, n_iter=a.K).eval()
+                net = UnrolledTVAL3(A, n_layers=a.K).eval()
             recs = {"auto": TVAL3(A), "mu256": TVAL3(A, mu=2**8)}
             for lvl in a.noise:
                 y = noisy_measurements(A, x, 777, 0, range(len(x)), (lvl, lvl))

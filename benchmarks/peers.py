@@ -20,7 +20,7 @@ Every method sees the same image, the same rows and the same noise draw
                       an identity denoiser this is DC-Net's data-completion step
   spyrit PGD-box      ``spyrit.core.recon.LearnedPGD`` with the box [0, 1] as its   iterations (5)
                       "denoiser" (projected gradient, step 1 = 1/‖A‖²)
-  pylops SB-TV        ``splitbregman``, anisotropic TV, Neumann (forward            τ × ρ (12)
+  pylops SB-TV        ``splitbregman``, anisotropic TV, Neumann (forward            τ × ρ (8)
                       differences, zero last row/column)
   pylops FISTA-DCT    ``fista`` on ½‖A Dᵀc − y‖² + ε‖c‖₁, D the orthonormal 2-D DCT  ε (7)
   pylops FISTA-Haar   same with the orthonormal 2-D Haar wavelet (``DWT2D``)        ε (7)
@@ -29,8 +29,8 @@ Every method sees the same image, the same rows and the same noise draw
 
   Weight grids are geometric, factor 4 over 5 points around a scale set by the true noise σ
   (deepinv λ: σ·4^k; pylops ε and τ: σ/16·4^k and σ/4·4^k, k = −2…2), then refined by a
-  factor 2 on both sides of the best point (7 solves; split Bregman: × ρ ∈ {0.01, 0.1},
-  12 solves). The JSON flags a best point on the grid's edge.
+  factor 2 on both sides of the best point (7 solves; split Bregman at ρ = 0.01, then
+  ρ = 0.03 at the best τ: 8 solves). The JSON flags a best point on the grid's edge.
 
 Times: one process, ``torch.set_num_threads(1)`` and ``OMP_NUM_THREADS=1``; after a cell is
 tuned, every method runs again at its chosen setting, interleaved, ``--repeats`` rounds; the
@@ -80,6 +80,8 @@ def _import_torchvision() -> None:
     against the CUDA torch; on a CPU-only torch its compiled operators cannot load and its
     fake-kernel registrations raise at import. Neither deepinv's nor spyrit's code used here
     calls those operators, so on that failure the two registration modules are stubbed."""
+    if "torchvision" in sys.modules:
+        return
     try:
         import torchvision  # noqa: F401
     except (RuntimeError, OSError):
@@ -147,14 +149,15 @@ def tune(run, x: torch.Tensor, grid: list, refine=None) -> dict:
 
 
 def _on_edge(best, params: list) -> bool:
-    """Whether the best point sits at the end of the grid in any of its coordinates."""
+    """Whether the best point sits at the end of the grid in a coordinate that was scanned
+    (three values or more; a two-value check such as the split-Bregman ρ is not a scan)."""
     if best is None:
         return False
-    b = best if isinstance(best, tuple) else (best,)
-    pts = [p if isinstance(p, tuple) else (p,) for p in params]
+    b = tuple(best) if isinstance(best, (tuple, list)) else (best,)
+    pts = [tuple(p) if isinstance(p, (tuple, list)) else (p,) for p in params]
     for i, v in enumerate(b):
         vals = sorted({p[i] for p in pts})
-        if len(vals) > 1 and v in (vals[0], vals[-1]):
+        if len(vals) > 2 and v in (vals[0], vals[-1]):
             return True
     return False
 
@@ -195,19 +198,26 @@ def tt_pinv(P: Problem, _p=None):
 
 
 def tt_auto(P: Problem, _p=None):
-    auto = tt.recon.auto
-    out = auto(P.y, P.A)
+    out = tt.recon.auto(P.y, P.A)
+    return getattr(out, "x", out)
+
+
+def tt_auto_box(P: Problem, _p=None):
+    """``auto`` told the box ``[0, 1]`` (an image normalised by a calibration frame)."""
+    out = tt.recon.auto(P.y, P.A, bounds=(0.0, 1.0))
     return getattr(out, "x", out)
 
 
 # ---- deepinv
 def _dinv_physics(P: Problem):
+    _import_torchvision()
     import deepinv as dinv
 
     return dinv.physics.LinearPhysics(A=P.A.forward, A_adjoint=P.A.adjoint)
 
 
 def dinv_fista_tv(P: Problem, lam: float, iters: int = 200):
+    _import_torchvision()
     import deepinv as dinv
 
     physics = _dinv_physics(P)
@@ -225,6 +235,7 @@ def dinv_fista_tv(P: Problem, lam: float, iters: int = 200):
 
 
 def dinv_dip(P: Problem, iters: int):
+    _import_torchvision()
     import deepinv as dinv
 
     physics = _dinv_physics(P)
@@ -232,19 +243,21 @@ def dinv_dip(P: Problem, iters: int):
     chans = 64
     gen = dinv.models.ConvDecoder(img_size=(1, P.n, P.n), in_size=(4, 4), channels=chans)
     model = dinv.models.DeepImagePrior(
-        gen, learning_rate=1e-2, iterations=iters, verbose=False, input_size=[chans, 4, 4]
+        gen, img_size=[chans, 4, 4], learning_rate=1e-2, iterations=iters, verbose=False
     )
     return model(P.y, physics)
 
 
 # ---- spyrit
 def _spyrit_linear(P: Problem):
+    _import_torchvision()
     import spyrit.core.meas as meas
 
     return meas.Linear(P.dense(), meas_shape=(P.n, P.n))
 
 
 def spyrit_pinv(P: Problem, _p=None):
+    _import_torchvision()
     import spyrit.core.inverse as inverse
 
     rec = inverse.PseudoInverse(_spyrit_linear(P))
@@ -258,6 +271,7 @@ _TIK_CACHE: dict = {}
 def spyrit_tikhonov(P: Problem, p):
     """``p = (ell, s2)``: exponential covariance ``s2 · exp(−d/ℓ)`` (pixels), prior mean 0.5,
     noise covariance ``σ² I`` (the true σ)."""
+    _import_torchvision()
     import spyrit.core.inverse as inverse
 
     ell, s2 = p
@@ -301,6 +315,7 @@ class _FastAcq(torch.nn.Module):
 
 
 def spyrit_pgd_box(P: Problem, iters: int):
+    _import_torchvision()
     from spyrit.core.recon import LearnedPGD
 
     net = LearnedPGD(
@@ -391,6 +406,7 @@ def method_table(P: Problem, dip: bool):
     }
     if hasattr(tt.recon, "auto"):
         table["torchtof auto"] = ("torchtof", tt_auto, None, None)
+        table["torchtof auto [0,1]"] = ("torchtof", tt_auto_box, None, None)
     vers = peer_versions()
     if vers.get("deepinv"):
         table["deepinv FISTA-TV"] = ("deepinv", dinv_fista_tv, geometric(s), refine2)
@@ -401,13 +417,12 @@ def method_table(P: Problem, dip: bool):
             table["spyrit pinv"] = ("spyrit", spyrit_pinv, None, None)
             table["spyrit Tikhonov"] = (
                 "spyrit", spyrit_tikhonov,
-                [(ell, s2) for ell in (1.0, 3.0, 10.0, 30.0) for s2 in (0.01, 0.05, 0.25)], None)
-        table["spyrit PGD-box"] = ("spyrit", spyrit_pgd_box, [10, 30, 100, 300, 1000], None)
+                [(ell, s2) for ell in (1.0, 3.0, 10.0, 30.0) for s2 in (0.01, 0.1, 1.0)], None)
+        table["spyrit PGD-box"] = ("spyrit", spyrit_pgd_box, [30, 100, 300, 1000, 3000], None)
     if vers.get("pylops"):
         table["pylops SB-TV"] = (
-            "pylops", pylops_sb_tv,
-            [(tau, rho) for tau in geometric(s / 4) for rho in (0.01, 0.1)],
-            lambda b: [(b[0] / 2, b[1]), (b[0] * 2, b[1])])
+            "pylops", pylops_sb_tv, [(tau, 0.01) for tau in geometric(s / 4)],
+            lambda b: [(b[0] / 2, b[1]), (b[0] * 2, b[1]), (b[0], 0.03)])
         table["pylops FISTA-DCT"] = ("pylops", pylops_fista_dct, geometric(s / 16), refine2)
         table["pylops FISTA-Haar"] = ("pylops", pylops_fista_haar, geometric(s / 16), refine2)
     return table
@@ -416,7 +431,7 @@ def method_table(P: Problem, dip: bool):
 def run_cell(P: Problem, repeats: int, dip: bool, only: set | None = None) -> dict:
     table = method_table(P, dip)
     if only:
-        table = {k: v for k, v in table.items() if k in only or v[0] == "torchtof"}
+        table = {k: v for k, v in table.items() if k in only or k == "torchtof tval3"}
     res: dict = {}
     for name, (peer, fn, grid, refine) in table.items():
         t0 = time.perf_counter()
@@ -434,7 +449,7 @@ def run_cell(P: Problem, repeats: int, dip: bool, only: set | None = None) -> di
     times = {k: [next(t["time_s"] for t in r["trace"] if t["param"] == r["param"])]
              for k, r in res.items()}
     for _ in range(repeats):
-        for name, (peer, fn, grid, _r) in table.items():
+        for name, (_peer, fn, grid, _r) in table.items():
             p = res[name]["param"]
             t0 = time.perf_counter()
             try:
@@ -487,6 +502,12 @@ def _cell_key(c):
     return (c["n"], c["level"], c["order"], c["scene"], c["sr"])
 
 
+def _edge(r: dict) -> bool:
+    if "trace" not in r:
+        return bool(r.get("edge"))
+    return _on_edge(r["param"], [t["param"] for t in r["trace"]])
+
+
 def markdown(data: dict) -> str:
     cells = sorted(data["cells"], key=_cell_key)
     lines = [
@@ -501,7 +522,7 @@ def markdown(data: dict) -> str:
             f"| {c['n']} | {100 * c['level']:g} % | {c['order']} | {c['scene']} | "
             f"{100 * c['sr']:g} | {h['default'].replace('torchtof ', '')} | {h['default_psnr']:.2f} | "
             f"{h['best_ours'].replace('torchtof ', '')} | {r[h['best_ours']]['psnr']:.2f} | "
-            f"{bp}{' (edge)' if bp and r[bp]['edge'] else ''} | "
+            f"{bp}{' (edge)' if bp and _edge(r[bp]) else ''} | "
             f"{h['best_peer_psnr']:.2f} | {h['gap_db']:+.2f} | "
             f"{r[h['default']]['time_s']:.3f} | {r[bp]['time_s']:.3f} |"
         )
@@ -522,6 +543,61 @@ def method_means(data: dict) -> str:
     return "\n".join(lines)
 
 
+def winners(data: dict) -> str:
+    """Scene × SR grid per (n, noise, order): gap of the torchtof default to the best tuned
+    peer in dB, and that peer."""
+    groups: dict = {}
+    for c in data["cells"]:
+        groups.setdefault((c["n"], c["level"], c["order"]), []).append(c)
+    out = []
+    for (n, level, order), cells in sorted(groups.items()):
+        srs = sorted({c["sr"] for c in cells})
+        scenes = list(dict.fromkeys(c["scene"] for c in sorted(cells, key=_cell_key)))
+        out.append(f"n = {n}, noise {100 * level:g} %, {order} rows: torchtof "
+                   f"{cells[0]['headline']['default'].split()[-1]} − best tuned peer, dB")
+        out.append("")
+        out.append("| scene | " + " | ".join(f"SR {100 * s:g} %" for s in srs) + " |")
+        out.append("|---|" + "---|" * len(srs))
+        for sc in scenes:
+            row = []
+            for s in srs:
+                c = next((c for c in cells if c["scene"] == sc and c["sr"] == s), None)
+                if c is None:
+                    row.append("—")
+                else:
+                    h = c["headline"]
+                    row.append(f"{h['gap_db']:+.2f} ({h['best_peer']})")
+            out.append(f"| {sc} | " + " | ".join(row) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def merge(runs: list[dict]) -> dict:
+    """One document from several runs (each run's header kept). Cells of the same problem
+    (scene, n, SR, order, noise, seed) are united: a later run's methods are added beside
+    the earlier ones (a method in both keeps the earlier result) and the headline is
+    recomputed."""
+    if len(runs) == 1:
+        return runs[0]
+    out = {"runs": [{k: v for k, v in r.items() if k != "cells"} for r in runs], "cells": []}
+    index: dict = {}
+    for r in runs:
+        seed = r.get("args", {}).get("seed", 0)
+        for c in r["cells"]:
+            key = (*_cell_key(c), seed)
+            if key in index:
+                old = index[key]
+                for name, v in c["results"].items():
+                    if name not in old["results"]:
+                        old["results"][name] = {**v, "other_process": True}
+                old["headline"] = headline(old["results"])
+            else:
+                c = {**c, "results": dict(c["results"])}
+                index[key] = c
+                out["cells"].append(c)
+    return out
+
+
 def plot(data: dict, path: Path) -> None:
     import matplotlib
 
@@ -538,6 +614,9 @@ def plot(data: dict, path: Path) -> None:
     for c, di, bi in zip(cells, d, b):
         ax[0].scatter(bi, di, marker=marks.get(c["scene"], "x"),
                       c="C0" if c["n"] == 32 else ("C1" if c["n"] == 64 else "C2"), s=22)
+    for sc, mk in marks.items():
+        ax[0].scatter([], [], marker=mk, c="grey", s=22, label=sc)
+    ax[0].legend(fontsize=8, loc="upper left")
     ax[0].plot([lo, hi], [lo, hi], "k--", lw=0.8)
     ax[0].set_xlabel("best oracle-tuned peer, PSNR dB")
     ax[0].set_ylabel(f"torchtof {cells[0]['headline']['default'].split()[-1]} default, PSNR dB")
@@ -564,14 +643,16 @@ def parse(argv=None):
     p.add_argument("--orders", nargs="+", default=list(ps.ORDERS))
     p.add_argument("--noise", type=float, nargs="+", default=[0.01, 0.05])
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--repeats", type=int, default=2,
+    p.add_argument("--repeats", type=int, default=1,
                    help="interleaved timing rounds after tuning (the median also counts the "
                         "tuning run of the chosen point; --quick: 0)")
     p.add_argument("--dip", action="store_true", help="add deepinv DIP at n = 32 (slow)")
-    p.add_argument("--only", nargs="*", default=None, help="only these peer methods")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="only these methods (names as in the JSON) besides torchtof tval3")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
-    p.add_argument("--report", type=Path, default=None,
-                   help="print the markdown tables of this JSON and write its PNG, then exit")
+    p.add_argument("--report", type=Path, nargs="+", default=None,
+                   help="print the markdown tables of these JSONs (merged) and write the PNG, "
+                        "then exit")
     p.add_argument("--png", type=Path, default=None, help="PNG path for --report")
     return p.parse_args(argv)
 
@@ -579,11 +660,15 @@ def parse(argv=None):
 def main(argv=None) -> int:
     a = parse(argv)
     if a.report is not None:
-        data = json.loads(a.report.read_text())
+        data = merge([json.loads(p.read_text()) for p in a.report])
         print(markdown(data))
         print()
         print(method_means(data))
-        plot(data, a.png or a.report.with_suffix(".png"))
+        print()
+        print(winners(data))
+        plot(data, a.png or a.report[0].with_suffix(".png"))
+        if a.out is not None:
+            a.out.write_text(json.dumps(data, indent=1))
         return 0
     torch.set_num_threads(1)
     if a.quick:
@@ -603,8 +688,8 @@ def main(argv=None) -> int:
     for n in a.n:
         for level in a.noise:
             for order in a.orders:
-                for scene in a.scenes:
-                    for sr in a.sr:
+                for sr in a.sr:  # SR outside scenes: a cut-short run still spans the scenes
+                    for scene in a.scenes:
                         P = Problem(scene, n, sr, order, level, a.seed)
                         t0 = time.perf_counter()
                         res = run_cell(P, a.repeats, a.dip, set(a.only) if a.only else None)
@@ -617,8 +702,9 @@ def main(argv=None) -> int:
                         h = cell["headline"]
                         print(f"n={n} noise={level:g} {order} {scene} SR={sr:g}: "
                               + ", ".join(f"{k} {v['psnr']:.2f}" for k, v in res.items())
-                              + f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
-                              f" [{cell['cell_time_s']:.0f} s]", flush=True)
+                              + (f" | {h['default']} {h['gap_db']:+.2f} dB vs {h['best_peer']}"
+                                 if h["best_peer"] else "")
+                              + f" [{cell['cell_time_s']:.0f} s]", flush=True)
                         if a.out is not None:
                             data["machine_end"] = machine()
                             data["total_time_s"] = time.perf_counter() - t_all

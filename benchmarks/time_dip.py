@@ -15,11 +15,11 @@ from torchtof.scenes import sky_character
 for sr in (0.0625, 0.125):
     A = Hadamard(32, sr=sr)
     y = A(sky_character(32))
-    fit_dip(A, y, n_iter=10)
+    fit_dip(y, A, max_iter=10)
     walls = []
     for s in range(5):
         t = time.perf_counter()
-        r = fit_dip(A, y, n_iter=300, early_stop=None, seed=s)
+        r = fit_dip(y, A, max_iter=300, early_stop=None, seed=s)
         walls.append(time.perf_counter() - t)
     print(
         "sr",

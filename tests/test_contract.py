@@ -24,13 +24,13 @@ FAST = {
     "bp": {"n_iter": 60},
     "tval3": {"max_iter": 40},
     "unrolled": {"n_layers": 3, "pretrained": False},
+    "learned": {"n_layers": 2, "pretrained": False},
     "dip": {"max_iter": 4, "zeta": 0.0},
     "joint_tv": {"n_iter": 30},
 }
 #: what a reconstructor still lacks (owned elsewhere; xfail(strict=False) until it lands)
 PENDING_SOLVE = {"joint_tv": "JointTV has no solve() yet",
-                 "bp": "BPResult has no stop_reason yet",
-                 "tval3": "TVAL3Result.stop_reason is an index tensor, not names"}
+                 "bp": "BPResult has no stop_reason yet"}
 SPECS = recon.names()
 
 

@@ -19,10 +19,11 @@ def test_depth_resolved_cgi_beats_raw_depth(tmp_path):
     assert (tmp_path / "depth_resolved.png").exists()
 
 
-def test_calibrate_noise_stray_light_degrades_raw_only():
+def test_calibrate_noise_stray_light_hurts_the_raw_map_more_than_gated_pinv():
     rows = _load("calibrate_noise").main(["--stray", "0", "1000", "--realisations", "1",
                                           "--n", "16"])
     clean, stray = rows
     assert stray["raw_psnr"] < clean["raw_psnr"] - 3  # the raw map suffers
-    # the differential buckets barely do (within 2 dB on average over SRs)
+    # the gated differential depth buckets lose less (within 2 dB on average over SRs); they
+    # are not immune: depth is non-linear in the phasor sum (tests/test_stray_light.py)
     assert sum(stray["pinv_gate"]) / 4 > sum(clean["pinv_gate"]) / 4 - 2

@@ -78,7 +78,9 @@ def test_deterministic_given_seed():
     assert not torch.equal(a.buckets["depth"], c.buckets["depth"])
 
 
-def test_stray_light_cancels_in_differential():
+def test_stray_light_map_shape_and_peak():
+    """The stray-light phasor map is one complex (1, 1, P, P) frame whose peak amplitude is
+    ``stray_e`` (whether it cancels in the differentials: tests/test_stray_light.py)."""
     cfg = ExperimentConfig(n=16, roi_px=32).validate()
     s = stray_light(cfg)
     assert s.shape == (1, 1, 32, 32) and s.is_complex()
@@ -86,8 +88,18 @@ def test_stray_light_cancels_in_differential():
 
 
 def test_split_operator_matches_patterns(air):
+    """The split operator at SR 6.25 % shows each of the first M Hadamard rows h as the DMD
+    pair φ⁺ = (1 + h)/2, φ⁻ = (1 − h)/2, interleaved in acquisition order; the first
+    cake-cutting row is constant, so the first pair is all mirrors on, then all off."""
     S = air.split_operator(0.0625)
-    assert isinstance(S, DMDSplit) and S.m == 2 * air.m(0.0625)
+    A, _ = air.measurements(0.0625)
+    h, p = A.patterns(), S.patterns()
+    assert isinstance(S, DMDSplit) and S.m == 2 * A.m == 2 * air.m(0.0625)
+    assert p.shape == (2 * A.m, 32, 32)
+    torch.testing.assert_close(p[0::2], (1 + h) / 2, rtol=0, atol=0)
+    torch.testing.assert_close(p[1::2], (1 - h) / 2, rtol=0, atol=0)
+    assert set(p.unique().tolist()) == {0.0, 1.0}
+    assert bool((p[0] == 1).all()) and bool((p[1] == 0).all())
 
 
 @pytest.mark.parametrize(
@@ -141,3 +153,19 @@ def test_bad_sr_request(air):
         air.operator(0.5)
     with pytest.raises(ValueError, match="kind"):
         air.split_buckets(0.125, kind="phase")
+
+
+def test_run_refuses_a_chunk_beyond_the_memory_limit():
+    import torchtof
+    from torchtof.experiment import FRAME_BYTES_FACTOR, frame_memory
+
+    exp = PaperExperiment(sr=0.125, n=16, roi_px=64, srs=(0.125,), chunk_frames=64)
+    # 64 frames x 64² pixels x 4 bytes x FRAME_BYTES_FACTOR
+    assert frame_memory(exp.config, 64) == FRAME_BYTES_FACTOR * 64 * 64 * 64 * 4
+    torchtof.set_memory_limit(frame_memory(exp.config, 64) - 1)
+    try:
+        with pytest.raises(ValueError, match=r"PaperExperiment.run: simulating 64 frames of "
+                                             r"64x64 sensor pixels .* lower chunk_frames"):
+            exp.run()
+    finally:
+        torchtof.set_memory_limit(None)

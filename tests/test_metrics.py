@@ -252,3 +252,15 @@ def test_metrics_do_not_overflow_on_finite_input():
     # far outside [0, 1]: MSE = (6e38)² = 3.6e77 -> −10·log10(3.6e77) = −775.563 dB
     got = psnr(z + 3e38, z - 3e38, bits=None)
     torch.testing.assert_close(got, torch.tensor([-10 * (math.log10(3.6) + 77)]))
+
+
+def test_depth_rmse_and_affine_fit_do_not_overflow():
+    # an error of 1e30 m on every pixel: RMSE = sqrt(mean(1e60)) = 1e30, finite in float32
+    z = torch.zeros(2, 1, 4, 4)
+    torch.testing.assert_close(depth_rmse(z + 1e30, z), torch.tensor([1e30, 1e30]))
+    mask = torch.zeros(4, 4, dtype=torch.bool)
+    mask[0, 0] = True
+    torch.testing.assert_close(depth_rmse(z + 1e30, z, mask), torch.tensor([1e30, 1e30]))
+    # x̂ = 3e37·x is an exact affine image of x: the fit returns x (a = 1/3e37, b = 0)
+    x = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(affine_fit(3e37 * x, x), x, rtol=0, atol=1e-6)

@@ -61,7 +61,7 @@ def exported(tmp_path_factory):
     return get
 
 
-def test_registry_covers_the_issue():
+def test_registry_covers_every_inference_stage():
     wanted = {
         "hadamard",
         "hadamard_adjoint",
@@ -104,7 +104,7 @@ def test_export_and_parity(name, exported):
         report = tto.check(path, module, inputs, rtol=1e-4, atol=1e-5)
         assert report["ok"]
         assert all(o["shape"][0] == batch for o in report["outputs"])
-        # the issue's floor, literally: numpy.allclose(rtol=1e-4, atol=1e-5) on every output
+        # the parity floor, literally: numpy.allclose(rtol=1e-4, atol=1e-5) on every output
         sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
         feeds = {i.name: t.detach().numpy() for i, t in zip(sess.get_inputs(), inputs)}
         with torch.no_grad():
@@ -175,6 +175,16 @@ def test_export_refuses_an_adaptive_solver_in_one_line(tmp_path):
         msg = str(err.value)
         assert "\n" not in msg and "adaptive=False" in msg and type(solver).__name__ in msg
     assert not (tmp_path / "a.onnx").exists()
+
+
+def test_dynamo_export_prints_no_torchvision_notes(tmp_path, capfd):
+    """torch's dynamo exporter logs "torchvision is not installed. Skipping torchvision::nms"
+    (and three more) on every export; torchtof uses no torchvision operator, so export drops
+    them."""
+    tto.export(Hadamard(8, sr=0.5), torch.rand(2, 1, 8, 8), tmp_path / "h.onnx",
+               exporter="dynamo")
+    captured = capfd.readouterr()
+    assert "torchvision" not in captured.err + captured.out
 
 
 def test_default_exporter_per_model():

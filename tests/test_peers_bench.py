@@ -108,8 +108,11 @@ def test_tune_picks_the_oracle_point_and_flags_edges():
     assert r["param"] == 0.0 and not r["edge"] and len(r["trace"]) == 4
     r = pb.tune(lambda p: x + p, x, [0.0, 0.1, 0.2])
     assert r["param"] == 0.0 and r["edge"]
-    r = pb.tune(lambda p: x + p[0] * p[1], x, [(a, b) for a in (0.1, 0.2) for b in (0.0, 1.0)])
+    grid = [(a, b) for a in (0.1, 0.2) for b in (0.0, 1.0, 2.0)]
+    r = pb.tune(lambda p: x + p[0] * p[1], x, grid)
     assert r["param"][1] == 0.0 and r["edge"]  # edge in the second coordinate
+    r = pb.tune(lambda p: x + p[0] * (p[1] - 1.0), x, grid)
+    assert r["param"][1] == 1.0 and not r["edge"]  # two values of the first: not a scan
     r = pb.tune(lambda p: x + p, x, [0.4, 0.2], refine=lambda b: [b / 2])
     assert r["param"] == 0.1 and len(r["trace"]) == 3
 
@@ -146,6 +149,29 @@ def test_report_tables():
     means = pb.method_means({"cells": cells})
     assert "| torchtof tval3 | 2 | 25.00 | 0 |" in means
     assert "| pylops SB-TV | 2 | 25.75 | 2 |" in means
+    grid = pb.winners({"cells": cells})
+    assert "| sky | -2.50 (pylops SB-TV) | +1.00 (pylops SB-TV) |" in grid
+
+
+def test_merge_unites_cells_of_the_same_problem():
+    def cell(results):
+        c = {"scene": "sky", "n": 32, "sr": 0.25, "order": "sequency", "level": 0.01,
+             "results": results}
+        c["headline"] = pb.headline(results)
+        return c
+
+    peer = {"peer": "pylops", "psnr": 25.0, "time_s": 1.0, "edge": False}
+    run1 = {"cells": [cell({"torchtof tval3": {"peer": "torchtof", "psnr": 20.0},
+                            "pylops SB-TV": peer})]}
+    run2 = {"cells": [cell({"torchtof tval3": {"peer": "torchtof", "psnr": 99.0},
+                            "torchtof auto": {"peer": "torchtof", "psnr": 26.0}})]}
+    m = pb.merge([run1, run2])
+    assert len(m["cells"]) == 1
+    r = m["cells"][0]["results"]
+    assert r["torchtof tval3"]["psnr"] == 20.0  # the earlier run's result is kept
+    assert r["torchtof auto"]["other_process"]
+    h = m["cells"][0]["headline"]
+    assert h["default"] == "torchtof auto" and h["gap_db"] == pytest.approx(1.0)
 
 
 # --------------------------------------------------------------------------- adapters

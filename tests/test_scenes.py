@@ -239,3 +239,22 @@ def test_slanted_plane_is_a_plane_and_far_steps_pass_5_m():
         slanted_plane(16, 3.0, 2.0)
     with pytest.raises(TypeError, match="slanted_plane: expected angle_deg to be a number"):
         slanted_plane(16, angle_deg="45")
+
+
+def test_return_types_follow_the_documented_rule():
+    # scene builders return Scene(reflectance, depth_m); image drawers return one tensor
+    from torchtof import scenes as sc
+
+    builders = [sc.get_scene("sky", 16), sc.depth_steps(16), sc.slanted_plane(16),
+                sc.depth_scene(torch.ones(1, 1, 8, 8))]
+    for s in builders:
+        assert type(s) is sc.Scene
+        assert s.reflectance.shape == s.depth_m.shape
+    images = [sc.sky_character(16), sc.skimage_scene("camera", 16), sc.binary_scene("horse", 16),
+              sc.motorcycle_depth(16)]
+    for x in images:
+        assert type(x) is torch.Tensor and x.shape == (1, 1, 16, 16)
+    # every public function is in one of the two lists above
+    public = {n for n in sc.__all__ if callable(getattr(sc, n)) and n != "Scene"}
+    assert public == {"get_scene", "depth_steps", "slanted_plane", "depth_scene",
+                      "sky_character", "skimage_scene", "binary_scene", "motorcycle_depth"}

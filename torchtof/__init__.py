@@ -1,7 +1,8 @@
 """torchtof: depth imaging with time-of-flight cameras as bucket detectors of computational
-ghost imaging, as PyTorch modules (see README and DESIGN.md)."""
+ghost imaging, as PyTorch modules (see the README)."""
 
 from . import bucket, experiment, metrics, operators, recon, scenes, sensor
+from ._memory import memory_limit, set_memory_limit
 from .experiment import PaperExperiment
 
 __version__ = "0.1.0"
@@ -15,5 +16,7 @@ __all__ = [
     "scenes",
     "experiment",
     "PaperExperiment",
+    "set_memory_limit",
+    "memory_limit",
     "__version__",
 ]

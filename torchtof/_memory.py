@@ -14,7 +14,11 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["memory_limit", "set_memory_limit", "check_memory", "format_bytes"]
+import torch
+
+__all__ = [
+    "memory_limit", "set_memory_limit", "check_memory", "format_bytes", "itemsize", "check_rows",
+]
 
 _UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 _limit: int | None = None  # set_memory_limit; None: environment or physical memory
@@ -99,3 +103,23 @@ def check_memory(nbytes: float, what: str, func: str, hint: str = "") -> None:
             f"of {format_bytes(limit)} (torchtof.set_memory_limit or TORCHTOF_MEMORY_LIMIT)"
             f"{tail}"
         )
+
+
+def itemsize(dtype: torch.dtype, func: str = "itemsize") -> int:
+    """Bytes per element of ``dtype`` (``TypeError`` naming ``func`` if it is no dtype)."""
+    if not isinstance(dtype, torch.dtype):
+        raise TypeError(f"{func}: expected dtype to be a torch.dtype, got {type(dtype).__name__}")
+    return torch.empty((), dtype=dtype).element_size()
+
+
+def check_rows(start: object, stop: object, total: int, func: str) -> tuple[int, int]:
+    """``0 <= start <= stop <= total`` as ints (``stop=None``: ``total``)."""
+    stop = total if stop is None else stop
+    for name, v in (("start", start), ("stop", stop)):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
+    if not 0 <= start <= stop <= total:
+        raise ValueError(
+            f"{func}: expected 0 <= start <= stop <= {total}, got start={start}, stop={stop}"
+        )
+    return start, stop

@@ -19,6 +19,7 @@ EXTRAS = {
     "onnxscript": "onnx",
     "usb": "hardware",
     "zarr": "hardware",
+    "pygame": "hardware",
     "matplotlib": "plot",
     "tqdm": "all",
 }

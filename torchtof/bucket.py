@@ -52,6 +52,13 @@ __all__ = [
 PAPER_GATE_M: float = 3.0
 
 
+def _check_frames(x: object, rank: int, name: str, func: str, layout: str) -> None:
+    """A real floating tensor of ``rank`` (depth, amplitude and taps are real)."""
+    check_rank(x, rank, name, func, layout)
+    if x.is_complex():
+        raise TypeError(f"{func}: expected {name} to be a real tensor, got dtype {x.dtype}")
+
+
 def _check_box(roi: Sequence[int], func: str) -> tuple[int, int, int, int]:
     """Validate a ``(top, left, height, width)`` box without knowing the frame."""
     if len(roi) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in roi):
@@ -70,7 +77,12 @@ def _roi_mask(
     shape_hw: Sequence[int], roi: object, device: torch.device | str | None, func: str
 ) -> torch.Tensor | None:
     """Bool ``(H, W)`` mask of ``roi`` for a frame of ``shape_hw``; ``None`` = whole frame."""
-    h, w = (int(s) for s in shape_hw)
+    if (not isinstance(shape_hw, (Sequence, torch.Size)) or len(shape_hw) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) for v in shape_hw)):
+        raise TypeError(f"{func}: expected shape_hw as (H, W) ints, got {shape_hw!r}")
+    h, w = shape_hw
+    if h <= 0 or w <= 0:
+        raise ValueError(f"{func}: expected shape_hw of a frame of positive size, got {shape_hw}")
     if roi is None:
         return None
     if isinstance(roi, torch.Tensor):
@@ -128,9 +140,7 @@ def roi_mask(
     """
     mask = _roi_mask(shape_hw, roi, device, "roi_mask")
     if mask is None:
-        h, w = (int(s) for s in shape_hw)
-        if h <= 0 or w <= 0:
-            raise ValueError(f"roi_mask: expected a frame of positive size, got {tuple(shape_hw)}")
+        h, w = shape_hw
         return torch.ones(h, w, dtype=torch.bool, device=device)
     return mask
 
@@ -173,7 +183,7 @@ def depth_gate(depth: torch.Tensor, gate_m: float = PAPER_GATE_M) -> torch.Tenso
         [[[[2.0, 0.0]]]]
     """
     func = "depth_gate"
-    check_rank(depth, 4, "depth", func, "(B, M, H, W)")
+    _check_frames(depth, 4, "depth", func, "(B, M, H, W)")
     check_finite(depth, "depth", func)
     gate = check_positive(gate_m, "gate_m", func)
     return torch.where(depth > gate, torch.zeros_like(depth), depth)
@@ -227,7 +237,7 @@ def depth_bucket(
         ([[[7.0, 10.0]]], [[[2.0, 0.0]]])
     """
     func = "depth_bucket"
-    check_rank(depth, 4, "depth", func, "(B, M, H, W)")
+    _check_frames(depth, 4, "depth", func, "(B, M, H, W)")
     check_finite(depth, "depth", func)
     if gate_m is not None:
         depth = depth_gate(depth, gate_m)
@@ -311,7 +321,7 @@ def intensity_bucket(amplitude: torch.Tensor, roi: object = None) -> torch.Tenso
         torch.Size([2, 1, 5])
     """
     func = "intensity_bucket"
-    check_rank(amplitude, 4, "amplitude", func, "(B, M, H, W)")
+    _check_frames(amplitude, 4, "amplitude", func, "(B, M, H, W)")
     check_finite(amplitude, "amplitude", func)
     return _roi_sum(amplitude, roi, func).unsqueeze(1)
 
@@ -358,7 +368,7 @@ def tap_buckets(taps: torch.Tensor, roi: object = None) -> torch.Tensor:
         torch.Size([1, 4, 3])
     """
     func = "tap_buckets"
-    check_rank(taps, 5, "taps", func, "(B, M, 4, H, W)")
+    _check_frames(taps, 5, "taps", func, "(B, M, 4, H, W)")
     if taps.shape[2] != 4:
         raise ValueError(f"{func}: expected taps of shape (B, M, 4, H, W), got {tuple(taps.shape)}")
     check_finite(taps, "taps", func)

@@ -173,14 +173,20 @@ def _export_models() -> list[str] | None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``torchtof`` parser with every subcommand (the hardware ones included)."""
-    p = argparse.ArgumentParser(prog="torchtof", description=__doc__, formatter_class=_Formatter)
+    p = argparse.ArgumentParser(
+        prog="torchtof", formatter_class=_Formatter,
+        description="Depth imaging with a ToF camera as the bucket detector of computational "
+        "ghost imaging: simulate the paper's experiment, reconstruct, benchmark, export to "
+        "ONNX, acquire from the hardware. A mistake in an option prints one line and exits "
+        "with status 2; --debug shows the traceback.")
     p.add_argument("--threads", type=positive_int, default=1,
                    help="torch intra-op threads for this run (the library itself keeps torch's "
                         "default; one thread is fastest for these problem sizes and does not "
                         "collapse on a busy machine, see README 'Threads')")
     p.add_argument("--debug", action="store_true",
                    help="show the Python traceback of an error instead of one line")
-    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND",
+                           help="run `torchtof COMMAND --help` for its options")
 
     d = sub.add_parser("demo", help="reconstruct the paper's experiment (SR 12.5 %%) and plot it",
                        description="Simulate the paper's experiment and reconstruct it with "
@@ -258,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_export)
 
     t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)")
-    t.add_argument("--model", choices=["learned"], default="learned")
+    t.add_argument("--model", choices=["learned"], default="learned", help="the model to train")
     from .recon.learned_train import add_arguments as add_train_arguments
 
     add_train_arguments(t)

@@ -42,11 +42,12 @@ from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
-from ._checks import check_in_range, check_positive
+from ._checks import check_in_range, check_positive, check_power_of_two
+from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
 from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
 from .operators import DMDSplit, Hadamard
-from .operators.patterns import _check_n_order, num_patterns
+from .operators.patterns import ORDERS, num_patterns
 from .scenes import Scene, get_scene
 from .sensor import (
     add_multipath,
@@ -67,6 +68,7 @@ __all__ = [
     "PaperExperiment",
     "simulate_frames",
     "stray_light",
+    "frame_memory",
 ]
 
 
@@ -143,7 +145,9 @@ class ExperimentConfig:
 
     def validate(self) -> ExperimentConfig:
         func = "ExperimentConfig"
-        _check_n_order(self.n, self.order, func)
+        check_power_of_two(self.n, "n", func, lo=4, hi=256)
+        if self.order not in ORDERS:
+            raise ValueError(f"{func}: expected order in {ORDERS}, got {self.order!r}")
         for name in ("roi_px", "chunk_frames"):
             _check_int(getattr(self, name), name, func, lo=1)
         for name in ("stray_seed", "dust_seed"):
@@ -178,10 +182,11 @@ class ExperimentConfig:
                 f"{func}: expected scattering_model in ('phasor', 'depth'), "
                 f"got {self.scattering_model!r}"
             )
+        _check_scene_name(self.scene, func)
         if not isinstance(self.srs, (tuple, list)) or not self.srs:
             raise ValueError(f"{func}: expected at least one sampling rate in srs, got {self.srs}")
         for sr in self.srs:
-            num_patterns(self.n, sr=sr, func=func)
+            check_in_range(sr, 0.0, 1.0, "srs", func, lo_open=True)
         if self.roi_px < self.n:
             raise ValueError(f"{func}: expected roi_px >= n ({self.n}), got {self.roi_px}")
         return self
@@ -195,6 +200,29 @@ def _check_int(value: object, name: str, func: str, lo: int | None = None,
         rng = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
         raise ValueError(f"{func}: expected {name} {rng}, got {value}")
     return value
+
+
+#: Peak bytes per (frame × sensor pixel × byte of the real dtype) of one chunk of
+#: :func:`simulate_frames` plus the bucket sums: the growth of the maximum resident set size
+#: was 53–58× at n = 64 with (roi_px, chunk_frames) = (128, 256) and (256, 64)
+#: (tests/reliability/measure_memory.py, docs/reliability.md); rounded up to 64.
+FRAME_BYTES_FACTOR = 64
+
+
+def frame_memory(cfg: ExperimentConfig, frames: int, dtype: torch.dtype = torch.float32) -> int:
+    """Estimated peak bytes of simulating ``frames`` frames at once (one chunk of
+    :meth:`PaperExperiment.run`): ``FRAME_BYTES_FACTOR · frames · roi_px² · itemsize``."""
+    item = torch.empty((), dtype=dtype).element_size()
+    return FRAME_BYTES_FACTOR * frames * cfg.roi_px**2 * item
+
+
+def _check_scene_name(name: object, func: str) -> None:
+    from .scenes import SCENES
+
+    ok = isinstance(name, str) and (name in SCENES or name.startswith(("skimage:", "binary:")))
+    if not ok:
+        raise ValueError(f"{func}: expected scene in {SCENES} or 'skimage:<name>'/'binary:<name>', "
+                         f"got {name!r}")
 
 
 def _smooth(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -391,8 +419,11 @@ class PaperExperiment:
                             dtype=dtype)
         stray = stray_light(cfg, dtype) if cfg.stray_e > 0 else None
         hadamard = Hadamard(n, sr=max(cfg.srs), order=cfg.order)
-        pats = DMDSplit(hadamard).patterns(dtype)  # (2M, n, n) in acquisition order
-        n_frames = pats.shape[0]
+        split = DMDSplit(hadamard)  # 2M patterns in acquisition order, built per chunk
+        n_frames = split.m
+        check_memory(frame_memory(cfg, min(cfg.chunk_frames, n_frames), dtype),
+                     f"simulating {min(cfg.chunk_frames, n_frames)} frames of "
+                     f"{p}x{p} sensor pixels at a time", func, "lower chunk_frames or roi_px")
         keys = ("depth", "depth_gated", "intensity", "taps")
         out: dict[str, list[torch.Tensor]] = {k: [] for k in keys}
         raw = []
@@ -406,8 +437,8 @@ class PaperExperiment:
         for _ in range(realisations):
             parts = {k: [] for k in keys}
             for start in chunks:
-                fr = simulate_frames(scene, pats[start : start + cfg.chunk_frames], cfg, gen, dust,
-                                     stray)
+                pats = split.patterns(dtype, start, min(start + cfg.chunk_frames, n_frames))
+                fr = simulate_frames(scene, pats, cfg, gen, dust, stray)
                 depth = fr.depth[:, 0][None]  # (1, F, P, P): frames on the frame axis
                 parts["depth"].append(depth_bucket(depth))
                 parts["depth_gated"].append(depth_bucket(depth, gate_m=cfg.gate_m))

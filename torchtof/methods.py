@@ -33,7 +33,8 @@ from .metrics import compare
 from .recon import registry
 from .recon.registry import ReconSpec
 
-__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores"]
+__all__ = ["METHODS", "DEFAULT_METHODS", "Method", "build_method", "evaluate", "raw_tof_scores",
+           "score_image"]
 
 
 @dataclass
@@ -113,6 +114,17 @@ def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str,
             "ssim_std": std(q)}
 
 
+def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
+    """Mean ± std PSNR/SSIM of ``img`` (one image per realisation) against the object."""
+    return _scores(img, data, polarity)
+
+
+def _synchronize(t: torch.Tensor) -> None:
+    """Wait for the device of ``t`` (CUDA kernels run asynchronously)."""
+    if t.device.type == "cuda":
+        torch.cuda.synchronize(t.device)
+
+
 def raw_tof_scores(data: ExperimentData) -> dict[str, float]:
     """Scores of the raw ToF depth image (negative polarity: near = small depth)."""
     return _scores(data.raw_tof_image, data, "negative")
@@ -135,8 +147,10 @@ def evaluate(
             with torch.no_grad():
                 method.module(method.y[:1])
         with torch.enable_grad() if registry.get(name).per_sample else torch.no_grad():
+            _synchronize(method.y)
             t0 = time.perf_counter()
             img = method()
+            _synchronize(img)  # the wall time of the work, not of its launch
             dt = time.perf_counter() - t0
         img = img.detach()
         images[name] = img

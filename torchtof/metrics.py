@@ -66,13 +66,22 @@ __all__ = [
 POLARITIES: tuple[str, ...] = ("positive", "negative", "auto")
 
 
-def _check_pair(x_hat: torch.Tensor, x: torch.Tensor, func: str) -> None:
-    check_rank(x_hat, 4, "x_hat", func, "(B, C, H, W)")
-    check_rank(x, 4, "x", func, "(B, C, H, W)")
+def _check_image(x: object, name: str, func: str) -> None:
+    """A real floating ``(B, C, H, W)`` tensor (images are real: complex is refused)."""
+    check_rank(x, 4, name, func, "(B, C, H, W)")
+    if x.is_complex():
+        raise TypeError(f"{func}: expected {name} to be a real tensor, got dtype {x.dtype}")
+
+
+def _check_pair(
+    x_hat: torch.Tensor, x: torch.Tensor, func: str, names: tuple[str, str] = ("x_hat", "x")
+) -> None:
+    _check_image(x_hat, names[0], func)
+    _check_image(x, names[1], func)
     if x_hat.shape != x.shape:
         raise ValueError(
-            f"{func}: expected x_hat and x of the same shape, got {tuple(x_hat.shape)} "
-            f"and {tuple(x.shape)}"
+            f"{func}: expected {names[0]} and {names[1]} of the same shape, got "
+            f"{tuple(x_hat.shape)} and {tuple(x.shape)}"
         )
 
 
@@ -252,6 +261,8 @@ def ssim(
     # SSIM is invariant under x -> x/L with c1, c2 scaled by 1/L² (numerator and
     # denominator both scale by 1/L⁴): compare on the unit range, where (0.01·L)² and
     # μ², σ² cannot overflow (L = 1e30 gave NaN in float32)
+    if x.is_meta or x_hat.is_meta:  # shape inference: kornia's window has no meta kernel
+        return _reduce(x.new_empty(x.shape[0]), reduction, func)
     smap = _kornia_ssim(x_hat / data_range, x / data_range, window_size, max_val=1.0, eps=0.0)
     return _reduce(smap.flatten(1).mean(1), reduction, func)
 
@@ -304,8 +315,8 @@ def depth_rmse(
         0.5
     """
     func = "depth_rmse"
-    check_rank(depth_hat, 4, "depth_hat", func, "(B, C, H, W)")
-    check_rank(depth, 4, "depth", func, "(B, C, H, W)")
+    _check_image(depth_hat, "depth_hat", func)
+    _check_image(depth, "depth", func)
     if depth_hat.shape != depth.shape:
         raise ValueError(
             f"{func}: expected depth_hat and depth of the same shape, got "
@@ -313,9 +324,14 @@ def depth_rmse(
         )
     check_finite(depth_hat, "depth_hat", func)
     check_finite(depth, "depth", func)
-    err = (depth_hat - depth).pow(2)
+    # RMSE = 2·s·sqrt(mean((h/s)²)) with h = (ẑ − z)/2, s = max|h| per image: no square or
+    # difference overflows (a 1e30 m error is 1e30, not inf, in float32)
+    h = depth_hat / 2 - depth / 2
+    s = h.abs().flatten(1).amax(1) if h[0].numel() else h.new_zeros(h.shape[0])
+    s = torch.where(s > 0, s, torch.ones_like(s))
+    err = (h / s.view(-1, *([1] * (h.ndim - 1)))).pow(2)
     if mask is None:
-        return _reduce(err.flatten(1).mean(1).sqrt(), reduction, func)
+        return _reduce(2 * s * err.flatten(1).mean(1).sqrt(), reduction, func)
     if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
         got = mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__
         raise TypeError(f"{func}: expected mask to be a bool tensor or None, got {got}")
@@ -329,7 +345,7 @@ def depth_rmse(
     if not bool((count > 0).all()):
         raise ValueError(f"{func}: mask selects no pixel in some image")
     sq = torch.where(m, err, torch.zeros_like(err)).flatten(1).sum(1)
-    return _reduce((sq / count.to(err.dtype)).sqrt(), reduction, func)
+    return _reduce(2 * s * (sq / count.to(err.dtype)).sqrt(), reduction, func)
 
 
 class DepthRMSE(nn.Module):
@@ -375,7 +391,7 @@ def normalize_image(x: torch.Tensor, mode: str = "minmax") -> torch.Tensor:
         [[[[0.0, 1.0]]]]
     """
     func = "normalize_image"
-    check_rank(x, 4, "x", func, "(B, C, H, W)")
+    _check_image(x, "x", func)
     check_finite(x, "x", func)
     if mode == "clip":
         return x.clamp(0.0, 1.0)
@@ -453,7 +469,7 @@ def resolve_sign(
     func = "resolve_sign"
     if polarity not in POLARITIES:
         raise ValueError(f"{func}: expected polarity in {POLARITIES}, got {polarity!r}")
-    check_rank(x_hat, 4, "x_hat", func, "(B, C, H, W)")
+    _check_image(x_hat, "x_hat", func)
     check_finite(x_hat, "x_hat", func)
     pos = normalize_image(x_hat)
     if polarity == "positive":
@@ -462,7 +478,7 @@ def resolve_sign(
         return 1.0 - pos
     if reference is None:
         raise ValueError(f"{func}: polarity='auto' needs a reference (the ground truth)")
-    _check_pair(x_hat, reference, func)
+    _check_pair(x_hat, reference, func, ("x_hat", "reference"))
     check_finite(reference, "reference", func)
     flip = (_pearson(pos, reference) < 0).view(-1, 1, 1, 1)
     return torch.where(flip, 1.0 - pos, pos)
@@ -514,6 +530,10 @@ def affine_fit(x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     _check_pair(x_hat, x, func)
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
+    # fit on x̂/s, s = max|x̂| per image (the same affine map, without squares of 1e30 values)
+    scale = x_hat.abs().flatten(1).amax(1) if x_hat[0].numel() else x_hat.new_ones(x_hat.shape[0])
+    scale = torch.where(scale > 0, scale, torch.ones_like(scale)).view(-1, 1, 1, 1)
+    x_hat = x_hat / scale
     u, v = x_hat.flatten(1), x.flatten(1)
     du = u - u.mean(1, keepdim=True)
     var = du.pow(2).sum(1)
@@ -563,6 +583,12 @@ def compare(
     """
     func = "compare"
     _check_pair(x_hat, x, func)
+    check_finite(x_hat, "x_hat", func)
+    check_finite(x, "x", func)
+    if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int)):
+        raise TypeError(f"{func}: expected bits to be an int or None, got {type(bits).__name__}")
+    if bits is not None and not 1 <= bits <= 64:
+        raise ValueError(f"{func}: expected bits in [1, 64], got {bits}")
     ref = normalize_image(x)
     if polarity == "affine":
         est = normalize_image(affine_fit(x_hat, ref), mode="clip")

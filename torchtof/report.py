@@ -37,6 +37,10 @@ def print_table(rows: list[dict], cols: list[str], floatfmt: str = "{:.3g}") -> 
             print("  ".join("-" * w for w in widths))
 
 
+_BUCKETS = {"raw": "raw ToF map", "depth": "depth", "depth_gated": "depth, 3 m gate",
+            "taps": "taps I/Q"}
+
+
 def print_method_rows(rows: list[dict]) -> None:
     """Print the rows of :func:`torchtof.methods.evaluate` (method, gate, PSNR ± std, SSIM,
     time) as a table; ``psnr_std`` is shown only when more than one realisation was run."""
@@ -45,12 +49,13 @@ def print_method_rows(rows: list[dict]) -> None:
         std = r.get("psnr_std")
         table.append({
             "method": r["method"],
-            "gate": "3 m" if r.get("gate") else "none",
+            "buckets": _BUCKETS.get(r.get("buckets"), "depth, 3 m gate" if r.get("gate")
+                                    else "depth"),
             "PSNR dB": f"{r['psnr']:.2f}" + (f" ± {std:.2f}" if std else ""),
             "SSIM": f"{r['ssim']:.3f}",
             "time s": f"{r['time_s']:.3f}" if r.get("time_s") is not None else "-",
         })
-    print_table(table, ["method", "gate", "PSNR dB", "SSIM", "time s"])
+    print_table(table, ["method", "buckets", "PSNR dB", "SSIM", "time s"])
 
 
 def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[str] | None = None,

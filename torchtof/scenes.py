@@ -10,6 +10,15 @@ Images are ``(1, 1, n, n)`` tensors, float32 unless ``dtype`` says otherwise. A
 :class:`Scene` pairs a reflectance map in ``[0, 1]`` with a depth map in metres;
 reflectance 0 means "no return" (the ToF pixel sees no light there).
 
+**Return types** (one rule, checked by the tests): a function that builds what the camera
+looks at — :func:`get_scene`, :func:`depth_scene`, :func:`depth_steps`,
+:func:`slanted_plane` — returns a :class:`Scene` ``(reflectance, depth_m)``; a function
+that draws one image — :func:`sky_character`, :func:`skimage_scene`, :func:`binary_scene`
+(reflectance) and :func:`motorcycle_depth` (depth in metres) — returns that ``Tensor``.
+Turn an image into a scene with :func:`depth_scene` (a 0/1 mask) or
+``Scene(reflectance=x, depth_m=torch.full_like(x, 2.0))``; :func:`get_scene` does so for
+every name it knows.
+
 Example:
     >>> scene = get_scene("sky", n=32)
     >>> scene.reflectance.shape, float(scene.depth_m.max())
@@ -25,6 +34,7 @@ import numpy as np
 import torch
 
 from torchtof._checks import check_positive, check_rank
+from torchtof._memory import check_memory
 
 __all__ = [
     "Scene",
@@ -93,6 +103,8 @@ def _check_n(n: object, func: str, lo: int = 8) -> int:
         raise TypeError(f"{func}: expected n to be an int, got {type(n).__name__}")
     if n < lo:
         raise ValueError(f"{func}: expected n >= {lo}, got {n}")
+    # the rasterisers hold a few float64 n x n grids (coordinates, masks, the image)
+    check_memory(8 * n * n * 8, f"a {n}x{n} scene", func)
     return n
 
 
@@ -228,7 +240,7 @@ def depth_scene(
         raise ValueError(
             f"{func}: expected object_mask of shape (B, 1, H, W), got {tuple(object_mask.shape)}"
         )
-    if not bool(((m == 0) | (m == 1)).all()):
+    if not m.is_meta and not bool(((m == 0) | (m == 1)).all()):  # meta: shapes only
         raise ValueError(f"{func}: expected object_mask to hold only 0 and 1")
     z_obj = check_positive(object_m, "object_m", func)
     if background_m is None:
@@ -346,6 +358,8 @@ def slanted_plane(
     lo, hi = _check_depth_range(near_m, far_m, func)
     if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)):
         raise TypeError(f"{func}: expected angle_deg to be a number, got {angle_deg!r}")
+    if not np.isfinite(angle_deg):
+        raise ValueError(f"{func}: expected a finite angle_deg, got {angle_deg}")
     a = np.deg2rad(float(angle_deg))
     c = np.arange(n, dtype=np.float64)
     yy, xx = np.meshgrid(c, c, indexing="ij")

@@ -57,7 +57,7 @@ def test_tval3_auto_discrepancy_and_max_iter_reason():
 def test_solve_at_noise_reports_iterations_and_reasons(method):
     sigma = 0.05
     A, _, y = _data(sigma, b=2)
-    r = solve_at_noise(method, A, y, sigma)
+    r = solve_at_noise(method, y, A, sigma)
     assert r.x.shape == (2, 1, N, N)
     assert len(r.stop_reason) == 2 and r.n_iter.shape == (2, 1)
     expected = {"PINV": {"direct"}, "TVAL3": {"discrepancy", "tol", "max_outer", "max_iter"},
@@ -70,7 +70,7 @@ def test_solve_at_noise_reports_iterations_and_reasons(method):
 def test_dip_discrepancy_stops_before_max_iter():
     sigma = 0.05
     A, _, y = _data(sigma)
-    r = solve_at_noise("DIP", A, y.float(), 3 * sigma, n_iter=60)  # generous bound: met early
+    r = solve_at_noise("DIP", y.float(), A, 3 * sigma, max_iter=60)  # generous bound: met early
     assert r.stop_reason == (("discrepancy",),)
     assert int(r.n_iter[0, 0]) < 60
 
@@ -78,15 +78,15 @@ def test_dip_discrepancy_stops_before_max_iter():
 def test_solve_at_noise_bad_inputs():
     A, _, y = _data(0.0)
     with pytest.raises(ValueError, match="method"):
-        solve_at_noise("CGI", A, y)
+        solve_at_noise("CGI", y, A)
     with pytest.raises(ValueError, match="shape"):
-        solve_at_noise("PINV", A, y[0])
+        solve_at_noise("PINV", y[0], A)
 
 
 def test_tau_scales_the_discrepancy_bound_only():
     # tau: Morozov's factor on the bound, ‖Ax − y‖² ≤ τ M σ² = M (√τ σ)²; the μ model keeps σ
     A, _, y = _data(0.05)
-    res = solve_at_noise("TVAL3", A, y, 0.05, tau=0.5)
+    res = solve_at_noise("TVAL3", y, A, 0.05, tau=0.5)
     ref = tval3(y, A, noise_sigma=0.05, discrepancy=0.05 * 0.5**0.5)
     assert torch.equal(res.x, ref.x) and torch.equal(res.n_iter, ref.n_iter)
 
@@ -94,15 +94,15 @@ def test_tau_scales_the_discrepancy_bound_only():
 def test_model_sigma_false_leaves_the_model_to_tval3():
     # model_sigma=False: σ only bounds the residual; TVAL3 chooses its model as without σ
     A, _, y = _data(0.05)
-    res = solve_at_noise("TVAL3", A, y, 0.05, model_sigma=False)
+    res = solve_at_noise("TVAL3", y, A, 0.05, model_sigma=False)
     ref = tval3(y, A, noise_sigma=None, discrepancy=0.05)
     assert torch.equal(res.x, ref.x) and list(map(list, res.stop_reason)) == ref.reasons()
 
 
 def test_smaller_tau_never_stops_earlier():
     A, _, y = _data(0.05, b=3)
-    loose = solve_at_noise("TVAL3", A, y, 0.05, tau=1.5)
-    tight = solve_at_noise("TVAL3", A, y, 0.05, tau=0.5)
+    loose = solve_at_noise("TVAL3", y, A, 0.05, tau=1.5)
+    tight = solve_at_noise("TVAL3", y, A, 0.05, tau=0.5)
     assert bool((tight.n_iter >= loose.n_iter).all())
 
 
@@ -110,4 +110,15 @@ def test_smaller_tau_never_stops_earlier():
 def test_bad_tau(tau):
     A, _, y = _data(0.05)
     with pytest.raises(ValueError, match="tau"):
-        solve_at_noise("TVAL3", A, y, 0.05, tau=tau)
+        solve_at_noise("TVAL3", y, A, 0.05, tau=tau)
+
+
+def test_old_argument_order_and_n_iter_warn():
+    A, _, y = _data(0.05)
+    want = solve_at_noise("TVAL3", y, A, 0.05, max_iter=20)
+    with pytest.warns(DeprecationWarning, match=r"\(method, y, A\)"):
+        old = solve_at_noise("TVAL3", A, y, 0.05, max_iter=20)
+    with pytest.warns(DeprecationWarning, match="n_iter= is renamed max_iter="):
+        renamed = solve_at_noise("TVAL3", y, A, 0.05, n_iter=20)
+    assert torch.equal(old.x, want.x) and torch.equal(renamed.x, want.x)
+    assert int(want.n_iter.max()) <= 20

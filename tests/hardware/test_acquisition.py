@@ -7,15 +7,17 @@ import numpy as np
 import pytest
 import torch
 
-from torchtof.experiment import ExperimentConfig, PaperExperiment
+from torchtof.bucket import depth_bucket, intensity_bucket, tap_buckets
+from torchtof.experiment import ExperimentConfig, PaperExperiment, simulate_frames
 from torchtof.hardware import acquire, load_buckets, load_run
 from torchtof.hardware.errors import (
     DeviceLostError,
     FrameError,
-    FrameSequenceError,
     FrameTimeoutError,
+    FrameTimingError,
     ProtocolError,
 )
+from torchtof.hardware.opt8241 import QUAD_OFFSET
 from torchtof.hardware.simulated import Faults, SimulatedBench
 from torchtof.methods import build_method
 from torchtof.operators import DMDSplit, Hadamard
@@ -31,16 +33,36 @@ NOISY = replace(CLEAN, shot="poisson", read_noise_e=12.0)
 def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", start=0, **kw):
     bench = SimulatedBench(cfg, seed=seed, faults=Faults(**(faults or {})),
                            frame_number_start=start)
-    kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3,
+    kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3, "frame_timeout_s": 0.3,
           "metadata": {"simulation": {"config": asdict(cfg), "seed": seed}}, **kw}
-    return acquire(path, bench.lightcrafter(), bench.camera(mode=mode), **kw), bench
+    return acquire(path, bench.lightcrafter(timeout_ms=200), bench.camera(mode=mode), **kw), bench
 
 
 def pure(cfg, seed=0):
-    """The pure simulation, one frame per sensor call (as the camera renders them)."""
+    """The pure simulation, one frame per sensor call (as the camera renders them); the
+    tap buckets as the signed quad samples give them (each model tap - QUAD_OFFSET)."""
     fields = {k: v for k, v in asdict(cfg).items() if k not in ("scattering", "gate_m")}
     fields["chunk_frames"] = 1
-    return PaperExperiment(sr=SR, scattering=cfg.scattering, gate_m=cfg.gate_m, **fields).run(seed)
+    data = PaperExperiment(sr=SR, scattering=cfg.scattering, gate_m=cfg.gate_m,
+                           **fields).run(seed)
+    data.buckets["taps"] = data.buckets["taps"] - QUAD_OFFSET * cfg.roi_px ** 2
+    return data
+
+
+def pure_noisy(cfg, seed):
+    """Reference buckets of a noisy run: each frame simulated with the generator of its
+    pattern (SimulatedBench.noise_generator), summed over the whole sensor ROI."""
+    bench = SimulatedBench(cfg, seed=seed)
+    pats = DMDSplit(Hadamard(cfg.n, sr=SR)).patterns(torch.float32).to(torch.uint8).numpy()
+    out = {"depth": [], "depth_gated": [], "intensity": [], "taps": []}
+    for p in pats:
+        fr = simulate_frames(bench.scene, torch.from_numpy(p.astype(np.float32))[None], cfg,
+                             bench.noise_generator(p), bench.dust, bench.stray)
+        out["depth"].append(depth_bucket(fr.depth[:, 0][None]))
+        out["depth_gated"].append(depth_bucket(fr.depth[:, 0][None], gate_m=cfg.gate_m))
+        out["intensity"].append(intensity_bucket(fr.amplitude[:, 0][None]))
+        out["taps"].append(tap_buckets(fr.taps[None]) - QUAD_OFFSET * cfg.roi_px ** 2)
+    return {k: torch.cat(v, -1) for k, v in out.items()}
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +91,11 @@ def test_noise_free_buckets_and_reconstruction_equal_pure_simulation(reference):
 def test_noisy_same_seed_same_buckets(tmp_path):
     run(tmp_path / "a.zarr", NOISY, seed=5)
     got = load_buckets(tmp_path / "a.zarr")[0]
-    ref = pure(NOISY, seed=5)
+    ref = pure_noisy(NOISY, seed=5)
     for kind in got:
-        assert torch.equal(got[kind], ref.buckets[kind]), kind
-    other = pure(NOISY, seed=6)
-    assert not torch.equal(got["depth"], other.buckets["depth"])
+        assert torch.equal(got[kind], ref[kind]), kind
+    other = pure_noisy(NOISY, seed=6)
+    assert not torch.equal(got["depth"], other["depth"])
 
 
 def test_store_layout_and_metadata(reference):
@@ -103,8 +125,11 @@ FAULTS = {
     "duplicated": {"duplicate": {4}},
     "extra_frame": {"extra": {5}},
     "corrupt": {"corrupt": {6}},
+    "split_transfer": {"split": {7}},
+    "endpoint_stall": {"stall": {9}},
     "nack": {"nack": {"PAT_EXPO_PRD": {1}}},
     "no_reply": {"reply_timeout": {"MBOX_DATA": {0}}},
+    "late_reply": {"late_reply": {"PAT_CONFIG": {1}}},  # re-sent; the stale reply discarded
 }
 
 
@@ -116,6 +141,8 @@ def test_transient_fault_is_retried_to_the_same_buckets(fault, reference, tmp_pa
         assert torch.equal(got[kind], ref), (fault, kind)
     if fault == "duplicated":
         assert (res.duplicates, res.retries) == (1, 0)
+    elif fault == "late_reply":
+        assert res.retries == 0 and bench.lightcrafter_usb.counts["PAT_CONFIG"] == 3
     else:
         assert res.retries == 1
     ids = zarr.open_group(str(tmp_path / "f.zarr"), mode="r")["frames_id"][:]
@@ -123,23 +150,19 @@ def test_transient_fault_is_retried_to_the_same_buckets(fault, reference, tmp_pa
 
 
 @pytest.mark.parametrize("ids,faults,error,match,first", [
-    # device ids: frames are recorded as they arrive; the anchor pair 0-1 comes first, then the
-    # sequence from 2 fails at pattern 3: recorded up to the pair of the failing frame
+    # a sequence is recorded only once all its checks passed: the first (0-23) fails
     ("device", {"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within",
-     2),
+     0),
     ("device", {"corrupt": set(range(3, 99))}, FrameError,
-     r"corrupt frame for pattern \d+: reserved bits", 2),
-    # the camera's spurious frame takes the next number: only the count check sees it
-    ("device", {"extra": set(range(99))}, FrameSequenceError,
-     r"3 frame.s. in the sequence from pattern 0, expected 2", 0),
-    # PAT_START_STOP #0, #1 are the anchor pair's stop/start; the next sequence fails
+     r"corrupt frame for pattern \d+: \d+ bytes", 0),
+    # the camera's spurious frame takes the next number: its arrival time gives it away
+    ("device", {"extra": set(range(99))}, FrameTimingError, r"pattern 1 arrived", 0),
+    # PAT_START_STOP #0, #1: the first sequence's stop/start; the second sequence fails
     ("device", {"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
-     "PAT_START_STOP: device answered NACK", 2),
-    # count mode: a sequence is recorded only once all its frames arrived
+     "PAT_START_STOP: device answered NACK", 24),
     ("count", {"frame_timeout": set(range(3, 99))}, FrameTimeoutError, r"pattern \d+ within",
      0),
-    ("count", {"extra": set(range(99))}, FrameSequenceError,
-     "48 frame.s. in the sequence from pattern 0, expected 24", 0),  # one extra per frame
+    ("count", {"extra": set(range(99))}, FrameTimingError, r"pattern 1 arrived", 0),
     ("count", {"nack": {"PAT_START_STOP": set(range(2, 99))}}, ProtocolError,
      "PAT_START_STOP: device answered NACK", 24),
 ])
@@ -149,27 +172,22 @@ def test_persistent_fault_gives_a_clear_error(ids, faults, error, match, first, 
     g = zarr.open_group(str(tmp_path / "p.zarr"), mode="r")
     assert g.attrs["status"] == "interrupted" and g.attrs["retries"] == 3
     ok = g["frames_ok"][:]
-    recorded = int(np.flatnonzero(ok != 1)[0])
-    assert recorded - recorded % 2 == first  # resume restarts at the failing pair
-    assert not ok[first + 2:].any()  # nothing after the failing pair (2 = provisional anchor)
-    assert np.isnan(g["buckets_depth"][0, 0, first + 2:]).all()
+    assert ok[:first].all() and not ok[first:].any()
+    assert np.isnan(g["buckets_depth"][0, 0, first:]).all()
 
 
-@pytest.mark.parametrize("ids,kept,rendered", [
-    ("device", 27, 6),  # every frame that arrived is recorded; resume at the pair of 27: 26
-    ("count", 24, 8),  # the second sequence (24-31) is lost as a whole
-])
-def test_device_vanishing_then_resume(ids, kept, rendered, reference, tmp_path):
+@pytest.mark.parametrize("ids", ["device", "count"])
+def test_device_vanishing_then_resume(ids, reference, tmp_path):
     path = tmp_path / "v.zarr"
     with pytest.raises(DeviceLostError, match="--resume"):
         run(path, faults={"vanish_after_frames": 27}, frame_ids=ids)
     g = zarr.open_group(str(path), mode="r")
-    # vanished while frame 27 was in flight
-    assert g["frames_ok"][:].tolist() == [1] * kept + [0] * (32 - kept)
+    # vanished while frame 27 was in flight: the sequence 24-31 is lost as a whole
+    assert g["frames_ok"][:].tolist() == [1] * 24 + [0] * 8
     with pytest.raises(FileExistsError, match="resume=True"):
         run(path, frame_ids=ids)
     res, bench = run(path, resume=True, frame_ids=ids)
-    assert bench.camera_usb.rendered == rendered
+    assert bench.camera_usb.rendered == 8
     got = load_buckets(path)[0]
     for kind, ref in reference[2].items():
         assert torch.equal(got[kind], ref), kind
@@ -251,9 +269,10 @@ def test_ctrl_c_marks_the_store_interrupted_and_resume_completes_it(reference, t
     with pytest.raises(KeyboardInterrupt):
         run(path, on_frame=on_frame)
     g = zarr.open_group(str(path), mode="r")
-    assert g.attrs["status"] == "interrupted" and g["frames_ok"][:].sum() == 7
+    # the first sequence (0-23) was interrupted before its checks: nothing recorded
+    assert g.attrs["status"] == "interrupted" and g["frames_ok"][:].sum() == 0
     res, bench = run(path, resume=True)
-    assert bench.camera_usb.rendered == 26  # from pair boundary 6
+    assert bench.camera_usb.rendered == 32
     for kind, ref in reference[2].items():
         assert torch.equal(load_buckets(path)[0][kind], ref), kind
 
@@ -306,21 +325,30 @@ def test_gap_across_the_wrap_is_a_lost_frame(reference, tmp_path):
         assert torch.equal(load_buckets(tmp_path / "g.zarr")[0][kind], ref), kind
 
 
-def test_lost_frame_is_seen_at_once_and_reacquired_from_its_pair(reference, tmp_path):
-    """Frame 5 dropped: frames 0-4 are recorded as they arrive, the gap shows on the next
-    frame (id 6 for pattern 5) before anything wrong is recorded, and the run re-acquires
-    from pattern 4 (the pair of 5); the count-mode run records nothing before the count."""
+@pytest.mark.parametrize("ids", ["device", "count"])
+def test_lost_frame_discards_and_reacquires_the_whole_sequence(ids, reference, tmp_path):
+    """Frame 5 dropped: the gap shows on the next frame (device: id 6 for pattern 5; count:
+    its arrival time), nothing of the sequence is recorded, and it is shown again."""
     seen = []
-    res, bench = run(tmp_path / "d.zarr", faults={"drop": {5}}, on_frame=seen.append)
-    assert seen == [0, 1, 2, 3, 4, 4, 5, *range(6, 32)]
-    assert bench.camera_usb.rendered == 32 + 2 + 18  # sequence 2-23 re-acquired from 4
-    seen.clear()
-    run(tmp_path / "c.zarr", faults={"drop": {5}}, on_frame=seen.append, frame_ids="count")
-    assert seen == list(range(32))  # recorded only after the re-acquired sequence passed
-    for path in ("d.zarr", "c.zarr"):
-        got = load_buckets(tmp_path / path)[0]
+    res, bench = run(tmp_path / "d.zarr", faults={"drop": {5}}, on_frame=seen.append,
+                     frame_ids=ids)
+    assert seen == [0, 1, 2, 3, 4, *range(32)] and res.retries == 1
+    assert bench.camera_usb.rendered == 24 + 32  # sequence 0-23 shown twice
+    got = load_buckets(tmp_path / "d.zarr")[0]
+    for kind, ref in reference[2].items():
+        assert torch.equal(got[kind], ref), kind
+
+
+def test_spurious_then_lost_frame_in_one_sequence_is_never_recorded(reference, tmp_path):
+    """A spurious frame after frame 6 and frame 7 lost: the ids stay consecutive (the
+    spurious frame takes 7's number), but the whole sequence is re-acquired, not patched."""
+    for ids in ("device", "count"):
+        res, _ = run(tmp_path / f"{ids}.zarr", faults={"extra": {6}, "drop": {7}},
+                     frame_ids=ids)
+        assert res.retries == 1
+        got = load_buckets(tmp_path / f"{ids}.zarr")[0]
         for kind, ref in reference[2].items():
-            assert torch.equal(got[kind], ref), (path, kind)
+            assert torch.equal(got[kind], ref), (ids, kind)
 
 
 def test_duplicate_is_dropped_and_a_repeated_id_on_other_bytes_retried(reference, tmp_path):
@@ -332,15 +360,15 @@ def test_duplicate_is_dropped_and_a_repeated_id_on_other_bytes_retried(reference
 
     class Fifo(type(fifo)):
         def append(self, item):  # the duplicate of frame 7 arrives with other pixel bytes
-            if item[0] == 7 and any(o == 7 for o, _ in self):
+            if item[0] == 7 and any(o == 7 for o, _, _ in self):
                 b = bytearray(item[1])
                 b[40] ^= 0x01
-                item = (7, bytes(b))
+                item = (7, bytes(b), item[2])
             super().append(item)
 
     bench.camera_usb._fifo = Fifo()
     res = acquire(tmp_path / "b.zarr", bench.lightcrafter(), bench.camera(), n=N, sr=SR,
-                  progress=False)
+                  progress=False, frame_timeout_s=0.3)
     assert (res.duplicates, res.retries) == (0, 1)
     for kind, ref in reference[2].items():
         assert torch.equal(load_buckets(tmp_path / "b.zarr")[0][kind], ref), kind

@@ -1,6 +1,8 @@
 """DLPC350 codec and driver: byte-exact encoders (hand-written from the TI command tables in
 domain-notes §7), reply/NACK/multi-report decoding, LUT packing, show_sequence on the fake."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -170,17 +172,48 @@ def test_show_sequence_canonical_order_and_state():
     lcr = bench.lightcrafter()
     pats = np.random.default_rng(1).integers(0, 2, size=(6, 8, 8)).astype(np.uint8)
     lcr.show_sequence(pats, exposure_us=5000)
-    names = [m.command for m in bench.lightcrafter_usb.log]
-    assert names == ["PAT_START_STOP", "DISP_MODE", "PAT_DISP_MODE", "PAT_CONFIG",
-                     "PAT_TRIG_MODE", "PAT_EXPO_PRD", "MBOX_CONTROL", "MBOX_ADDRESS", "MBOX_DATA",
-                     "MBOX_CONTROL", "LUT_VALID", "LUT_VALID", "LUT_VALID", "PAT_START_STOP"]
+    log = bench.lightcrafter_usb.log
+    names = [m.command for m in log]
+    assert names == ["PAT_START_STOP", "DISP_MODE", "DISP_MODE", "DISP_MODE", "PAT_DISP_MODE",
+                     "PAT_CONFIG", "PAT_TRIG_MODE", "PAT_EXPO_PRD", "MBOX_CONTROL",
+                     "MBOX_ADDRESS", "MBOX_DATA", "MBOX_CONTROL", "LUT_VALID", "LUT_VALID",
+                     "LUT_VALID", "PAT_START_STOP"]
+    # display mode read back, switched, read back again until it took effect
+    assert [m.read for m in log[1:4]] == [True, False, True]
     # the validation is polled: the fake reads busy (bit 7) once
-    assert [m.read for m in bench.lightcrafter_usb.log[10:13]] == [False, True, True]
+    assert [m.read for m in log[12:15]] == [False, True, True]
     fake = bench.lightcrafter_usb
     assert fake.state["config"] == (5, 0, 5, 0) and fake.state["exposure_us"] == 5000
-    assert [dlp.unpack_lut_entry(e)["pattern"] for e in fake.pattern_lut] == list(range(6))
+    entries = [dlp.unpack_lut_entry(e) for e in fake.pattern_lut]
+    assert [e["pattern"] for e in entries] == list(range(6))
+    # VSYNC trigger: floor(16667 / 5000) = 3 patterns per video frame, the first of each
+    # waits for the VSYNC (type 1), the others continue (type 3)
+    assert fake.state["trigger"] == 0 and [e["trig"] for e in entries] == [1, 3, 3, 1, 3, 3]
     # the DMD showed exactly the patterns, in order
     np.testing.assert_array_equal(np.stack(fake.shown), pats)
+    lcr.show_sequence(pats, exposure_us=5000)  # already in pattern mode: no second switch
+    assert [m.command for m in log[16:19]] == ["PAT_START_STOP", "DISP_MODE", "PAT_DISP_MODE"]
+    assert log[17].read
+
+
+def test_display_mode_switch_is_waited_for():
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)), realtime=True,
+                           mode_latency_s=0.05)
+    lcr = bench.lightcrafter()
+    t0 = time.monotonic()
+    lcr.set_display_mode(True, poll_s=0.005)
+    assert time.monotonic() - t0 >= 0.05 and lcr.display_mode() == "pattern"
+    reads = [m for m in bench.lightcrafter_usb.log if m.command == "DISP_MODE" and m.read]
+    assert len(reads) >= 3  # before, at least once while switching, and the final one
+
+
+def test_vsync_sequence_must_fit_the_video_frame():
+    lcr = _bench().lightcrafter()
+    pats = np.zeros((2, 8, 8), dtype=np.uint8)
+    with pytest.raises(ValueError, match="does not fit one 16667 us video frame"):
+        lcr.show_sequence(pats, exposure_us=20_000)
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)), video_hz=40.0)
+    bench.lightcrafter().show_sequence(pats, exposure_us=20_000, video_hz=40.0)  # 25 ms: fits
 
 
 def test_status_version_and_commands():
@@ -207,12 +240,30 @@ def test_validation_error_is_decoded():
 
 
 def test_nack_and_timeout_name_the_command():
-    lcr = _bench(nack={"PAT_EXPO_PRD": {0}}, reply_timeout={"DISP_MODE": {0}}).lightcrafter()
+    lcr = _bench(nack={"PAT_EXPO_PRD": {0}},
+                 reply_timeout={"DISP_MODE": {0, 1, 2}}).lightcrafter()
     with pytest.raises(ProtocolError, match="DISP_MODE: no reply in time"):
-        lcr.write("DISP_MODE", b"\x01")
+        lcr.write("DISP_MODE", b"\x01")  # sent 3 times (retries=2), never answered
     lcr.write("DISP_MODE", b"\x01")  # the next one is answered
     with pytest.raises(NackError, match="PAT_EXPO_PRD"):
         lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+
+
+def test_late_reply_is_discarded_and_the_command_retried():
+    """PAT_CONFIG #0 is answered too late: the host times out and sends it again; the late
+    reply (old sequence number) then arrives first and is discarded, not taken as the
+    reply to the repeat or to the next command."""
+    bench = _bench(late_reply={"PAT_CONFIG": {0}}, nack={"PAT_EXPO_PRD": {0}})
+    lcr = bench.lightcrafter()
+    lcr.write("PAT_CONFIG", dlp.payload_pattern_config(1, False, 1, 1))
+    assert bench.lightcrafter_usb.counts["PAT_CONFIG"] == 2 and lcr.stale_replies == 1
+    with pytest.raises(NackError, match="PAT_EXPO_PRD"):  # its own reply, not a stale one
+        lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+    # MBOX_DATA is never re-sent (it appends): a missing reply is an error to the caller
+    bench = _bench(reply_timeout={"MBOX_DATA": {0}})
+    with pytest.raises(ProtocolError, match="MBOX_DATA: no reply"):
+        bench.lightcrafter().load_pattern_lut([dlp.lut_entry(0)])
+    assert bench.lightcrafter_usb.counts["MBOX_DATA"] == 1
 
 
 def test_flash_source_uses_image_lut_and_buffer_swaps():
@@ -246,8 +297,8 @@ def test_external_trigger_waits_for_trig_in():
     fake = bench.lightcrafter_usb
     assert [dlp.unpack_lut_entry(e)["trig"] for e in fake.pattern_lut] == [1, 1]
     assert fake.shown == [] and bench.camera_usb.rendered == 0  # nothing until a TRIG_IN edge
-    fake.trigger_in()
-    fake.trigger_in()
-    fake.trigger_in()  # past the end of the sequence: ignored
+    fake.trigger_in(1.0)
+    fake.trigger_in(2.0)  # edges one camera frame time apart at least (33 ms at power-up)
+    fake.trigger_in(3.0)  # past the end of the sequence: ignored
     np.testing.assert_array_equal(np.stack(fake.shown), pats)
     assert bench.camera_usb.rendered == 2 and len(bench.camera_usb._fifo) == 2

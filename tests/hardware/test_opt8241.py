@@ -11,14 +11,12 @@ import torch
 
 from torchtof.experiment import ExperimentConfig
 from torchtof.hardware import opt8241 as opt
-from torchtof.hardware.errors import FrameError, FrameTimeoutError, ProtocolError
+from torchtof.hardware.errors import FrameError, FrameTimeoutError, HardwareError, ProtocolError
 from torchtof.hardware.simulated import SimulatedBench
 from torchtof.sensor import (
     SPEED_OF_LIGHT,
     cw_tof_sensor,
     phasor_from_depth,
-    tap_amplitude,
-    tap_phase,
 )
 
 
@@ -76,11 +74,17 @@ FIELDS = [
     ("sub_frame_cnt_max", 4, 0x58, 0x83, b"\x40\x00\x00"),  # reg 131 bits 4-7
     ("output_mode", 15, 0x5C, 0x25, b"\x00\x0f\x00"),  # bank 3 reg 37 bits 8-11
     ("op_data_arrange_mode", 2, 0x5C, 0x25, b"\x00\x00\x08"),  # bits 18-19
-    ("pixel_data_size", 8, 0x5C, 0x27, b"\x00\x40\x00"),  # bank 3 reg 39 bits 11-14
+    ("pixel_data_size", 4, 0x5C, 0x27, b"\x00\x20\x00"),  # bank 3 reg 39 bits 11-14
     ("debug_frame_number_en", 1, 0x5C, 0x39, b"\x00\x10\x00"),  # bank 3 reg 57 bit 12
     ("frm_header_en", 1, 0x5C, 0x3C, b"\x02\x00\x00"),  # bank 3 reg 60 bit 1
     ("blk_header_en", 1, 0x5C, 0x3C, b"\x04\x00\x00"),  # bit 2
-    ("intg_duty_cycle", 63, 0x5C, 0x4C, b"\x3f\x00\x00"),  # bank 3 reg 76 bits 0-5
+    ("intg_duty_cycle", 20, 0x5C, 0x4C, b"\x14\x00\x00"),  # bank 3 reg 76 bits 0-5
+    ("pix_cnt_max_set_failed", 1, 0x5C, 0x63, b"\x00\x00\x40"),  # bank 3 reg 99 bit 22
+    ("intg_duty_cycle_set_failed", 1, 0x5C, 0x63, b"\x00\x00\x80"),  # bit 23
+    ("dealias_en", 1, 0x5C, 0x02, b"\x00\x00\x80"),  # bank 3 reg 2 bit 23
+    ("dealias_16bit_op_enable", 1, 0x5C, 0x28, b"\x00\x00\x80"),  # bank 3 reg 40 bit 23
+    ("delay_fb_coeff_1", 1280, 0x5C, 0xB3, b"\x00\x05\x00"),  # bank 3 reg 179 bits 0-11
+    ("tillum_slv_addr", 0x72, 0x5C, 0x2E, b"\x72\x00\x00"),  # bank 3 reg 46 bits 0-6
 ]
 
 
@@ -139,6 +143,7 @@ def test_set_modulation_frequency_request_sequence():
         (0x0C, b"\x00\x00\x0f"),  # mod_m_frac1 = 0
         (0x0F, b"\x22\x00\x00"),  # mod_ps1 = 2
         (0x02, b"\x00\x00\x00"),  # mod_pll_update = 0
+        (0xB3, b"\x00\x05\x00"),  # delay_fb_coeff_1 = 30 · 1024 / 24 = 1280 (DML, SDK)
     ]
     assert cam.freq_hz == 30e6
 
@@ -147,12 +152,45 @@ def test_integration_time_conversion():
     dev = Recorder({0x5882: 100000, 0x5883: 0x44, 0x5C4C: 6})  # DML defaults
     cam = opt.OPT8241(dev)
     frame_us = 100000 * 4 * 4 / 48  # pix_cnt_max · quads · sub-frames / 48 MHz
-    assert cam.integration_time_us == pytest.approx(6 / 63 * frame_us)
-    got = cam.set_integration_time(1000)  # nearest duty: round(1000 / 33333.3 · 63) = 2
-    assert dev.regs[0x5C4C] == 2 and got == pytest.approx(2 / 63 * frame_us)
-    for bad in (-1, frame_us + 1, float("nan"), True):
+    assert cam.frame_time_us == pytest.approx(frame_us)
+    # DML: integration time = intg_duty_cycle · 100/64 percent
+    assert cam.integration_time_us == pytest.approx(6 * 100 / 64 / 100 * frame_us)
+    got = cam.set_integration_time(1000)  # (uint)(1000 / 33333.3 · 64 + 0.5) = 2
+    assert dev.regs[0x5C4C] == 2 and got == pytest.approx(2 / 64 * frame_us)
+    cam.set_integration_time(20 / 64 * frame_us)  # the board's cap, 20
+    assert dev.regs[0x5C4C] == 20
+    for bad in (-1, 21 / 64 * frame_us, float("nan"), True):
         with pytest.raises(ValueError, match="integration time"):
             cam.set_integration_time(bad)
+
+
+def test_set_failed_flags_are_read_back_and_raise():
+    dev = Recorder({0x5882: 100000, 0x5883: 0x44, 0x5C63: 1 << 23})
+    cam = opt.OPT8241(dev)
+    with pytest.raises(HardwareError, match="intg_duty_cycle_set_failed"):
+        cam.set_integration_time(1000)
+    dev = Recorder({0x5882: 100000, 0x5883: 0x14, 0x5C63: 1 << 22})
+    with pytest.raises(HardwareError, match="pix_cnt_max_set_failed"):
+        opt.OPT8241(dev).set_frame_time(9500)
+
+
+def test_frame_time_is_programmed_to_fit_the_pattern_period():
+    dev = Recorder({0x5882: 100000, 0x5883: 0x44})  # power-up: 33.3 ms
+    cam = opt.OPT8241(dev)
+    got = cam.set_frame_time(9500)  # pix = floor(9500 · 48 / (4 · 1)) = 114000
+    assert dev.regs[0x5882] == 114000 and opt.REGISTERS["sub_frame_cnt_max"].get(
+        dev.regs[0x5883]) == 1
+    assert got == pytest.approx(9500) and got <= 9500
+    with pytest.raises(ValueError, match="pix_cnt_max = 48000 < 50000"):
+        cam.set_frame_time(4000)  # 4000 · 48 / 4 = 48000: below the board's limit
+    with pytest.raises(ValueError, match="sub_frames"):
+        cam.set_frame_time(9500, sub_frames=3)
+
+
+def test_uninitialised_board_is_refused():
+    with pytest.raises(HardwareError, match="tillum_slv_addr reads 0x71.*Voxel Viewer"):
+        opt.OPT8241(Recorder({0x5C2E: 0x71})).check_initialised()
+    opt.OPT8241(Recorder({0x5C2E: 0x72})).check_initialised()
 
 
 # -- frame decoding on hand-built bytes ------------------------------------------------------
@@ -191,29 +229,49 @@ def test_decode_depth2():
     assert fr.amplitude.item() == 0xA00 and fr.phase.item() == pytest.approx(math.pi)
 
 
-def test_decode_iq_and_quad_follow_eqs_7_and_8():
+def test_decode_iq_follows_eqs_7_and_8():
     raw = struct.pack("<hh", 3, -4)  # I = 3, Q = -4
     fr = opt.decode_frame(raw, 1, 1, 30e6, "iq", WIDE)
     assert fr.amplitude.item() == 2.5  # |3 - 4j| / 2 (Eq. 8)
     assert fr.phase.item() == pytest.approx(math.atan2(-4, 3) + 2 * math.pi)
-    taps = [700, 400, 100, 900]  # c1..c4 (Fig. 1 order)
-    fr = opt.decode_frame(struct.pack("<4H", *taps), 1, 1, 30e6, "quad", WIDE)
-    t = torch.tensor(taps, dtype=torch.float32).view(1, 4, 1, 1)
-    assert fr.taps.view(-1).tolist() == taps
-    assert torch.equal(fr.phase, tap_phase(t)[0, 0]) and torch.equal(fr.amplitude,
-                                                                     tap_amplitude(t)[0, 0])
 
 
-@pytest.mark.parametrize("mode,raw,match", [
-    ("depth", bytes(7), "7 bytes, a 2x1 'depth' frame has 8"),
-    ("quad", bytes(17), "17 bytes"),
-    ("quad", struct.pack("<4H", 0, 0x1000, 0, 0), "reserved bits"),  # bit 12 of a 12-bit quad
-    ("iq", struct.pack("<hh", 4096, 0), "I/Q beyond"),
-])
-def test_corrupt_frames_raise(mode, raw, match):
-    w = 2 if mode == "depth" else 1
-    with pytest.raises(FrameError, match=match):
-        opt.decode_frame(raw, w, 1, 30e6, mode)
+def _sdk_words(theta, amp, quads, offset=0):
+    """Raw-quad words of one row of pixels written from the SDK's arithmetic (not the
+    decoder's): sample k of a pixel with phase θ is round(offset + A cos(θ − 2πk/N)), so that
+    I = Σ d_k cos(2πk/N) = (N/2) A cos θ and Q = Σ d_k sin(2πk/N) = (N/2) A sin θ; each sample
+    is sent as its 16-bit two's complement."""
+    words = []
+    for t in theta:
+        for k in range(quads):
+            d = round(offset + amp * math.cos(t - 2 * math.pi * k / quads))
+            words.append(d & 0xFFFF)
+    return struct.pack(f"<{len(words)}H", *words)
+
+
+@pytest.mark.parametrize("quads", [4, 6])
+def test_quad_decoding_recovers_the_phase_from_sdk_style_frames(quads):
+    theta = [0.3 + 0.1 * k for k in range(57)]  # 0.3 … 5.9 rad
+    raw = _sdk_words(theta, 1500, quads, offset=-300)
+    fr = opt.decode_frame(raw, len(theta), 1, 30e6, "quad", WIDE, quads=quads)
+    got = fr.phase[0].double()
+    assert torch.allclose(got, torch.tensor(theta, dtype=torch.float64), atol=1e-3, rtol=0)
+    # amplitude: Eq. 8's, 2|I + jQ| / N = A
+    assert torch.allclose(fr.amplitude[0].double(), torch.full((57,), 1500.0, dtype=torch.float64),
+                          atol=2.0)
+
+
+def test_quad_samples_are_signed_12_bit_and_the_top_nibble_ignored():
+    # 0x0F00 and 0xFF00: low 12 bits 0xF00, sign-extended: -256 (ToFFrameGenerator.cpp)
+    words = np.array([[[0x0F00, 0xFF00, 0x0100, 0x7005]]], dtype=np.uint16)
+    d, i, q = opt.sdk_quad_iq(words, 4)
+    assert d.tolist() == [[[-256, -256, 256, 5]]]
+    assert i[0, 0] == pytest.approx(-256 - 256) and q[0, 0] == pytest.approx(-256 - 5)
+    fr = opt.decode_frame(words.tobytes(), 1, 1, 30e6, "quad", WIDE)  # no reserved-bit error
+    assert fr.taps.view(-1).tolist() == [-256, 256, 5, -256]  # c1..c4 = d0, d2, d3, d1
+    assert fr.phase.item() == pytest.approx(math.atan2(-261, -512) + 2 * math.pi, abs=1e-6)
+    assert len(opt.pack_quads(np.zeros((6, 2, 3), dtype=np.int64))) == \
+        opt.frame_bytes(3, 2, "quad", quads=6) == 3 * 2 * 6 * 2
 
 
 def test_encode_frame_and_pack_reject_bad_input():
@@ -298,20 +356,22 @@ def test_grab_timeout_names_the_pattern():
 def test_fake_camera_streams_the_mode_the_registers_select(mode):
     bench, cam = _camera(mode=mode)
     pat = np.ones((8, 8), dtype=np.uint8)
-    bench.camera_usb.trigger(pat)  # tg_dis = 1: not streaming, ignored
+    bench.camera_usb.trigger(pat, 0.0)  # tg_dis = 1: not streaming, ignored
     assert bench.camera_usb.rendered == 0
     cam.start()
     assert bench.camera_usb.mode == mode and bench.camera_usb.field("blk_header_en") == 0
     assert bench.camera_usb.field("slave_mode") == 1
-    bench.lightcrafter_usb.state["period_us"] = 1000
-    bench.camera_usb.trigger(pat)
-    bench.camera_usb.trigger(pat)
-    raw = bytes(bench.camera_usb._fifo[0][1])
+    frame_s = 100000 * 4 * 4 / 48e6  # power-up frame time, 33.3 ms
+    bench.camera_usb.trigger(pat, 0.0)
+    bench.camera_usb.trigger(pat, 0.010)  # during the first frame: missed
+    bench.camera_usb.trigger(pat, 1.0)
+    assert bench.camera_usb.missed_triggers == 1
+    a, b = cam.grab(0.5), cam.grab(0.5)
     # no header: W·H·bytes per pixel (8 x 9: the ROI below the simulator's guard row)
-    assert len(raw) == 8 * 9 * opt.FRAME_MODES[mode][1]
-    a, b = cam.grab(0.1), cam.grab(0.1)
+    assert len(a.raw) == opt.frame_bytes(8, 9, mode) == 8 * 9 * (8 if mode == "quad" else
+                                                                 opt.FRAME_MODES[mode][1])
     assert (a.frame_id, b.frame_id) == (0, 1) and cam.frame_counter() == 2  # host-side ids
-    assert (a.timestamp, b.timestamp) == (0.0, 1e-3)  # the simulated host clock
+    assert (a.timestamp, b.timestamp) == (pytest.approx(frame_s), pytest.approx(1 + frame_s))
     assert a.depth.shape == (9, 8) and (a.taps is not None) == (mode == "quad")
     cam.stop()
     assert bench.camera_usb.field("tg_dis") == 1
@@ -320,12 +380,13 @@ def test_fake_camera_streams_the_mode_the_registers_select(mode):
 def test_oversized_transfer_is_a_usb_error():
     bench, cam = _camera()
     cam.start()
-    bench.camera_usb._fifo.append((9, bytes(10_000)))  # larger than frame + 255: overflow
+    bench.camera_usb._fifo.append((9, bytes(10_000), 0.0))  # > frame + 255 bytes: overflow
     with pytest.raises(ProtocolError, match="bulk read: USB error.*Overflow"):
-        cam.grab(0.1)
-    bench.camera_usb._fifo.append((9, bytes(100)))  # a short transfer: not a frame
+        cam.grab(1.0)
+    cam.start()  # a failed bulk read ends the reader: restart it
+    bench.camera_usb._fifo.append((9, bytes(100), 0.0))  # a short transfer: not a frame
     with pytest.raises(FrameError, match="100 bytes, a 8x9 'quad' frame has 576"):
-        cam.grab(0.1)
+        cam.grab(1.0)
     assert cam.frame_counter() == 0  # neither was numbered
 
 
@@ -340,14 +401,14 @@ def test_driver_rejects_bad_modes_and_sizes():
 def test_configure_with_frame_ids_writes_the_counter_bit_byte_exact():
     """Read-modify-write of 0x5C39: bit 12 set, the register's other bits kept
     (op_serial_width, bit 10, set here); frm_header_en (0x5C3C bit 1) cleared."""
-    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x000006})
+    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x000006, 0x5883: 0x04})
     opt.OPT8241(dev, frame_ids=True).configure()
     writes = [e for e in dev.log if e[0] == 0x40]
     assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x14\x00") in writes
     hdr = [e[4] for e in writes if e[2:4] == (0x5C, 0x3C)]
     assert hdr == [b"\x02\x00\x00", b"\x00\x00\x00"]  # blk_header_en, then frm_header_en
     assert dev.regs[0x5C3C] == 0 and dev.regs[0x5C39] == 0x001400
-    dev = Recorder({0x5C39: 0x001400})
+    dev = Recorder({0x5C39: 0x001400, 0x5883: 0x04})
     opt.OPT8241(dev, frame_ids=False).configure()
     assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x04\x00") in dev.log  # cleared again
 
@@ -368,8 +429,10 @@ def test_split_frame_id_restores_a_defined_first_byte(mode, first_word):
     same[0, 0] = False  # only pixel (0, 0) differs
     assert torch.equal(out.depth[same], ref.depth[same])
     assert torch.equal(out.amplitude[same], ref.amplitude[same])
-    if mode == "quad":  # tap c1 of pixel (0, 0): the high byte as sent, low byte 0
-        assert float(out.taps[0, 0, 0]) == 0x0A00 and torch.equal(out.taps[1:], ref.taps[1:])
+    if mode == "quad":  # sample d0 = tap c1 of pixel (0, 0): high byte as sent, low byte 0
+        hi = sent_hi << 8
+        assert float(out.taps[0, 0, 0]) == (hi & 0xFFF) - (hi & 0x800) * 2
+        assert torch.equal(out.taps[1:], ref.taps[1:])
     with pytest.raises(FrameError, match="empty transfer"):
         opt.split_frame_id(b"")
 
@@ -380,9 +443,10 @@ def test_driver_takes_the_device_number_from_byte_zero():
     cam.start()
     assert bench.camera_usb.field("debug_frame_number_en") == 1
     pat = np.ones((8, 8), dtype=np.uint8)
-    for _ in range(3):
-        bench.camera_usb.trigger(pat)
-    frames = [cam.grab(0.1) for _ in range(3)]
+    for t in range(3):
+        bench.camera_usb.trigger(pat, float(t))
+    frames = [cam.grab(0.5) for _ in range(3)]
     assert [f.frame_id for f in frames] == [254, 255, 0]  # 8 bits: wraps
     assert [f.raw[0] for f in frames] == [254, 255, 0]  # Frame.raw: the bytes as received
-    assert all(float(f.taps[0, 0, 0]) == 0 for f in frames)  # guard row, low byte restored
+    # guard row: sample -2048 = 0xF800, its low byte 0 restored
+    assert all(float(f.taps[0, 0, 0]) == -opt.QUAD_OFFSET for f in frames)

@@ -9,6 +9,7 @@ import torch
 
 from torchtof.experiment import ExperimentConfig, simulate_frames
 from torchtof.hardware import dlpc350 as dlp
+from torchtof.hardware import opt8241 as opt
 from torchtof.hardware.frames import FrameSource
 from torchtof.hardware.simulated import Faults, SimulatedBench
 
@@ -66,9 +67,12 @@ def test_camera_frame_is_the_sensor_model_of_the_displayed_pattern():
     lcr.show_sequence(pat[None], exposure_us=1000)
     frame = cam.grab(0.1)
     ref = simulate_frames(bench.scene, torch.from_numpy(pat.astype(np.float32))[None], CFG,
-                          torch.Generator().manual_seed(0), None, bench.stray)
-    # row 0 is the dark guard row above the sensor ROI
-    assert torch.equal(frame.taps[:, 1:], ref.taps[0]) and not frame.taps[:, 0].any()
+                          bench.noise_generator(pat), None, bench.stray)
+    # row 0 is the dark guard row above the sensor ROI; quad samples are signed: the
+    # simulator sends a model tap c as c - QUAD_OFFSET
+    off = opt.QUAD_OFFSET
+    assert torch.equal(frame.taps[:, 1:], ref.taps[0] - off)
+    assert (frame.taps[:, 0] == -off).all()
     assert torch.equal(frame.depth[1:], ref.depth[0, 0])
 
 

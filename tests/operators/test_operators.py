@@ -8,6 +8,7 @@ from torchtof.operators import (
     PatternOperator,
     combine_split,
     hadamard_patterns,
+    split_patterns,
     sylvester,
 )
 
@@ -245,3 +246,84 @@ def test_hadamard_finite_when_the_result_fits():
     ys = DMDSplit(a)(torch.full((1, 1, 32, 32), 1e34))
     assert torch.isfinite(ys).all()
     torch.testing.assert_close(ys[0, 0, :2], torch.tensor([1.024e37, 0.0]), rtol=1e-6, atol=1e31)
+
+
+def test_split_patterns_stream_in_chunks():
+    # rows start:stop of the 2M DMD patterns equal the slice of the full stack, for ranges
+    # that start or stop inside a (φ⁺, φ⁻) pair and across the internal chunk boundary
+    from torchtof.operators import split as split_mod
+
+    s = DMDSplit(Hadamard(8, sr=0.75))  # 48 ±1 rows, 96 DMD rows
+    full = split_patterns(s.hadamard.patterns())
+    old = split_mod.PATTERN_CHUNK
+    split_mod.PATTERN_CHUNK = 5  # force several chunks
+    try:
+        assert torch.equal(s.patterns(), full)
+        for a, b in [(0, 1), (1, 2), (3, 50), (17, 96), (95, 96), (40, 40)]:
+            assert torch.equal(s.patterns(start=a, stop=b), full[a:b])
+        got = torch.cat([p for _, p in s.iter_patterns(7)])
+        assert torch.equal(got, full)
+    finally:
+        split_mod.PATTERN_CHUNK = old
+    assert torch.equal(s.hadamard.patterns(start=5, stop=9), s.hadamard.patterns()[5:9])
+    with pytest.raises(ValueError, match=r"DMDSplit.patterns: expected 0 <= start <= stop <= 96"):
+        s.patterns(start=10, stop=97)
+    with pytest.raises(TypeError, match="Hadamard.patterns: expected start to be an int"):
+        s.hadamard.patterns(start=1.0)
+    with pytest.raises(ValueError, match="iter_patterns: expected chunk"):
+        next(s.iter_patterns(0))
+
+
+def test_patterns_refuse_what_exceeds_the_memory_limit():
+    import torchtof
+
+    torchtof.set_memory_limit("1M")
+    try:
+        # 2·1024 DMD patterns of 32x32 float32 = 8 MiB, plus one chunk of 2·256 rows (2 MiB)
+        # = 10 MiB > 1 MiB: refused with the estimate
+        with pytest.raises(ValueError, match=r"DMDSplit.patterns: 2048 DMD patterns of 32x32 "
+                                             r"needs about 10 MiB, more than the memory limit "
+                                             r"of 1 MiB"):
+            DMDSplit(Hadamard(32)).patterns()
+        with pytest.raises(ValueError, match="Hadamard.patterns: 1024 patterns"):
+            Hadamard(32).patterns()
+        # a chunk that fits still streams
+        assert next(DMDSplit(Hadamard(32)).iter_patterns(64))[1].shape == (64, 32, 32)
+        with pytest.raises(ValueError, match="PatternOperator: an \\(1024, 32, 32\\)"):
+            PatternOperator(torch.ones(1024, 32, 32))
+    finally:
+        torchtof.set_memory_limit(None)
+    assert torchtof.memory_limit() > 0
+
+
+def test_memory_limit_settings(monkeypatch):
+    import torchtof
+    from torchtof._memory import memory_limit
+
+    monkeypatch.setenv("TORCHTOF_MEMORY_LIMIT", "2G")
+    assert memory_limit() == 2 << 30
+    monkeypatch.setenv("TORCHTOF_MEMORY_LIMIT", "none")
+    assert memory_limit() == 0
+    monkeypatch.setenv("TORCHTOF_MEMORY_LIMIT", "lots")
+    with pytest.raises(ValueError, match="TORCHTOF_MEMORY_LIMIT: expected bytes"):
+        memory_limit()
+    with pytest.raises(ValueError, match="set_memory_limit: expected limit >= 0"):
+        torchtof.set_memory_limit(-1)
+    with pytest.raises(TypeError, match="set_memory_limit: expected limit to be an int"):
+        torchtof.set_memory_limit(1.5)
+
+
+def test_dense_views_refuse_what_cannot_fit():
+    import torchtof
+
+    # Hadamard(256) as a dense matrix: 65536² float64 = 32 GiB (plus the m×m unit vectors)
+    torchtof.set_memory_limit("16G")
+    try:
+        with pytest.raises(ValueError, match=r"Hadamard.matrix: the dense 65536x65536 matrix "
+                                             r"needs about"):
+            Hadamard(256).matrix()
+        with pytest.raises(ValueError, match=r"DMDSplit.pinv: the dense 32x16 pseudo-inverse"):
+            torchtof.set_memory_limit(1000)
+            DMDSplit(Hadamard(4)).pinv(torch.zeros(1, 1, 32))
+    finally:
+        torchtof.set_memory_limit(None)

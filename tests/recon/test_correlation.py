@@ -133,3 +133,19 @@ def test_bad_inputs(pair):
         mod(torch.zeros(3))
     with pytest.raises(TypeError, match="LinearOperator"):
         pseudo_inverse(torch.zeros(1, 1, 3), "A")
+
+
+def test_cgi_on_signed_patterns_warns_with_the_fix():
+    import warnings
+
+    from torchtof.operators import DMDSplit, Hadamard
+    from torchtof.recon import CGI
+
+    H = Hadamard(8, sr=0.5)
+    x = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+    with pytest.warns(UserWarning, match="DMDSplit"):
+        CGI(H)(H(x))
+    S = DMDSplit(H)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        CGI(S)(S(x))  # light patterns: no warning

@@ -98,6 +98,7 @@ def test_train_unrolled_errors(monkeypatch):
         train_unrolled(n=16, steps=1, distributed=True)
 
 
+@pytest.mark.slow  # two spawned processes: 25 s on 2 cores
 def test_ddp_two_processes_train_the_single_process_model(tmp_path):
     args = "--n 16 --sr 0.25 --n-iter 3 --steps 5 --batch 8 --seed 3 --log-every 0".split()
     out = tmp_path / "ddp.pt"

@@ -219,7 +219,8 @@ def test_gradcheck_float64():
 
 
 def test_a_few_training_steps_reduce_the_loss():
-    res = train_unrolled(n=16, sr=0.25, n_layers=3, steps=40, batch_size=8, noise_level=(0.01, 0.01))
+    res = train_unrolled(n=16, sr=0.25, n_layers=3, steps=40, batch_size=8,
+                         noise_level=(0.01, 0.01))
     A = res.model.A
     from torchtof.recon.synthetic import synthetic_scenes
 
@@ -355,3 +356,28 @@ def test_within_half_a_db_of_converged_tval3(fname):
         p_unrolled = psnr(UnrolledTVAL3(A, n_layers=K)(y))
         p_tval3 = max(psnr(TVAL3(A)(y)), psnr(TVAL3(A, mu=2**8)(y)))
     assert p_unrolled >= p_tval3 - 0.5, (p_unrolled, p_tval3)
+
+
+def test_complex_y_is_refused_by_name():
+    A = Hadamard(8, sr=0.5)
+    net = UnrolledTVAL3(A, n_layers=2, pretrained=False)
+    y = A(torch.rand(1, 1, 8, 8)).to(torch.complex64)
+    with pytest.raises(TypeError, match="unrolled_tval3: expected y to be a real floating"):
+        net(y)
+
+
+def test_solve_reports_the_fixed_layers():
+    A = Hadamard(8, sr=0.5)
+    net = UnrolledTVAL3(A, n_layers=3, pretrained=False)
+    y = A(torch.rand(2, 1, 8, 8, dtype=torch.float64))
+    res = net.solve(y)
+    assert torch.equal(res.x, net(y)) and res.n_iter.tolist() == [[3], [3]]
+    assert res.stop_reason == "fixed" and bool(res.converged.all())
+    torch.testing.assert_close(res.residual, (A(res.x) - y).norm(dim=-1) / y.norm(dim=-1))
+
+
+def test_n_iter_still_works_with_a_warning():
+    A = Hadamard(8, sr=0.5)
+    with pytest.warns(DeprecationWarning, match="n_iter= is renamed n_layers="):
+        net = UnrolledTVAL3(A, n_iter=4, pretrained=False)
+    assert net.n_layers == 4 and net.log_mu.shape == (4,)

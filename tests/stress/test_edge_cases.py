@@ -1,4 +1,4 @@
-"""Direct checks of the stress issue's edge cases (one function per edge-case family).
+"""Direct checks of the numerical stress edge cases (one function per edge-case family).
 
 The matrix (``test_matrix.py``) runs every module × dtype × edge case; these tests pin the
 expected *values* where the physics or the math gives them.
@@ -129,7 +129,7 @@ def test_half_precision_dip_raises_clear_type_error(dtype):
 
     A = Hadamard(8, sr=0.5)
     with pytest.raises(TypeError, match=rf"^(fit_dip|dip): .*{dtype}"):
-        dip(A, A(scene(8)).to(dtype), n_iter=2)
+        dip(A(scene(8)).to(dtype), A, max_iter=2)
 
 
 @pytest.mark.filterwarnings("ignore:ComplexHalf support is experimental")

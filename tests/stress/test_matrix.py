@@ -104,7 +104,7 @@ def test_every_operator_and_reconstructor_is_in_the_matrix():
     assert ops | recons <= labels, sorted((ops | recons) - labels)
 
 
-def test_every_edge_case_family_of_the_issue_is_covered():
+def test_every_edge_case_family_is_covered():
     edges = " ".join(c.edge for c in CASES).lower()
     for needle in ("zero buckets", "constant buckets", "1e-30", "1e30", "α = 0.001",
                    "α = 0.5", "α = 1", "no photon", "saturated", "wrap", "n=4", "n=256",

@@ -1,4 +1,4 @@
-"""Property tests (hypothesis) of the stress issue.
+"""Property tests (hypothesis) of the numerical stress suite.
 
 ================================  ======================================  ===================
 property                          inputs drawn                            tolerance
@@ -134,7 +134,7 @@ def _make(name, A):
         "PseudoInverse": lambda: PseudoInverse(A), "TVAL3": lambda: TVAL3(A),
         "BasisPursuit": lambda: BasisPursuit(A, **BP_FAST),
         "UnrolledTVAL3": lambda: UnrolledTVAL3(A, pretrained=False),
-        "DIP": lambda: DIP(A, **{**DIP_FAST, "n_iter": 5}),
+        "DIP": lambda: DIP(A, **{**DIP_FAST, "max_iter": 5}),
     }[name]()
 
 

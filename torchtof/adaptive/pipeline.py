@@ -184,7 +184,7 @@ def run_fixed(data, r: int = 0, method: str = "TVAL3", fps: float = DEFAULT_FPS,
     t0 = time.perf_counter()
     veil = detect_veil(_raw(data, r), reference or _reference(data), data.config.roi_px**2)
     A, y = data.measurements(sr, "depth", True)
-    sol = solve_at_noise(method, A, y[r : r + 1], None, sign=1.0)
+    sol = solve_at_noise(method, y[r : r + 1], A, None, sign=1.0)
     image = sol.x / veil.alpha  # Eq. 15 compensation (always run in the fixed pipeline)
     dt = time.perf_counter() - t0
     m = A.m
@@ -341,7 +341,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     A = data.operator(m / cfg.n**2)
     sign = 1.0 if gate else -1.0
     n_iter = choice.n_iter if choice is not None else None
-    sol = solve_at_noise(method, A, sb[kind][..., :m], sigma, n_iter=n_iter, sign=sign, tau=tau,
+    sol = solve_at_noise(method, sb[kind][..., :m], A, sigma, max_iter=n_iter, sign=sign, tau=tau,
                          model_sigma=model_sigma)
     image = sol.x / veil.alpha if veil.present else sol.x
     dt = time.perf_counter() - t0

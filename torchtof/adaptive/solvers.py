@@ -26,13 +26,15 @@ further only fits the noise. ``σ`` comes from repeated frames
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import torch
 
 from ..constants import DISCREPANCY_TAU
+from ..operators.base import LinearOperator
 from ..recon import registry
-from ..recon.base import relative_residual
+from ..recon.base import relative_residual, renamed_option
 
 __all__ = ["SolveResult", "solve_at_noise", "SOLVERS"]
 
@@ -62,18 +64,20 @@ def _per_sample(v, shape) -> torch.Tensor:
     return torch.as_tensor(v, dtype=torch.float64).expand(shape)
 
 
-def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: int | None = None,
-                   sign: float = 1.0, seed: int = 0, tau: float = TAU,
-                   model_sigma: bool = True) -> SolveResult:
+def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
+                   max_iter: int | None = None, sign: float = 1.0, seed: int = 0,
+                   tau: float = TAU, model_sigma: bool = True,
+                   n_iter: int | None = None) -> SolveResult:
     """Reconstruct ``y`` with ``method`` stopped by the discrepancy principle at ``noise_sigma``.
 
     Args:
         method: one of :data:`SOLVERS`.
-        A: the orthonormal operator of ``y``.
         y: buckets ``(B, C, M)``.
+        A: the orthonormal operator of ``y``.
         noise_sigma: noise std of ``y`` (float or ``(B, C)``); ``None``: no discrepancy stop
             (each solver's own defaults).
-        n_iter: iteration cap (``None``: the solver's default).
+        max_iter: iteration cap (``None``: the solver's default; the unrolled TVAL3: its
+            number of layers).
         sign: ``-1`` for negative-polarity buckets (the DIP fits ``−y``, see
             :mod:`torchtof.methods`).
         seed: DIP initialisation seed.
@@ -83,6 +87,10 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
         model_sigma: TVAL3 only: also give ``noise_sigma`` to its ``mu="auto"`` model choice
             (``False``: TVAL3 picks the model from its own tail estimate, as without a
             noise level; only the discrepancy stop uses ``noise_sigma``).
+        n_iter: old name of ``max_iter`` (``DeprecationWarning``; removed in the next release).
+
+    The old argument order ``(method, A, y)`` still works for one release (with a
+    ``DeprecationWarning``).
 
     Returns:
         :class:`SolveResult`.
@@ -94,6 +102,11 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
     from ..recon.dip import fit_dip
 
     fn = "solve_at_noise"
+    if isinstance(y, LinearOperator) and isinstance(A, torch.Tensor):
+        warnings.warn(f"{fn}: the argument order is now (method, y, A); (method, A, y) will "
+                      "stop working in the next release", DeprecationWarning, stacklevel=2)
+        y, A = A, y
+    n_iter = renamed_option(fn, "n_iter", "max_iter", n_iter, max_iter, None)
     if method not in SOLVERS:
         raise ValueError(f"{fn}: expected method in {SOLVERS}, got {method!r}")
     if not float(tau) > 0.0:
@@ -104,6 +117,8 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
     b, c, m = y.shape
     conv = None  # TVAL3, BP: their own flag; else: not stopped by the iteration cap
     sig = None if noise_sigma is None else _per_sample(noise_sigma, (b, c)).to(y.dtype)
+    if y.device.type == "cuda":  # time the work, not its launch
+        torch.cuda.synchronize(y.device)
     t0 = time.perf_counter()
     if method == "PINV":
         with torch.no_grad():
@@ -160,6 +175,8 @@ def solve_at_noise(method: str, A, y: torch.Tensor, noise_sigma=None, n_iter: in
             iters.append(ir)
             reasons.append(rr)
         x = torch.cat(xs)
+    if x.device.type == "cuda":
+        torch.cuda.synchronize(x.device)
     dt = time.perf_counter() - t0
     reasons = tuple(tuple(str(r) for r in row) for row in reasons)
     with torch.no_grad():

@@ -26,6 +26,7 @@ from ..recon.bp import BasisPursuit
 from ..recon.correlation import CGI, DGI, TGI
 from ..recon.depth import DepthResolved
 from ..recon.dip import default_unet, dip_input, fit_dip
+from ..recon.learned import Learned
 from ..recon.pinv import PseudoInverse
 from ..recon.synthetic import synthetic_scenes
 from ..recon.tval3 import TVAL3
@@ -218,6 +219,12 @@ def _build_unrolled(n, sr, batch, seed, n_iter):
             f"shipped: {available_weights()}"
         )
     return net, (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
+
+
+def _build_learned(n, sr, batch, seed, n_iter):
+    """:class:`~torchtof.recon.learned.Learned` with its shipped weights (one file, any n)."""
+    A = Hadamard(n, sr=sr)
+    return Learned(A).eval(), (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
 
 
 def _build_depth_resolved(n, sr, batch, seed, n_iter):
@@ -422,6 +429,11 @@ MODELS: dict[str, ModelSpec] = {
         "DIP U-Net fitted by fit_dip for n_iter steps (batch statistics folded, eval mode); "
         "input: z-scored A^+ y (dip_input)",
         n_iter=300,
+    ),
+    "learned": ModelSpec(
+        _build_learned, ("y",), ("x",), {"y": _MEAS, "x": _IMG},
+        "learned proximal-gradient network, shipped weights (one file for every n, SR, order)",
+        exporter="torchscript",
     ),
 }
 

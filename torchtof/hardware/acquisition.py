@@ -1,50 +1,37 @@
 """Acquisition: show each DMD pattern, grab its ToF frame, form the buckets, record safely.
 
-For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2`` (DESIGN
-§2, :class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns
-are loaded in sequences of at most 24 (one 24-bit video frame of bit planes); the DMD paces
-the sequence and its TRIG_OUT1 triggers the camera, one frame per pattern.
+For each ±1 Hadamard row the DMD shows the pair ``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2``
+(:class:`~torchtof.operators.DMDSplit`, acquisition order ``φ⁺₁, φ⁻₁, φ⁺₂, …``). Patterns are
+loaded in sequences of at most 24 (the bit planes of one 24-bit video frame); the projector
+paces them (VSYNC trigger by default) and its TRIG_OUT1 triggers the camera, one frame per
+pattern. The camera's frame time is programmed to fit one pattern period first.
 
-**Frame ids and checks** (``frame_ids``). The OPT8241's frames carry no header; two modes:
+**A sequence is recorded only once all its checks pass** (:class:`_Sequences`): one frame
+per pattern; byte-identical duplicates dropped; with ``frame_ids="device"`` (the OPT9221's
+``debug_frame_number_en``, :mod:`.opt8241`) consecutive device frame numbers; with
+``check_timing`` each frame's host arrival time on the pattern schedule (±40 % of the
+pattern spacing: a spurious frame arrives too early, a lost one leaves a gap — the check
+that sees a spurious *and* a lost frame in one sequence, whose device ids stay
+consecutive); and no frame after the last one. Any failed check, timeout, NACK or corrupt
+frame discards the whole sequence, stops the projector, flushes the camera and shows the
+sequence again (``retries`` times, then an error naming the pattern or command): no frame
+is ever recorded against the wrong pattern. A killed run loses at most the sequence in
+flight (≤ 24 frames).
 
-* ``"device"`` (default): the acquisition switches on the OPT9221's
-  ``debug_frame_number_en`` (:mod:`.opt8241`: byte 0 of every frame is the device's 8-bit
-  frame number; that sample of pixel (0, 0) is not a measurement, so the bucket ROI leaves
-  row 0 out). Each frame is checked as it arrives — id = previous + 1 (mod 256): good, record
-  it at once; same id and same bytes: a duplicated transfer, dropped; same id with other
-  bytes, or a gap (a lost frame): re-acquire from that frame's pattern pair — and recorded
-  before the next grab, so a killed run loses at most the frame in flight. The counter's
-  start value is unknown, so after the camera starts and after every retry the first frame
-  is an *anchor*: the first pattern pair is acquired as a sequence of its own, recorded as it
-  arrives but marked provisional (``frames_ok`` 2) until its count check passes (a pair is
-  re-acquired as a whole on resume anyway). As a second check every sequence ends with the
-  count check: no frame may follow the last pattern within 50 ms (a spurious frame the camera
-  makes itself gets the next number and is seen only here; the whole sequence is then
-  re-acquired — if the run is killed in between, that sequence's frames after the spurious
-  one stay recorded shifted: the one case device ids cannot make kill-safe).
-* ``"count"`` (cameras or firmware without the counter): the host numbers frames as TI's SDK
-  does, so a lost frame is seen only by the *count*: the frames of a sequence (≤ 24) are held
-  in memory until all of them (one per pattern) have arrived and no extra frame follows within
-  50 ms, and only then recorded — a killed run loses up to the sequence in flight (≤ 24
-  frames). A frame byte-identical to its predecessor is dropped. Blind to a lost *and* an
-  extra frame in the same sequence, and to a repeated frame that is not byte-identical.
-
-Any fault (missing, extra or out-of-order frame, timeout, NACK, corrupt frame) re-acquires
-(``retries`` times per sequence, then a clear error). Buckets per frame over the ROI ``roi``
-(paper Eq. 10, §3.1, DESIGN §2): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
+Buckets per frame over the ROI ``roi`` (paper Eq. 10, §3.1; per-tap buckets as
+:func:`torchtof.bucket.tap_buckets`): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
 ``Σ a`` and the four tap sums (NaN unless the camera sends raw quads).
 
-**Recording** (zarr v3, :func:`acquire`): every frame (its ROI) and its buckets are written
-as they are accepted (arrays ``frames_depth``, ``frames_amplitude``, ``frames_phase``,
-``frames_taps``, ``frames_id`` (device number 0-255, or host count), ``frames_timestamp``,
-``buckets_depth``, ``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis
-last for buckets ``(1, C, 2M)``, first for frames, chunked per pattern sequence of ≤ 24
-frames) and then marked in ``frames_ok`` (1 recorded, 2 provisional, 0 not yet). zarr's
-local store replaces each chunk file atomically, so a killed run keeps every frame recorded
-before the kill;
-``resume=True`` continues at the first pattern pair not completely recorded. Needs zarr ≥ 3
-(Python ≥ 3.11): :func:`require_zarr3`. Patterns, order, timing, ROI, frame-id mode, camera
-settings and package versions are store attributes.
+**Recording** (zarr ≥ 3.1.6, :func:`acquire`): a checked sequence is written with one write
+per array (``frames_depth``, ``frames_amplitude``, ``frames_phase``, ``frames_taps``,
+``frames_id`` (device number 0-255, or host count), ``frames_timestamp``, ``buckets_depth``,
+``buckets_gated``, ``buckets_intensity``, ``buckets_taps`` — frame axis last for buckets
+``(1, C, 2M)``, first for frames, chunked per sequence) and then marked in ``frames_ok``.
+zarr 3.1.6's local store replaces each chunk file atomically and every chunk carries a
+CRC-32C (zarr's ``crc32c`` codec), checked on every read. ``resume=True`` verifies the whole
+store (:func:`_verify`), refuses one recorded with any other data-changing setting (naming
+it), and continues at the first sequence not recorded. Patterns, order, timing, ROI,
+frame-id mode, camera settings and package versions are store attributes.
 """
 
 from __future__ import annotations
@@ -65,17 +52,17 @@ from .errors import (
     FrameIdError,
     FrameSequenceError,
     FrameTimeoutError,
+    FrameTimingError,
     HardwareError,
     TransientError,
 )
 
-__all__ = ["AcquisitionResult", "acquire", "load_buckets", "load_run", "require_zarr3",
-           "MAX_SEQUENCE"]
+__all__ = ["AcquisitionResult", "StoreDamagedError", "acquire", "load_buckets", "load_run",
+           "require_zarr3", "MAX_SEQUENCE"]
 
 MAX_SEQUENCE = 24  # 1-bit patterns per 24-bit video frame (DLPC350 video-port bit planes)
 _KINDS = ("depth", "gated", "intensity", "taps")
 _FRAME_IDS = ("device", "count")
-_ANCHOR = 2  # frames acquired (and provisional) after a start or retry: one pattern pair
 _FORMAT = "torchtof.acquisition/1"
 
 
@@ -127,7 +114,7 @@ def _frame_buckets(frame, gate_m: float) -> dict[str, torch.Tensor]:
     if frame.taps is None:  # a frame without raw taps: NaN tap buckets, never made-up numbers
         taps = torch.full((1, 4, 1), float("nan"))
     else:
-        taps = tap_buckets(frame.taps[None, None])  # DESIGN §2 per-tap buckets
+        taps = tap_buckets(frame.taps[None, None])  # per-tap buckets
     return {
         "depth": depth_bucket(d),  # Eq. 10
         "gated": depth_bucket(d, gate_m=gate_m),  # §3.1 "low-pass filter"
@@ -171,62 +158,161 @@ def _recorded(ok: np.ndarray) -> int:
 
 
 def require_zarr3():
-    """The ``zarr`` module, version 3 or later (the recorder uses the v3 API).
+    """The ``zarr`` module, version 3.1.6 or later (the recorder uses the v3 API, and 3.1.6's
+    local store writes every chunk atomically: a temporary file renamed over the old one, so
+    a killed run never leaves a half-written chunk).
 
     Raises:
-        ImportError: zarr is missing or older than 3, naming the requirement (zarr 3 needs
+        ImportError: zarr is missing or older than 3.1.6, naming the requirement (zarr 3 needs
             Python ≥ 3.11).
     """
     import sys
 
-    hint = ("torchtof acquire/reconstruct record runs with zarr>=3, which needs Python>=3.11 "
-            f"(this is Python {sys.version_info.major}.{sys.version_info.minor}): "
-            "pip install 'torchtof[hardware]'")
+    hint = ("torchtof acquire/reconstruct record runs with zarr>=3.1.6, which needs "
+            f"Python>=3.11 (this is Python {sys.version_info.major}.{sys.version_info.minor}): "
+            "pip install 'torchtof[hardware]' (or pip install 'zarr>=3.1.6')")
     try:
         import zarr
     except ImportError as exc:
         raise ImportError(f"zarr is not installed; {hint}") from exc
     version = str(getattr(zarr, "__version__", "0"))
-    try:
-        major = int(version.split(".")[0])
-    except ValueError:
-        major = 0
-    if major < 3:
+    parts = []
+    for p in version.split(".")[:3]:
+        digits = "".join(ch for ch in p if ch.isdigit()) or "0"
+        parts.append(int(digits))
+    if tuple(parts + [0] * (3 - len(parts))) < (3, 1, 6):
         raise ImportError(f"zarr {version} is installed; {hint}")
     return zarr
 
 
+class StoreDamagedError(ValueError):
+    """A recorded store that fails its integrity check (a chunk whose CRC-32C does not
+    match, a chunk missing under a frame marked recorded, unreadable metadata); names the
+    store and what is wrong. Re-acquire into a new store (or delete the damaged one)."""
+
+    def __init__(self, path, detail: str) -> None:
+        self.path = str(path)
+        super().__init__(f"damaged store {path}: {detail}. Re-acquire into a new store (or "
+                         "delete this one and run again)")
+
+
+#: store attributes that do not change the recorded data (everything else must match on
+#: resume, including the simulation's configuration and seed from ``metadata``)
+_VOLATILE = {"status", "m_acquired", "stopped_early", "retries", "duplicates", "versions",
+             "created", "timing_checks"}
+
+
+def _first_difference(old, new, where: str = "") -> str | None:
+    """The dotted name of the first field in which two JSON-like values differ."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in [*new, *(k for k in old if k not in new)]:  # this run's order
+            if not where and key in _VOLATILE:
+                continue
+            d = _first_difference(old.get(key), new.get(key), f"{where}.{key}" if where else key)
+            if d is not None:
+                return d
+        return None
+    if isinstance(old, (list, tuple)) and isinstance(new, (list, tuple)):
+        old, new = list(old), list(new)
+    if old != old and new != new:  # NaN == NaN for this purpose
+        return None
+    return None if old == new else where
+
+
+def _codecs():
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    # every chunk carries a CRC-32C of its compressed bytes, checked on every read
+    return [ZstdCodec(level=3), Crc32cCodec()]
+
+
+def _verify(path, group, n_frames: int) -> np.ndarray:
+    """Read every array of the store (each chunk's CRC-32C checked) and check that every
+    frame marked recorded has its data; returns ``frames_ok``.
+
+    Raises:
+        StoreDamagedError: naming the array and what is wrong.
+    """
+    arrays = {}
+    for name in _ARRAYS:
+        try:
+            arrays[name] = group[name][:]
+        except KeyError:
+            raise StoreDamagedError(path, f"array {name!r} is missing") from None
+        except Exception as exc:  # noqa: BLE001 - checksum, zstd, JSON: all mean damaged
+            raise StoreDamagedError(path, f"array {name!r} does not decode ({exc})") from exc
+    ok = arrays["frames_ok"]
+    if ok.shape != (n_frames,) or not np.isin(ok, (0, 1)).all():
+        raise StoreDamagedError(path, "frames_ok holds values other than 0 and 1")
+    rec = ok == 1
+    checks = {"frames_id": arrays["frames_id"][rec] >= 0,
+              "frames_timestamp": np.isfinite(arrays["frames_timestamp"][rec])}
+    for k in ("depth", "gated", "intensity"):
+        checks[f"buckets_{k}"] = np.isfinite(arrays[f"buckets_{k}"][0, 0, rec])
+    for k in ("frames_depth", "frames_amplitude", "frames_phase"):
+        checks[k] = ~np.isnan(arrays[k][rec]).all(axis=(1, 2))
+    for name, good in checks.items():
+        if not good.all():
+            bad = int(np.flatnonzero(rec)[np.flatnonzero(~good)[0]])
+            raise StoreDamagedError(path, f"{name} has no data for frame {bad}, which "
+                                    "frames_ok marks recorded (a chunk was deleted?)")
+    return ok
+
+
+_ARRAYS = ("patterns", "frames_ok", "frames_id", "frames_timestamp", "frames_depth",
+           "frames_amplitude", "frames_phase", "frames_taps", "buckets_depth", "buckets_gated",
+           "buckets_intensity", "buckets_taps")
+
+
+def _open_group(path, mode: str):
+    zarr = require_zarr3()
+    try:
+        return zarr.open_group(str(path), mode=mode)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a garbage zarr.json
+        raise StoreDamagedError(path, f"its metadata does not load ({exc})") from exc
+
+
 def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, int], chunk: int,
                 resume: bool):
-    zarr = require_zarr3()
-
     path = Path(path)
     f = patterns.shape[0]
     h, w = shape_hw
     if (path / "zarr.json").exists():
-        group = zarr.open_group(str(path), mode="a")
+        group = _open_group(path, "a")
         if group.attrs.get("format") != _FORMAT:
             raise FileExistsError(f"acquire: {path} exists and is not a torchtof acquisition")
         if not resume:
             raise FileExistsError(f"acquire: {path} exists; pass resume=True (--resume) to "
                                   "continue it or choose a new path")
-        old = group.attrs
-        for key in ("n", "m", "order", "frames", "roi"):
+        old = dict(group.attrs)
+        for key in ("n", "m", "order", "frames", "roi"):  # the commonest first, by name
             if old.get(key) != attrs[key]:
                 raise ValueError(f"acquire: cannot resume {path}: it was recorded with "
                                  f"{key}={old.get(key)!r}, this run has {key}={attrs[key]!r}")
+        key = _first_difference(old, _json_safe(attrs))
+        if key is not None:
+            o, n = _lookup(old, key), _lookup(_json_safe(attrs), key)
+            raise ValueError(f"acquire: cannot resume {path}: it was recorded with {key}={o!r}, "
+                             f"this run has {key}={n!r} (the data would mix two set-ups)")
+        ok = _verify(path, group, f)
         if not np.array_equal(group["patterns"][:], patterns):
             raise ValueError(f"acquire: cannot resume {path}: its patterns differ")
         if tuple(group["frames_depth"].shape[1:]) != (h, w):
             old_hw = tuple(group["frames_depth"].shape[1:])
             raise ValueError(f"acquire: cannot resume {path}: frames of {old_hw} px, this "
                              f"ROI has {(h, w)}")
-        return group, True
+        return group, ok
+    zarr = require_zarr3()
     group = zarr.open_group(str(path), mode="w")
-    group.create_array("patterns", data=patterns, chunks=(min(f, 256), *patterns.shape[1:]))
+    codecs = _codecs()
+    group.create_array("patterns", data=patterns, chunks=(min(f, 256), *patterns.shape[1:]),
+                       compressors=codecs)
 
     def arr(name, shape, dtype, chunks, fill):
-        group.create_array(name, shape=shape, dtype=dtype, chunks=chunks, fill_value=fill)
+        group.create_array(name, shape=shape, dtype=dtype, chunks=chunks, fill_value=fill,
+                           compressors=codecs)
 
     nan = float("nan")
     arr("frames_ok", (f,), "uint8", (chunk,), 0)
@@ -238,8 +324,21 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
     for k in ("depth", "gated", "intensity"):
         arr(f"buckets_{k}", (1, 1, f), "float32", (1, 1, chunk), nan)
     arr("buckets_taps", (1, 4, f), "float32", (1, 4, chunk), nan)
-    group.attrs.update({**attrs, "status": "running", "m_acquired": 0})
-    return group, False
+    group.attrs.update({**_json_safe(attrs), "status": "running", "m_acquired": 0})
+    return group, np.zeros(f, dtype=np.uint8)
+
+
+def _lookup(d, dotted: str):
+    for part in dotted.split("."):
+        d = d.get(part) if isinstance(d, dict) else None
+    return d
+
+
+def _json_safe(value):
+    """``value`` as it reads back from a zarr attribute (tuples become lists)."""
+    import json
+
+    return json.loads(json.dumps(value))
 
 
 def acquire(
@@ -264,6 +363,9 @@ def acquire(
     on_frame: Callable[[int], None] | None = None,
     frame_ids: str = "device",
     roi: tuple[int, int, int, int] | None = None,
+    trigger: str = "vsync",
+    video_hz: float = 60.0,
+    check_timing: bool = True,
 ) -> AcquisitionResult:
     """Acquire the DMD-split Hadamard buckets of a scene into a zarr store (module docstring).
 
@@ -274,33 +376,43 @@ def acquire(
         n: DMD pattern size ``n × n`` (a power of two).
         sr, m: sampling rate ``m / n²`` or the number of ±1 patterns ``m`` (``m`` wins).
         order: Hadamard order (:mod:`torchtof.operators.patterns`).
-        exposure_us, period_us: DMD exposure and period per pattern (µs).
+        exposure_us, period_us: DMD exposure and period per pattern (µs); the camera's frame
+            time is programmed to fit the period (``camera.configure(period_us=...)``).
         block: ±1 patterns (pairs) per block; ``stop`` is asked after each block but the last.
         stop: optional ``stop(y) -> bool`` called after each block with the signed buckets
             measured so far, ``{"depth", "gated", "intensity"}`` each ``y⁺ − y⁻`` of shape
             ``(1, 1, m_so_far)`` in pattern order (not divided by ``n``), and
             ``"<kind>_sum"`` the pair sums ``y⁺ + y⁻`` (noise level); ``True`` ends the
             acquisition, the store records ``m_acquired`` and ``stopped_early``.
-        resume: continue an interrupted store (same patterns and settings).
+        resume: continue an interrupted store (same patterns and settings; its chunks'
+            checksums are verified first).
         retries: re-acquisitions allowed per pattern sequence for transient faults.
         gate_m: depth gate of the gated buckets (paper §3.1: 3 m).
-        frame_timeout_s: frame timeout.
+        frame_timeout_s: timeout for the first frame of a sequence.
         progress: show a tqdm progress bar.
-        metadata: extra JSON-able store attributes (e.g. the simulated set-up).
-        on_frame: called with the frame index after each frame is recorded.
-        frame_ids: ``"device"`` (OPT9221 frame numbers, each frame checked and recorded as it
-            arrives) or ``"count"`` (host numbering, frames recorded per complete sequence;
-            weaker, module docstring).
+        metadata: extra JSON-able store attributes (e.g. the simulated set-up); part of the
+            configuration that ``resume`` compares.
+        on_frame: called with the frame index after each frame is accepted (before the
+            sequence is recorded).
+        frame_ids: ``"device"`` (OPT9221 frame numbers checked to be consecutive) or
+            ``"count"`` (host numbering; count and timing checks only).
         roi: ``(row, col, height, width)`` of the frame that forms the buckets and is
             recorded; default the whole frame below row 0 (pixel (0, 0) carries the device
             frame number and is refused in ``"device"`` mode).
+        trigger: ``"vsync"`` (each pattern starts at a VSYNC of the video input, exposures
+            within one video frame: TI's video-mode examples) or ``"internal"``.
+        video_hz: frame rate of the video input (``"vsync"``).
+        check_timing: check each frame's host timestamp against the pattern schedule (a
+            spurious or lost frame shifts the spacing): needed to see a spurious *and* a lost
+            frame in one sequence with ``frame_ids="count"``.
 
     Returns:
         :class:`AcquisitionResult`.
 
     Raises:
         FileExistsError: the store exists and ``resume`` is false.
-        ValueError: bad arguments or a store that does not match this run.
+        ValueError: bad arguments or a store that does not match this run (names the field).
+        StoreDamagedError: ``resume`` of a store that fails its integrity check.
         FrameTimeoutError, FrameError, FrameSequenceError, ProtocolError: a transient fault
             that persisted after ``retries`` attempts (names the pattern index / command).
         DeviceLostError: a device disappeared (resume later with ``resume=True``).
@@ -313,6 +425,10 @@ def acquire(
         raise TypeError(f"acquire: expected stop to be callable or None, got {type(stop).__name__}")
     if frame_ids not in _FRAME_IDS:
         raise ValueError(f"acquire: expected frame_ids in {_FRAME_IDS}, got {frame_ids!r}")
+    if trigger not in ("vsync", "internal"):
+        raise ValueError(f"acquire: expected trigger 'vsync' or 'internal', got {trigger!r}")
+    if not isinstance(frame_timeout_s, (int, float)) or not frame_timeout_s > 0:
+        raise ValueError(f"acquire: expected a positive frame_timeout_s, got {frame_timeout_s!r}")
     device = frame_ids == "device"
     if device and not hasattr(camera, "frame_ids"):
         raise TypeError(f"acquire: frame_ids='device' needs a camera with device frame "
@@ -327,23 +443,32 @@ def acquire(
     roi = _check_roi(roi, camera.height, camera.width, device)
     h, w = roi[2], roi[3]
     if hasattr(camera, "frame_ids"):
-        camera.frame_ids = device  # written to debug_frame_number_en by camera.start()
+        camera.frame_ids = device  # written to debug_frame_number_en by camera.configure()
     period_us = exposure_us if period_us is None else period_us
+    from .dlpc350 import pattern_times_us
+
+    times_us = pattern_times_us(seq, exposure_us, period_us, trigger, video_hz)  # validates
+    if hasattr(camera, "configure"):  # the frame must fit one pattern (camera docstring)
+        camera.configure(period_us=min(period_us, times_us[1] - times_us[0]) if seq > 1
+                         else period_us)
+        camera._configured = True
     attrs = {
         "format": _FORMAT, "n": n, "m": m_total, "sr": m_total / (n * n), "order": order,
         "frames": n_frames, "frame_order": "interleaved phi+, phi- (DMDSplit)", "block": block,
         "sequence": seq, "gate_m": gate_m, "roi": list(roi), "frame_ids": frame_ids,
-        "dmd": {"exposure_us": exposure_us, "period_us": period_us, "trigger": "internal",
-                "source": "video", "bitplanes_per_frame": MAX_SEQUENCE},
+        "dmd": {"exposure_us": exposure_us, "period_us": period_us, "trigger": trigger,
+                "video_hz": video_hz, "source": "video", "bitplanes_per_frame": MAX_SEQUENCE},
         "camera": {"freq_hz": camera.freq_hz, "integration_time_us": camera.integration_time_us,
+                   "frame_time_us": getattr(camera, "frame_time_us", None),
                    "width": camera.width, "height": camera.height,
-                   "rules": vars(camera.rules).copy(),
+                   "rules": vars(camera.rules).copy(), "quads": getattr(camera, "quads", None),
                    "mode": getattr(camera, "mode", None)},
+        "timing_checks": bool(check_timing),
         "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         **(metadata or {}),
     }
-    group, resumed = _open_store(store, pats, attrs, (h, w), seq, resume)
-    done = _recorded(group["frames_ok"][:])
+    group, ok = _open_store(store, pats, attrs, (h, w), seq, resume)
+    done = _recorded(ok)
     done -= done % 2  # restart at a pair boundary: y⁺ and y⁻ taken back to back
     buf = {k: torch.from_numpy(group[f"buckets_{k}"][:]) for k in _KINDS}
     if group.attrs.get("status") == "complete":
@@ -357,53 +482,60 @@ def acquire(
 
         bar = tqdm(total=n_frames, initial=done, desc="acquiring ToF frames", unit="frame")
 
-    arrays = {name: group[name] for name in (
-        "frames_depth", "frames_amplitude", "frames_phase", "frames_taps", "frames_id",
-        "frames_timestamp", "frames_ok", *(f"buckets_{k}" for k in _KINDS))}
+    arrays = {name: group[name] for name in _ARRAYS if name != "patterns"}
 
-    def commit(k: int, frame, ok: int = 1) -> None:
-        frame = _crop(frame, roi)
-        b = _frame_buckets(frame, gate_m)
-        arrays["frames_depth"][k] = frame.depth.numpy()
-        arrays["frames_amplitude"][k] = frame.amplitude.numpy()
-        arrays["frames_phase"][k] = frame.phase.numpy()
-        if frame.taps is not None:
-            arrays["frames_taps"][k] = frame.taps.numpy()
-        arrays["frames_id"][k] = frame.frame_id
-        arrays["frames_timestamp"][k] = frame.timestamp
+    def commit(s0: int, frames: list) -> None:
+        """Record a checked sequence with one write per array (chunk-aligned when the
+        sequence is), ``frames_ok`` last."""
+        cut = [_crop(fr, roi) for fr in frames]
+        b = {k: torch.cat([v[..., 0] for v in vs], 0) for k, vs in zip(
+            _KINDS, zip(*[[fb[k] for k in _KINDS] for fb in map(
+                lambda f: _frame_buckets(f, gate_m), cut)]))}
+        s1 = s0 + len(cut)
+        arrays["frames_depth"][s0:s1] = torch.stack([f.depth for f in cut]).numpy()
+        arrays["frames_amplitude"][s0:s1] = torch.stack([f.amplitude for f in cut]).numpy()
+        arrays["frames_phase"][s0:s1] = torch.stack([f.phase for f in cut]).numpy()
+        if all(f.taps is not None for f in cut):
+            arrays["frames_taps"][s0:s1] = torch.stack([f.taps for f in cut]).numpy()
+        arrays["frames_id"][s0:s1] = np.array([f.frame_id for f in cut], dtype=np.int64)
+        arrays["frames_timestamp"][s0:s1] = np.array([f.timestamp for f in cut])
         for kind in _KINDS:
-            arrays[f"buckets_{kind}"][..., k] = b[kind][..., 0].numpy()
-            buf[kind][..., k] = b[kind][..., 0]
-        arrays["frames_ok"][k] = ok  # last: the frame counts only once everything is written
-        if bar is not None and ok == 1:
-            bar.update(1)
-        if on_frame is not None:
-            on_frame(k)
+            vals = b[kind].reshape(len(cut), -1).T  # (C, K)
+            arrays[f"buckets_{kind}"][0, :, s0:s1] = vals.numpy()
+            buf[kind][0, :, s0:s1] = vals
+        arrays["frames_ok"][s0:s1] = 1  # last: the frames count only once all is written
+        if bar is not None:
+            bar.update(len(cut))
 
     stopped = False
     start_block = done // (2 * block)
-    dev = _DeviceIds(lightcrafter, camera, pats, seq, exposure_us, period_us, retries,
-                     frame_timeout_s, commit, stats, arrays, bar)
+    run = _Sequences(lightcrafter, camera, pats, exposure_us, period_us, trigger, video_hz,
+                     retries, frame_timeout_s, device, check_timing, stats, on_frame)
     try:
         camera.start()
         for b0 in range(start_block * 2 * block, n_frames, 2 * block):
             b1 = min(b0 + 2 * block, n_frames)
             s0 = max(b0, done)
             while s0 < b1:
-                if device:
-                    s0 = dev.sequence(s0, b1)
-                else:
-                    _acquire_sequence(lightcrafter, camera, pats, s0, min(s0 + seq, b1),
-                                      exposure_us, period_us, retries, frame_timeout_s, commit,
-                                      stats)
-                    s0 = min(s0 + seq, b1)
+                s1 = min(s0 + seq, b1)
+                commit(s0, run.sequence(s0, s1))
+                s0 = s1
             done = b1
             if stop is not None and b1 < n_frames and stop(_signed(buf, b1)):
                 stopped = True
                 break
         camera.stop()
-    except (HardwareError, KeyboardInterrupt):  # the recorded frames stay valid: resume
-        group.attrs.update({"status": "interrupted", **stats})
+    except (HardwareError, KeyboardInterrupt, OSError):  # recorded sequences stay valid: resume
+        for halt in (getattr(lightcrafter, "stop", None), getattr(camera, "stop", None)):
+            try:  # leave the devices idle (best effort: one of them may be gone)
+                if halt is not None:
+                    halt()
+            except Exception:  # noqa: BLE001 - never mask the error that stopped the run
+                pass
+        try:
+            group.attrs.update({"status": "interrupted", **stats})
+        except OSError:  # a full disk: the status cannot be written; frames_ok still holds
+            pass
         raise
     finally:
         if bar is not None:
@@ -414,61 +546,70 @@ def acquire(
                              stats["duplicates"], 0)
 
 
-class _DeviceIds:
-    """``frame_ids="device"``: check each frame's device number as it arrives and record it
-    at once (module docstring)."""
+class _Sequences:
+    """One pattern sequence at a time: load and start it, take its frames, check them,
+    return them for recording; any failed check discards the whole sequence and shows it
+    again (module docstring)."""
 
-    def __init__(self, lcr, camera, pats, seq, exposure_us, period_us, retries, timeout_s,
-                 commit, stats, arrays, bar) -> None:
-        self.lcr, self.camera, self.pats, self.seq = lcr, camera, pats, seq
-        self.exposure_us, self.period_us = exposure_us, period_us
-        self.retries, self.timeout_s, self.commit, self.stats = retries, timeout_s, commit, stats
-        self.arrays, self.bar = arrays, bar
-        self.expected: int | None = None  # next device frame number; None: not anchored
+    def __init__(self, lcr, camera, pats, exposure_us, period_us, trigger, video_hz, retries,
+                 timeout_s, device, check_timing, stats, on_frame) -> None:
+        self.lcr, self.camera, self.pats = lcr, camera, pats
+        self.exposure_us, self.period_us, self.trigger = exposure_us, period_us, trigger
+        self.video_hz, self.retries, self.timeout_s = video_hz, retries, timeout_s
+        self.device, self.check_timing, self.stats = device, check_timing, stats
+        self.on_frame = on_frame
 
-    def sequence(self, s0: int, b1: int) -> int:
-        """Acquire from pattern ``s0`` (a pair boundary) up to at most ``b1``: one DMD
-        sequence, or the anchor pair when not anchored; returns the next pattern index."""
-        attempt, start = 0, s0
+    def sequence(self, s0: int, s1: int) -> list:
+        from .dlpc350 import pattern_times_us
+
+        k_total = s1 - s0
+        t_us = pattern_times_us(k_total, self.exposure_us, self.period_us, self.trigger,
+                                self.video_hz)
+        gaps = np.diff(t_us) * 1e-6 if k_total > 1 else np.array([self.period_us * 1e-6])
+        tol = 0.4 * float(gaps.min())
+        # later frames: a few pattern periods (at most the first frame's timeout)
+        next_timeout = min(self.timeout_s, float(gaps.max()) * 4 + 0.5)
+        tail = max(0.05, 1.5 * float(gaps.max()))  # no frame may follow within this
+        attempt = 0
         while True:
-            anchored = self.expected is not None
-            s1 = min(start + (self.seq if anchored else _ANCHOR), b1)
-            k = start
+            frames: list = []
             try:
-                self.camera.pattern_index = start
-                self.lcr.show_sequence(self.pats[start:s1], self.exposure_us, self.period_us,
-                                       trigger="internal")
-                last = None
-                while k < s1:
+                self.camera.pattern_index = s0
+                self.lcr.show_sequence(self.pats[s0:s1], self.exposure_us, self.period_us,
+                                       trigger=self.trigger, video_hz=self.video_hz)
+                while len(frames) < k_total:
+                    k = s0 + len(frames)
                     self.camera.pattern_index = k
-                    frame = self.camera.grab(self.timeout_s)
-                    fid = int(frame.frame_id)
-                    if last is not None and fid == last.frame_id:
-                        if _same_bytes(frame, last):  # a duplicated transfer
-                            self.stats["duplicates"] += 1
-                            continue
-                        raise FrameIdError(k, int(self.expected), fid,
-                                           "repeated id on a different frame")
-                    if self.expected is not None and fid != self.expected:
-                        raise FrameIdError(k, self.expected, fid)
-                    self.commit(k, frame, 1 if anchored else 2)
-                    last, self.expected, k = frame, (fid + 1) % 256, k + 1
-                self.camera.pattern_index = None
-                while True:  # second check: no frame may follow the sequence's last pattern
-                    try:
-                        frame = self.camera.grab(min(self.timeout_s, 0.05))
-                    except FrameTimeoutError:
-                        break
-                    if frame.frame_id == last.frame_id and _same_bytes(frame, last):
+                    fr = self.camera.grab(self.timeout_s if not frames else next_timeout)
+                    if frames and _same_bytes(fr, frames[-1]):  # a duplicated transfer
                         self.stats["duplicates"] += 1
                         continue
-                    k = start  # a spurious frame before it may have shifted them all
-                    raise FrameSequenceError(s1 - start, s1 - start + 1, start)
-                if not anchored:  # the count confirms the anchor: the pair is recorded
-                    self.arrays["frames_ok"][start:s1] = 1
-                    if self.bar is not None:
-                        self.bar.update(s1 - start)
-                return s1
+                    if self.device and frames:
+                        want = (frames[-1].frame_id + 1) % 256
+                        if fr.frame_id == frames[-1].frame_id:
+                            raise FrameIdError(k, want, fr.frame_id,
+                                               "repeated id on a different frame")
+                        if fr.frame_id != want:
+                            raise FrameIdError(k, want, fr.frame_id)
+                    if self.check_timing and frames:
+                        dt = fr.timestamp - frames[0].timestamp
+                        expect = (t_us[len(frames)] - t_us[0]) * 1e-6
+                        if abs(dt - expect) > tol:
+                            raise FrameTimingError(k, expect, dt)
+                    frames.append(fr)
+                    if self.on_frame is not None:
+                        self.on_frame(k)
+                self.camera.pattern_index = None
+                while True:  # the count check: no frame may follow the last pattern
+                    try:
+                        fr = self.camera.grab(tail)
+                    except FrameTimeoutError:
+                        break
+                    if _same_bytes(fr, frames[-1]):
+                        self.stats["duplicates"] += 1
+                        continue
+                    raise FrameSequenceError(k_total, k_total + 1, s0)
+                return frames
             except DeviceLostError:
                 raise
             except TransientError:
@@ -481,55 +622,6 @@ class _DeviceIds:
                 except TransientError:
                     pass
                 self.camera.flush()
-                self.expected = None  # re-anchor after the retry
-                start = k - k % 2  # the pair of the failed frame: y+ and y- back to back
-
-
-def _acquire_sequence(lcr, camera, pats, s0, s1, exposure_us, period_us, retries, timeout_s,
-                      commit, stats) -> None:
-    """``frame_ids="count"``: frames ``s0 … s1−1``: load, start, grab all, check the count
-    (module docstring), then commit; re-acquire the sequence on a transient fault."""
-    attempt = 0
-    while True:
-        try:
-            camera.pattern_index = s0
-            lcr.show_sequence(pats[s0:s1], exposure_us, period_us, trigger="internal")
-            frames: list = []
-            while len(frames) < s1 - s0:
-                camera.pattern_index = s0 + len(frames)
-                frame = camera.grab(timeout_s)
-                if frames and _same_bytes(frame, frames[-1]):  # a duplicated transfer
-                    stats["duplicates"] += 1
-                    continue
-                frames.append(frame)
-            extra = 0
-            camera.pattern_index = None
-            while True:  # no frame may follow the sequence's last pattern
-                try:
-                    frame = camera.grab(min(timeout_s, 0.05))
-                except FrameTimeoutError:
-                    break
-                if _same_bytes(frame, frames[-1]):
-                    stats["duplicates"] += 1
-                else:
-                    extra += 1
-            if extra:
-                raise FrameSequenceError(s1 - s0, s1 - s0 + extra, s0)
-            for k, frame in enumerate(frames):
-                commit(s0 + k, frame)
-            return
-        except DeviceLostError:
-            raise
-        except TransientError:
-            attempt += 1
-            stats["retries"] += 1
-            if attempt > retries:
-                raise
-            try:
-                lcr.stop()
-            except TransientError:
-                pass
-            camera.flush()
 
 
 def _same_bytes(a, b) -> bool:
@@ -541,16 +633,19 @@ def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Recorded interleaved buckets ``{"depth", "depth_gated", "intensity", "taps"}`` (each
     ``(1, C, 2·m_acquired)``) and the store attributes.
 
+    Every chunk's CRC-32C and every recorded frame's data are checked first (as ``resume``
+    does).
+
     Raises:
         ValueError: not a torchtof acquisition, or no complete pattern pair recorded.
+        StoreDamagedError: the store fails its integrity check.
     """
-    zarr = require_zarr3()
-
-    group = zarr.open_group(str(path), mode="r")
+    group = _open_group(path, "r")
     attrs = dict(group.attrs)
     if attrs.get("format") != _FORMAT:
         raise ValueError(f"load_buckets: {path} is not a torchtof acquisition store")
-    f = _recorded(group["frames_ok"][:])
+    ok = _verify(path, group, int(attrs.get("frames", 0)))
+    f = _recorded(ok)
     if attrs.get("status") == "complete":
         f = 2 * int(attrs["m_acquired"])
     f -= f % 2

@@ -39,32 +39,52 @@ def _zarr_ok(cmd: str) -> bool:
     return True
 
 
+def _open_devices(args: argparse.Namespace, metadata: dict):
+    """The two devices: simulated (``--simulated``) or the real bench — LightCrafter 4500
+    (USB 0451:6401) with a :class:`~torchtof.hardware.video.WindowVideoPort` on display
+    ``--display``, OPT8241 (USB 0451:9105). Everything after this is the same code."""
+    cam_kw = {"mode": args.camera_mode, "quads": args.quads}
+    if args.simulated:
+        from .simulated import Faults, SimulatedBench
+
+        cfg = _sim_config(args)
+        faults = Faults.from_dict(args.sim_faults) if args.sim_faults else None
+        bench = SimulatedBench(cfg, seed=args.seed, faults=faults, video_hz=args.video_hz)
+        metadata["simulation"] = {"config": asdict(cfg), "seed": args.seed}
+        return bench.lightcrafter(), bench.camera(**cam_kw), None
+    from .dlpc350 import LightCrafter4500
+    from .opt8241 import OPT8241
+    from .video import WindowVideoPort
+
+    opened: list = []
+    try:
+        lcr = LightCrafter4500.open()
+        opened.append(lcr)
+        cam = OPT8241.open(width=320, height=240, **cam_kw)
+        opened.append(cam)
+        lcr.video = WindowVideoPort(display=args.display)
+    except BaseException:
+        for dev in reversed(opened):  # close what was opened before the failure
+            dev.close()
+        raise
+    return lcr, cam, lcr.video
+
+
 def cmd_acquire(args: argparse.Namespace) -> int:
-    from .acquisition import acquire
+    from .acquisition import StoreDamagedError, acquire
     from .errors import HardwareError
 
     if not _zarr_ok("acquire"):
         return 1
+    if args.block is not None and args.block < 1:
+        print(f"torchtof acquire: --block must be a positive number of pattern pairs, got "
+              f"{args.block}", file=sys.stderr)
+        return 2
 
-    metadata = {}
+    metadata: dict = {}
+    lcr = cam = video = None
     try:
-        if args.simulated:
-            from .simulated import Faults, SimulatedBench
-
-            cfg = _sim_config(args)
-            faults = Faults.from_dict(args.sim_faults) if args.sim_faults else None
-            bench = SimulatedBench(cfg, seed=args.seed, faults=faults)
-            lcr, cam = bench.lightcrafter(), bench.camera()
-            metadata["simulation"] = {"config": asdict(cfg), "seed": args.seed}
-        else:
-            from .dlpc350 import LightCrafter4500
-            from .opt8241 import OPT8241
-
-            lcr, cam = LightCrafter4500.open(), OPT8241.open()
-            print("torchtof acquire: the LightCrafter's video port needs an image output; the "
-                  "command line has none yet: call torchtof.hardware.acquire(..., ) with "
-                  "LightCrafter4500(dev, video=...) from Python.", file=sys.stderr)
-            return 2
+        lcr, cam, video = _open_devices(args, metadata)
         block = args.block or (AUTO_BLOCK if args.auto else 12)
         rule = stop = None
         if args.auto:  # progressive acquisition (torchtof.adaptive, README "--auto")
@@ -81,12 +101,30 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 return rule({k: v / n for k, v in buckets.items()})
 
         res = acquire(args.output, lcr, cam, n=args.n, sr=args.sr, order=args.order,
-                      exposure_us=args.exposure_us, block=block, stop=stop,
-                      resume=args.resume, retries=args.retries, progress=not args.no_progress,
-                      metadata=metadata, frame_ids=args.frame_ids)
-    except (HardwareError, FileExistsError) as exc:
+                      exposure_us=args.exposure_us, period_us=args.period_us, block=block,
+                      stop=stop, resume=args.resume, retries=args.retries,
+                      progress=not args.no_progress, metadata=metadata,
+                      frame_ids=args.frame_ids, trigger=args.trigger, video_hz=args.video_hz)
+    except KeyboardInterrupt:
+        print(f"torchtof acquire: interrupted; the recorded sequences are kept: run the same "
+              f"command with --resume to continue {args.output}", file=sys.stderr)
+        return 130
+    except StoreDamagedError as exc:
+        print(f"torchtof acquire: {exc}", file=sys.stderr)
+        return 2
+    except (HardwareError, FileExistsError, ImportError) as exc:
         print(f"torchtof acquire: {exc}", file=sys.stderr)
         return 1
+    except ValueError as exc:  # a store recorded with other settings, bad timing
+        print(f"torchtof acquire: {exc}", file=sys.stderr)
+        return 2
+    finally:  # every exit path: streaming stopped, USB released, window closed
+        for dev in (cam, lcr, video):
+            if dev is not None and hasattr(dev, "close"):
+                try:
+                    dev.close()
+                except Exception:  # noqa: BLE001 - closing must not mask the real error
+                    pass
     print(f"recorded {res.m_acquired}/{res.m_planned} pattern pairs to {res.path} "
           f"({res.retries} retries, {res.duplicates} duplicate frames discarded)")
     if rule is not None and res.stopped_early:
@@ -106,13 +144,17 @@ def _method_name(name: str) -> str:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from ..methods import _scores, build_method
+    from ..methods import build_method, score_image
     from ..report import save_grid
-    from .acquisition import load_run
+    from .acquisition import StoreDamagedError, load_run
 
     if not _zarr_ok("reconstruct"):
         return 1
-    data = load_run(args.store)
+    try:
+        data = load_run(args.store)
+    except (StoreDamagedError, FileNotFoundError) as exc:
+        print(f"torchtof reconstruct: {exc}", file=sys.stderr)
+        return 2
     name = _method_name(args.method)
     sr = data.config.srs[0]
     method = build_method(name, data, sr, args.gate, args.kind)
@@ -125,7 +167,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     png = save_grid(out / f"{tag}.png", [(name, img)], title=f"{args.store}: {name}, SR {sr:.2%}")
     line = f"{name} from {data.hadamard.m} pattern pairs (SR {sr:.2%}): wrote {png}"
     if data.x.abs().sum() > 0:  # simulated run: the object is known
-        s = _scores(img, data, data.polarity(args.gate, args.kind))
+        s = score_image(img, data, data.polarity(args.gate, args.kind))
         line += f"; PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f} vs the simulated object"
     print(line)
     return 0
@@ -137,7 +179,8 @@ def add_parsers(sub) -> None:
 
     a = sub.add_parser("acquire", help="acquire buckets from a LightCrafter 4500 + OPT8241 "
                        "(or --simulated) into a zarr store")
-    a.add_argument("--simulated", action="store_true", help="simulated devices (no USB)")
+    a.add_argument("--simulated", action="store_true",
+                   help="simulated devices (no USB); without it the real bench is opened")
     a.add_argument("--scene", default="sky", help="simulated scene (torchtof.scenes)")
     a.add_argument("--sr", type=float, default=0.25)
     a.add_argument("--n", type=int, default=32)
@@ -147,6 +190,19 @@ def add_parsers(sub) -> None:
     a.add_argument("--noise-free", action="store_true", help="simulation without shot/read noise")
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--exposure-us", type=int, default=10_000)
+    a.add_argument("--period-us", type=int, default=None,
+                   help="pattern period (default: the exposure)")
+    a.add_argument("--trigger", default="vsync", choices=["vsync", "internal"],
+                   help="vsync: each pattern starts at a VSYNC of the video input, exposures "
+                   "within one video frame (TI's video-mode examples); internal: the DMD paces")
+    a.add_argument("--video-hz", type=float, default=60.0, help="video input frame rate")
+    a.add_argument("--display", type=int, default=1,
+                   help="display index of the LightCrafter's HDMI input (real bench)")
+    a.add_argument("--camera-mode", default="quad", choices=["quad", "iq", "depth", "depth8",
+                                                             "depth2"],
+                   help="OPT8241 output: quad (raw samples, per-tap buckets), iq, depth")
+    a.add_argument("--quads", type=int, default=4, choices=[4, 6],
+                   help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
     a.add_argument("--block", type=int, default=None,
                    help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
     a.add_argument("--auto", action="store_true",

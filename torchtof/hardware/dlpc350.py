@@ -1,7 +1,9 @@
 """DLP LightCrafter 4500 (DLPC350 controller) over USB HID: message codec and driver.
 
-Implemented from TI's command tables (DLPU010, DLPC350 programmer's guide; DLPU011,
-LightCrafter 4500 user's guide) as summarised in ``domain-notes.md`` §7; no GPL code.
+Implemented from TI's command tables (DLPU010, DLPC350 programmer's guide) and checked
+against pyCrafter4500 (``pycrafter4500.py``: ``dlpc350.command`` for the report layout, one
+method per command for the codes and payloads, ``pattern_mode`` for the video-mode order);
+no GPL code.
 
 **Message** (one or more 64-byte HID reports, OUT endpoint 0x01, IN endpoint 0x81)::
 
@@ -57,6 +59,8 @@ __all__ = [
     "lut_valid_errors",
     "LightCrafter4500",
     "VideoPort",
+    "patterns_per_vsync",
+    "pattern_times_us",
 ]
 
 VID, PID = 0x0451, 0x6401
@@ -66,7 +70,7 @@ _HEADER = 4  # flags, seq, length (u16)
 
 FLAG_READ, FLAG_REPLY, FLAG_NACK = 0x80, 0x40, 0x20
 
-#: name -> (CMD2, CMD3, payload length or None for variable), domain-notes §7.
+#: name -> (CMD2, CMD3, payload length or None for variable) (DLPU010; pyCrafter4500 methods).
 COMMANDS: dict[str, tuple[int, int, int | None]] = {
     "POWER_CONTROL": (0x02, 0x00, 1),
     "GET_VERSION": (0x02, 0x05, 0),
@@ -328,7 +332,8 @@ def payload_mailbox_control(mode: str) -> bytes:
 def lut_entry(pattern: int, bit_depth: int = 1, leds: str = "RGB", trig: str = "internal",
               invert: bool = False, insert_black: bool = False, buffer_swap: bool = False,
               trig_out_prev: bool = False) -> int:
-    """One 24-bit pattern LUT entry (domain-notes §7).
+    """One 24-bit pattern LUT entry (pyCrafter4500 ``send_pattern_lut``: byte 0 trigger type
+    and pattern number, byte 1 bit depth and LEDs, byte 2 flags).
 
     bits 1:0 trigger type (0 internal, 1 external +, 2 external −, 3 none/continue),
     bits 7:2 pattern number (bit plane, 0–24; 25 = fill), bits 11:8 bit depth (1–8),
@@ -356,7 +361,7 @@ def pack_pattern_lut(entries: Sequence[int]) -> bytes:
 
 def pack_image_lut(indices: Sequence[int]) -> bytes:
     """Flash image indices as the image-LUT ``MBOX_DATA`` payload (one byte each); TI's API
-    sends a 2-entry table swapped (domain-notes §7)."""
+    sends a 2-entry table swapped."""
     idx = [int(_u8(i, "image index", 0, 255)[0]) for i in indices]
     if not 1 <= len(idx) <= 64:
         raise ValueError(f"pack_image_lut: expected 1 to 64 images, got {len(idx)}")
@@ -397,6 +402,44 @@ def pack_bitplanes(patterns: np.ndarray) -> np.ndarray:
 def unpack_bitplane(frame: np.ndarray, k: int) -> np.ndarray:
     """Bit plane ``k`` of a 24-bit RGB frame ``(H, W, 3)`` as a 0/1 uint8 ``(H, W)``."""
     return (frame[..., BITPLANE_CHANNELS[k // 8]] >> (k % 8)) & 1
+
+
+def patterns_per_vsync(exposure_us: int, period_us: int, video_hz: float) -> int:
+    """Patterns shown per video input frame on the VSYNC trigger: ``⌊frame period /
+    period⌋``; the exposures within one input frame cannot exceed the frame time (TI's
+    DLPC350 programmer's guide, as pyCrafter4500's ``pattern_mode`` example keeps them).
+
+    Raises:
+        ValueError: a period longer than the video frame.
+    """
+    if not (isinstance(video_hz, (int, float)) and 0 < video_hz < 1e4):
+        raise ValueError(f"dlpc350: expected video_hz in (0, 1e4), got {video_hz!r}")
+    frame_us = 1e6 / video_hz
+    if max(exposure_us, period_us) > frame_us:
+        raise ValueError(f"dlpc350: a {period_us} us pattern period does not fit one "
+                         f"{frame_us:.0f} us video frame at {video_hz:g} Hz: the exposures "
+                         "within one input frame cannot exceed the frame time (VSYNC trigger)")
+    return max(1, int(frame_us // period_us))
+
+
+def pattern_times_us(k: int, exposure_us: int, period_us: int, trigger: str = "vsync",
+                     video_hz: float = 60.0) -> np.ndarray:
+    """Start time (µs, from the first) of each of ``k`` patterns of a sequence: every
+    ``period_us`` on the internal trigger; on the VSYNC trigger groups of
+    :func:`patterns_per_vsync` patterns, each group starting at a VSYNC.
+
+    Example:
+        >>> pattern_times_us(3, 10_000, 10_000, "vsync", 50.0).tolist()
+        [0.0, 10000.0, 20000.0]
+        >>> pattern_times_us(3, 10_000, 10_000, "vsync", 60.0).round().tolist()
+        [0.0, 16667.0, 33333.0]
+    """
+    payload_exposure_period(exposure_us, period_us)
+    j = np.arange(int(k))
+    if trigger != "vsync":
+        return (j * float(period_us)).astype(np.float64)
+    per = patterns_per_vsync(exposure_us, period_us, video_hz)
+    return (j // per) * (1e6 / video_hz) + (j % per) * float(period_us)
 
 
 def lut_valid_errors(status: int) -> list[str]:
@@ -448,12 +491,16 @@ class LightCrafter4500:
         dev: the USB device.
         timeout_ms: per-transfer timeout.
         video: a :class:`VideoPort` for video-port (bit-plane) sequences.
+        retries: times a command without a reply is sent again (late replies discarded).
     """
 
     what = "DLP LightCrafter 4500"
 
-    def __init__(self, dev, timeout_ms: int = 1000, video: VideoPort | None = None) -> None:
+    def __init__(self, dev, timeout_ms: int = 1000, video: VideoPort | None = None,
+                 retries: int = 2) -> None:
         self.dev, self.timeout_ms, self.video = dev, int(timeout_ms), video
+        self.retries = int(retries)
+        self.stale_replies = 0
         self._seq = 0
         self.sent: list[tuple[str, bytes]] = []  # (command, payload) log, newest last
 
@@ -487,16 +534,39 @@ class LightCrafter4500:
         self._seq = (self._seq + 1) & 0xFF
         return self._seq
 
-    def _transfer(self, name: str, reports: list[bytes], seq: int) -> Message:
-        try:
-            for r in reports:
-                self.dev.write(EP_OUT, r, self.timeout_ms)
-            raw = self.dev.read(EP_IN, REPORT_SIZE, self.timeout_ms)
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
-        return decode_reply(bytes(raw), name, seq)
+    #: commands that must not be re-sent blindly: MBOX_DATA appends at the mailbox's
+    #: auto-incremented address (a repeat would add entries twice); the caller reloads the
+    #: whole table instead (:meth:`show_sequence` is retried as a whole by the acquisition)
+    _NOT_IDEMPOTENT = ("MBOX_DATA",)
+
+    def _transfer(self, name: str, payload: bytes, read: bool) -> Message:
+        """Send a command and return its reply. A reply whose sequence number is not this
+        command's is a late reply to an earlier one (it arrived after the host gave up on
+        it): discarded, and the read repeated. No reply in time: the command is sent again
+        with a new sequence number (up to :attr:`retries` times; never ``MBOX_DATA``).
+        pyCrafter4500 (``dlpc350.command``) and TI's ``USB_Write``/``USB_Read`` read one
+        report per command; the sequence byte is what tells replies apart."""
+        attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
+        for _ in range(attempts):
+            seq = self._next_seq()
+            try:
+                for r in encode(name, payload, seq, read=read):
+                    self.dev.write(EP_OUT, r, self.timeout_ms)
+                deadline = time.monotonic() + self.timeout_ms / 1000
+                while True:
+                    left = max(1, int((deadline - time.monotonic()) * 1000))
+                    raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
+                    if _header(raw)[1] == seq:
+                        return decode_reply(raw, name, seq)
+                    self.stale_replies += 1  # a late reply to an earlier command
+            except HardwareError:
+                raise
+            except Exception as exc:
+                err = translate_usb_error(exc, self.what, name)
+                if not isinstance(err, _Timeout):
+                    raise err from exc
+                last = err
+        raise last
 
     def write(self, name: str, payload: bytes = b"") -> None:
         """Send command ``name`` with ``payload`` and wait for the acknowledgement.
@@ -504,14 +574,35 @@ class LightCrafter4500:
         Raises:
             NackError: the device rejected it (the error names the command).
         """
-        seq = self._next_seq()
-        self._transfer(name, encode(name, payload, seq), seq)
+        self._transfer(name, bytes(payload), read=False)
         self.sent.append((name, bytes(payload)))
 
     def read(self, name: str) -> bytes:
         """Read command ``name``; returns the reply data."""
-        seq = self._next_seq()
-        return self._transfer(name, encode(name, b"", seq, read=True), seq).payload
+        return self._transfer(name, b"", read=True).payload
+
+    def display_mode(self) -> str:
+        """``"pattern"`` or ``"video"``, read back with ``DISP_MODE`` (DLPC350 command
+        0x1A1B; pyCrafter4500 ``set_display_mode`` for the values)."""
+        return "pattern" if self.read("DISP_MODE")[0] & 1 else "video"
+
+    def set_display_mode(self, pattern: bool = True, timeout_s: float = 2.0,
+                         poll_s: float = 0.01) -> None:
+        """Switch the display mode only if it differs, then poll the read-back until the
+        switch has taken effect (the controller needs time to change modes).
+
+        Raises:
+            ProtocolError: still in the old mode after ``timeout_s``.
+        """
+        want = "pattern" if pattern else "video"
+        if self.display_mode() == want:
+            return
+        self.write("DISP_MODE", payload_display_mode(pattern))
+        t0 = time.monotonic()
+        while self.display_mode() != want:
+            if time.monotonic() - t0 > timeout_s:
+                raise ProtocolError("DISP_MODE", f"still not in {want} mode after {timeout_s:g} s")
+            time.sleep(poll_s)
 
     # -- commands ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -574,14 +665,22 @@ class LightCrafter4500:
                                 + "; ".join(errors))
 
     def show_sequence(self, patterns, exposure_us: int, period_us: int | None = None,
-                      trigger: str = "internal", source: str = "video", repeat: bool = False,
-                      leds: str = "RGB", start: bool = True) -> None:
+                      trigger: str = "vsync", source: str = "video", repeat: bool = False,
+                      leds: str = "RGB", start: bool = True, video_hz: float = 60.0) -> None:
         """Load a 1-bit pattern sequence and (by default) start it.
 
-        The canonical DLPC350 sequence (domain-notes §7): stop → pattern display mode →
-        pattern source → pattern config → trigger mode → exposure/period → (image LUT) →
-        pattern LUT → validate (poll, error bits decoded) → start. Each pattern raises
-        TRIG_OUT1 while it is shown (the camera's trigger).
+        The order of pyCrafter4500's ``pattern_mode`` (stop → display mode → pattern source →
+        pattern config → trigger mode → exposure/period → (image LUT) → pattern LUT →
+        validate → start), with the display mode read back and switched only when it
+        differs (:meth:`set_display_mode`), and LUT validation polled and its error bits
+        decoded. Each pattern raises TRIG_OUT1 while it is shown (the camera's trigger).
+
+        ``trigger="vsync"`` (default): as in TI's and pyCrafter4500's video-mode examples the
+        sequence is paced by the video input's VSYNC: ``⌊frame period / period⌋`` patterns
+        per input frame, the first of each group with LUT trigger type 1 (it waits for the
+        VSYNC), the others type 3 (continue) — the exposures within one input frame must not
+        exceed the frame time (:func:`pattern_times_us`). The static 24-bit frame that
+        carries the ≤ 24 bit planes is shown once by :attr:`video`.
 
         Args:
             patterns: ``source="video"``: binary array ``(K ≤ 24, H, W)``, packed into the bit
@@ -590,18 +689,18 @@ class LightCrafter4500:
                 images already stored in the controller's flash.
             exposure_us: exposure per pattern in µs.
             period_us: pattern period in µs (default: ``exposure_us``).
-            trigger: ``"internal"`` (the DMD paces the sequence, default), ``"external"``
-                (each pattern waits for a TRIG_IN edge) or ``"vsync"``.
+            trigger: ``"vsync"``, ``"internal"`` (the DMD paces the sequence) or
+                ``"external"`` (each pattern waits for a TRIG_IN edge).
             repeat: loop the sequence.
             leds: LEDs lit for every pattern (subset of ``"RGB"``).
             start: send the start command.
+            video_hz: the video input's frame rate (``"vsync"``).
 
         Raises:
             ValueError: bad patterns or timing; ProtocolError/NackError from the device.
         """
         period_us = exposure_us if period_us is None else period_us
         payload_exposure_period(exposure_us, period_us)  # validate before touching the device
-        trig_entry = "external+" if trigger == "external" else "internal"
         payload_trigger_mode(trigger)
         if source == "video":
             pats = np.asarray(patterns.detach().cpu() if hasattr(patterns, "detach") else patterns)
@@ -627,11 +726,17 @@ class LightCrafter4500:
             planes = [b for _, b in pairs]
         else:
             raise ValueError(f"show_sequence: expected source in {tuple(_SOURCE)}, got {source!r}")
-        entries = [lut_entry(p, 1, leds, trig_entry, buffer_swap=s) for p, s in zip(planes, swaps)]
+        if trigger == "vsync":
+            per = patterns_per_vsync(exposure_us, period_us, video_hz)
+            trigs = ["external+" if k % per == 0 else "none" for k in range(len(planes))]
+        else:
+            trigs = ["external+" if trigger == "external" else "internal"] * len(planes)
+        entries = [lut_entry(p, 1, leds, t, buffer_swap=s)
+                   for p, t, s in zip(planes, trigs, swaps)]
         self.stop()
         if source == "video":
             self.video.show(frame)
-        self.write("DISP_MODE", payload_display_mode(True))
+        self.set_display_mode(True)
         self.write("PAT_DISP_MODE", payload_pattern_source(source))
         self.write("PAT_CONFIG", payload_pattern_config(len(entries), repeat, len(entries),
                                                         max(1, len(images))))

@@ -21,6 +21,7 @@ __all__ = [
     "FrameError",
     "FrameSequenceError",
     "FrameIdError",
+    "FrameTimingError",
 ]
 
 #: How to give a non-root user access to the two USB devices (Linux).
@@ -114,7 +115,7 @@ class FrameError(TransientError):
 
 
 class FrameSequenceError(TransientError):
-    """Frames out of sequence: more frames than patterns in a sequence (the count check of
+    """More frames than patterns in a sequence (the count check of
     :func:`~torchtof.hardware.acquire`: a lost frame shows as a missing one — a timeout — and
     an extra frame as this error); the acquisition re-acquires the sequence."""
 
@@ -128,10 +129,21 @@ class FrameSequenceError(TransientError):
 class FrameIdError(TransientError):
     """A device frame id (OPT9221 ``debug_frame_number_en``) that does not follow its
     predecessor: a gap (frames lost between camera and host) or a repeated id on a frame with
-    different bytes; the acquisition re-acquires from the pattern pair of ``pattern_index``."""
+    different bytes; the acquisition re-acquires the whole sequence."""
 
     def __init__(self, pattern_index: int, expected: int, got: int, detail: str = "") -> None:
         self.pattern_index, self.expected, self.got = pattern_index, expected, got
         what = detail or f"{(got - expected) % 256} frame(s) lost"
         super().__init__(f"frame id {got} for pattern {pattern_index}, expected {expected} "
                          f"({what})")
+
+
+class FrameTimingError(TransientError):
+    """A frame whose host arrival time does not fit the pattern schedule (a spurious frame
+    arrives too early, a lost one leaves a gap); the acquisition re-acquires the sequence."""
+
+    def __init__(self, pattern_index: int, expected_s: float, got_s: float) -> None:
+        self.pattern_index, self.expected_s, self.got_s = pattern_index, expected_s, got_s
+        super().__init__(f"frame for pattern {pattern_index} arrived {got_s * 1e3:.1f} ms after "
+                         f"the sequence's first, expected {expected_s * 1e3:.1f} ms (a spurious "
+                         "or lost frame)")

@@ -1,13 +1,13 @@
 """TI OPT8241 ToF camera (OPT8241-CDK-EVM, "TintinCDK", OPT9221 controller) over USB.
 
-Everything below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — facts only, no
-code — and **none of it was verified against a physical camera here**. File names refer to
-that repository.
+Every fact below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — facts only, no
+code; file and function are named at each. **None of it was verified against a physical
+camera here** (README "Real hardware" lists what only a device can confirm).
 
-**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, ``TI3DToF/VoxelUSBProgrammer.cpp``,
-domain-notes §5.3): VID 0x0451, PID 0x9105 is the custom bulk device; registers are read and
-written with vendor device control transfers, ``wValue = slave << shift``,
-``wIndex = reg << shift``, the register value little endian in ``nbytes`` bytes:
+**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, the constructor's slave table;
+``Voxel/USBIO.cpp``): VID 0x0451, PID 0x9105 is the bulk device; registers are read and
+written with vendor device control transfers, ``wValue = slave << shift``, ``wIndex = reg
+<< shift``, the value little endian in ``nbytes`` bytes:
 
 ====================  ============  ===========  =====  ======
 slave                 read request  write req.   shift  bytes
@@ -18,92 +18,82 @@ slave                 read request  write req.   shift  bytes
 ====================  ============  ===========  =====  ======
 
 **Register map** (``TI3DToF/OPT9221.dml``; bank 0 "TG" → slave 0x58, bank 3 "DE" → slave
-0x5C, address = ``slave << 8 | register`` as ``ToFTintinCamera.cpp`` remaps them). The
-OPT9221 registers are 24 bits wide; a named parameter is a bit field of one register
-(:data:`REGISTERS`), written by read-modify-write.
+0x5C, address ``slave << 8 | register`` as ``ToFTintinCamera::_init`` remaps them). A named
+parameter is a bit field of one 24-bit register (:data:`REGISTERS`), written by
+read-modify-write.
 
-* Modulation frequency (DML description of ``mod_m1``/``mod_n1``/``mod_ps1``, system clock
-  48 MHz from ``ToFTintinCamera::_getSystemClockFrequency``)::
+* Modulation frequency (DML description of ``mod_m1``; system clock 48 MHz,
+  ``ToFTintinCamera::_getSystemClockFrequency``)::
 
-      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1      (300 MHz < f_vco < 600 MHz)
+      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1
       f_mod = f_vco / ((1 + mod_ps1) · quad_cnt_max)
 
-  :meth:`OPT8241.set_modulation_frequency` programs it as ``TintinModulationFrequencyParameter``
-  and ``TintinVCOFrequency`` do (``ToFTintinCamera.cpp``): ``mod_ps1 = ⌊300 / quad_cnt_max /
-  f_MHz⌋``, ``f_vco = (mod_ps1 + 1) · quad_cnt_max · f``, ``mod_n1 = 2``, ``mod_m1`` and
-  ``mod_m_frac1`` the integer and 16-bit fractional parts of ``f_vco · 2 / 48``, the writes
-  framed by ``mod_pll_update`` = 1 … 0 (DML: "set this register to 1 and then back to 0 to
-  update the PLL frequency"); limits 37.5/quad … 600/quad MHz. The SDK computes in float32,
-  torchtof in float64: ``mod_m_frac1`` may differ in its last bit.
-* Integration time: ``intg_duty_cycle`` (6 bits), DML: "integration time = intg_duty_cycle ·
-  100/63" percent of the cycle; ``ToFCamera.cpp`` exposes it as "percentage of total cycle
-  time". The frame time is ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` system clock
-  cycles (DML description of ``pix_cnt_max``). **torchtof's own derivation** (no SDK formula
-  in µs): ``t_int[µs] = intg_duty_cycle / 63 · pix_cnt_max · quad_cnt_max · sub_frame_cnt_max
-  / 48``.
-* Streaming: ``tg_dis`` (``0x5880`` bit 0). The SDK writes ``tg_dis = 1`` while configuring
-  and ``0`` to run (``ToFTintinCamera::_init`` / ``_initStartParams``); the DML description of
-  that bit reads the other way round ("'0': TFC stops all processing") — unresolved here;
-  torchtof follows the SDK code. ``slave_mode`` (``0x5881`` bit 0, DML: "waits for external
-  sync through VD_IN pin for the start of frames") gives one frame per DMD trigger; that the
-  CDK board routes a trigger input to VD_IN is **not confirmed**.
-* **Device frame numbers.** The DML has no frame-counter register, but property 6363
-  ``debug_frame_number_en`` (bank 3 "DE" register 57 → ``0x5C39``, bit 12, default 0,
-  writable; GUI section ``output_block``/group ``mac`` next to ``frm_header_en`` and
-  ``blk_header_en``) reads: "Debug. Replaces first byte of each frame with the current frame
-  number when set to '1'." :meth:`OPT8241.configure` sets it when ``frame_ids=True`` and
-  :meth:`OPT8241.grab` takes byte 0 of the transfer as the frame's id (0-255) and sets that
-  byte to 0 before decoding (:func:`split_frame_id`), so the overwritten sample — the low byte
-  of the first 16-bit word of pixel (row 0, column 0): tap c₁ in ``"quad"``, ``I`` in
-  ``"iq"``, the amplitude word in ``"depth"``/``"depth8"``, the phase word in ``"depth2"`` —
-  has a defined value (its high byte as sent, low byte 0) and is **not a measurement**;
-  :func:`~torchtof.hardware.acquire` leaves row 0 out of the bucket ROI. What the DML does
-  not say and torchtof **assumes**: the number is the low 8 bits of a counter that advances by
-  one per frame the OPT9221 outputs (so a frame lost after the OPT9221 leaves a gap), the
-  byte is byte 0 of the USB transfer (true with ``blk_header_en = frm_header_en = 0``, which
-  :meth:`configure` sets), and its start value is unknown (the acquisition never relies on it).
-  torchtof found no SDK code that sets the bit (a search of the SDK sources, not
-  exhaustive): the feature is documented by the DML only.
+  programmed as ``TintinModulationFrequencyParameter`` / ``TintinVCOFrequency`` do
+  (ToFTintinCamera.cpp): ``mod_ps1 = ⌊300 / quad_cnt_max / f_MHz⌋``, ``mod_n1 = 2``,
+  ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0; then
+  ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML; ``TintinUnambiguousRangeParameter::set``).
+* Frame time: ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` cycles at 48 MHz (DML
+  description of ``pix_cnt_max``; ``ToFCamera::_getFrameRate``), 33.3 ms at the DML defaults;
+  ``ToFCamera::_setFrameRate`` sets ``pix_cnt_max`` and reads ``pix_cnt_max_set_failed``. The
+  TintinCDK board limits ``pix_cnt_max`` ≥ 50000 and ``intg_duty_cycle`` ≤ 20
+  (``TintinCDKCamera::_init``). ``quad_cnt_max`` takes 4 or 6, ``sub_frame_cnt_max`` 1, 2, 4 or
+  8 (DML descriptions).
+* Integration time: ``intg_duty_cycle · 100/64`` percent (DML description;
+  ``IntegrationTimeParameter``, ToFCamera.cpp, which reads ``intg_duty_cycle_set_failed``
+  after each write). The µs value torchtof reports is that share of the frame time (the SDK
+  gives only the percentage).
+* De-aliasing off for one frequency: ``dealias_en = 0``, ``dealias_16bit_op_enable = 0``
+  (``TintinUnambiguousRangeParameter::set``).
+* Streaming: ``tg_dis`` (``0x5880`` bit 0), DML: "'1': TFC stops all processing. Streaming
+  comes to a halt … '0': TFC is in normal operation"; the SDK writes 1 while configuring and 0
+  to run (``ToFTintinCamera::_init``, ``_initStartParams``). ``slave_mode`` (``0x5881`` bit
+  0, DML: "waits for external sync through VD_IN pin for the start of frames") gives one
+  frame per DMD trigger.
+* Board initialisation (potentiometer, illumination driver, current monitors, profile) is
+  TI's (``TintinCDKCamera::_init`` and the profile's parameters); torchtof requires it to have
+  run and checks ``tillum_slv_addr`` (DML default 0x71, written 0x72 by TintinCDKCamera::_init).
+* **Device frame numbers.** DML property 6363 ``debug_frame_number_en`` (bank 3 register 57
+  → ``0x5C39``, bit 12): "Debug. Replaces first byte of each frame with the current frame
+  number when set to '1'." With ``frame_ids=True`` :meth:`OPT8241.configure` sets it and
+  :meth:`OPT8241.grab` takes byte 0 of the transfer as the frame's id and sets that byte to 0
+  (:func:`split_frame_id`): the low byte of the first word of pixel (0, 0), which is then no
+  measurement (the acquisition leaves row 0 out of the bucket ROI). **Assumed:** an 8-bit
+  counter advancing once per output frame, in byte 0 of the transfer (no header enabled).
 
-**Frames** (``Voxel/USBBulkStreamer.cpp``, ``TI3DToF/ToFFrameGenerator.cpp``,
+**Frames** (``Voxel/USBBulkStreamer.cpp``, ``ToFFrameGenerator.cpp``,
 ``TintinCDKCamera::_setStreamerFrameSize``): one bulk IN transfer on endpoint 0x82 is one
-frame of exactly ``width · height · bytes_per_pixel`` bytes — no header, no frame id, no
-timestamp, no checksum (the SDK asks for 255 extra bytes and drops any transfer of another
-size; the bulk device runs with ``blk_header_en = 0``). The SDK numbers frames on the host
-(``_currentID++`` per complete transfer) and time-stamps them with the host clock in µs;
-:class:`OPT8241` does the same unless ``frame_ids=True`` (device frame numbers, above) — with
-host ids a lost frame cannot be seen from its id (:mod:`~torchtof.hardware.acquisition` then
-checks frame counts per pattern sequence only).
-Pixel layouts, little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
+frame — no header, id, timestamp or checksum; the SDK asks for 255 extra bytes, drops a
+transfer of another size, reads on its own capture thread (200 ms transfer timeout), resets
+the endpoint at start and after three failed transfers, and drops the oldest buffer when the
+consumer is slow (``USBBulkStreamer::putBuffer``). :class:`OPT8241` does the same on a reader
+thread, but reports dropped and wrong-sized transfers instead of hiding them. Layouts,
+little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
 
 * ``"depth"`` (``output_mode`` 0, ``pixel_data_size`` 4, ``op_data_arrange_mode`` 0): per
   pixel ``amplitude12 | ambient4 << 12`` then ``phase12 | flags4 << 12``;
-* ``"depth8"`` (same, ``op_data_arrange_mode`` 2, the DML default): per row, per group of 8
-  pixels, 8 amplitude/ambient words then 8 phase/flags words;
-* ``"depth2"`` (``pixel_data_size`` 2): ``phase12 | amplitude_msb4 << 12`` (amplitude =
-  top nibble ``<< 8``);
-* ``"iq"`` (``output_mode`` 1 "raw IQ data", 4 bytes): int16 ``I`` then int16 ``Q``; the SDK
-  takes ``phase = arg(I + jQ)``. torchtof uses ``I = c₁ − c₂``, ``Q = c₄ − c₃`` (Eq. 7) and
-  amplitude ``|I + jQ| / 2`` (Eq. 8); the device's I/Q scale is **not confirmed**;
-* ``"quad"`` (``output_mode`` 15 "raw quad data" in the DML): **layout not documented in the
-  SDK**. torchtof assumes 8 bytes per pixel, four uint16 correlation samples in the Fig. 1
-  order with 12 significant bits (the datasheet's 12-bit outputs). It is the only mode that
-  carries the four taps (per-tap buckets); the simulator uses it by default.
+* ``"depth8"`` (``op_data_arrange_mode`` 2, the DML default): per row, per group of 8 pixels,
+  8 amplitude/ambient words then 8 phase/flags words;
+* ``"depth2"`` (``pixel_data_size`` 2): ``phase12 | amplitude_msb4 << 12``;
+* ``"iq"`` (``output_mode`` 1): int16 ``I`` then int16 ``Q``; phase ``arg(I + jQ)``;
+* ``"quad"`` (``output_mode`` 15, ``ToFFrameGenerator::_generateToFRawIQFrame``):
+  ``quad_cnt_max`` words per pixel (the transfer is ``2 · quad_cnt_max`` bytes per pixel,
+  ``_setStreamerFrameSize``), each a **signed** 12-bit sample (``(int16)(w << 4) >> 4``), word
+  ``k`` at phase ``2πk/N``: ``I = Σ d_k cos(2πk/N)``, ``Q = Σ d_k sin(2πk/N)``, phase
+  ``arg(I + jQ)`` (:func:`sdk_quad_iq`, :func:`decode_frame`).
 
 12-bit phase to depth: ``θ = 2π · phase12 / 4096``, ``depth = θ · c / (4π f)`` (Eq. 1), then
-the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`). The SDK's ambient and
-flag bit meanings are not documented; they are passed through.
+the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`).
 
-**Corrupt frames**: without a checksum the decoder can check only what the format fixes — the
-exact size, the unused top bits of the 12-bit quad samples and the ±(2^12 − 1) range of I/Q.
-A flipped bit inside a depth-mode word is undetectable (USB's own packet CRC is the real
-protection on the wire).
+**Corrupt frames**: without a checksum only the size can be checked (and the ±(2^12 − 1)
+range of I/Q); a flipped bit inside a word is undetectable (USB's packet CRC protects the
+wire).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -199,15 +189,42 @@ REGISTERS: dict[str, Field] = {
     "frm_header_en": Field(0x5C3C, 1, 1),  # bank 3 reg 60
     "blk_header_en": Field(0x5C3C, 2, 2),
     "intg_duty_cycle": Field(0x5C4C, 0, 5),  # bank 3 reg 76
+    # read-only failure flags, bank 3 reg 99 (DML ids 6369 and 2124; read back after a write
+    # by ToFCamera::_setFrameRate and IntegrationTimeParameter::set, ToFCamera.cpp)
+    "pix_cnt_max_set_failed": Field(0x5C63, 22, 22),
+    "intg_duty_cycle_set_failed": Field(0x5C63, 23, 23),
+    # de-aliasing, switched off for one frequency (TintinUnambiguousRangeParameter::set,
+    # ToFTintinCamera.cpp): dealias_en bank 3 reg 2 bit 23, dealias_16bit_op_enable reg 40 bit 23
+    "dealias_en": Field(0x5C02, 23, 23),
+    "dealias_16bit_op_enable": Field(0x5C28, 23, 23),
+    # illumination-delay coefficient: DML id 10019 "delay_fb_coeff_1 = f1·1024/24MHz", bank 3
+    # reg 179 bits 0-11; written after each frequency change (ToFTintinCamera.cpp, same place)
+    "delay_fb_coeff_1": Field(0x5CB3, 0, 11),
+    # second temperature-sensor slave address, bank 3 reg 46 bits 0-6: DML default 113 (0x71);
+    # TintinCDKCamera::_init writes 0x72 (TILLUM_SLAVE_ADDR): the board-initialised marker
+    "tillum_slv_addr": Field(0x5C2E, 0, 6),
 }
 
+#: Limits of the TintinCDK board (``TintinCDKCamera::_init``, TintinCDKCamera.cpp):
+#: ``pix_cnt_max`` lower limit 50000, ``intg_duty_cycle`` upper limit 20.
+PIX_CNT_MAX_MIN = 50_000
+INTG_DUTY_CYCLE_MAX = 20
+#: ``tillum_slv_addr`` after TI's board initialisation (TintinCDKCamera::_init).
+TILLUM_SLAVE_ADDR_INIT = 0x72
+#: Valid ``quad_cnt_max`` and ``sub_frame_cnt_max`` (OPT9221.dml descriptions of ids 82, 83).
+QUAD_COUNTS = (4, 6)
+SUB_FRAME_COUNTS = (1, 2, 4, 8)
+
 #: frame mode -> (output_mode, pixel_data_size, op_data_arrange_mode) (module docstring).
+#: ``pixel_data_size`` defines only 2 and 4 (OPT9221.dml id 1067); in ``"quad"`` mode the SDK
+#: never writes it and sizes the transfer as ``quad_cnt_max · 2`` bytes per pixel
+#: (``TintinCDKCamera::_setStreamerFrameSize``), so torchtof leaves it at 4 (the default).
 FRAME_MODES: dict[str, tuple[int, int, int]] = {
     "depth": (0, 4, 0),
     "depth8": (0, 4, 2),
     "depth2": (0, 2, 0),
     "iq": (1, 4, 0),
-    "quad": (15, 8, 0),
+    "quad": (15, 4, 0),
 }
 _TWO_PI = 2.0 * math.pi
 
@@ -338,25 +355,73 @@ def pack_iq(i, q) -> bytes:
     return np.stack([i, q], axis=-1).astype("<i2").tobytes()
 
 
-def pack_quads(taps) -> bytes:
-    """A raw-quad frame (``output_mode`` 15, **assumed layout**): four uint16 taps per pixel,
-    ``taps`` ``(4, H, W)`` in the Fig. 1 order."""
-    t = np.asarray(taps)
-    if t.ndim != 3 or t.shape[0] != 4 or (t < 0).any() or (t > 0xFFFF).any():
-        raise ValueError(f"pack_quads: expected integer taps (4, H, W) in [0, 65535], got "
+#: Simulator convention (not TI's): a 12-bit model tap ``c`` in ``[0, 4095]`` is sent as the
+#: signed sample ``c − QUAD_OFFSET``; the offset a real OPT9221 removes is not documented.
+QUAD_OFFSET = 2048
+
+
+def pack_quads(samples) -> bytes:
+    """A raw-quad frame (``output_mode`` 15) from signed samples ``(N, H, W)`` in the SDK's
+    word order (word ``k`` at phase ``2πk/N``, ``ToFFrameGenerator::_generateToFRawIQFrame``):
+    ``N`` little-endian 16-bit words per pixel, each the sample as an int16 (its low 12 bits
+    are what the SDK reads, sign-extended).
+
+    Example:
+        >>> pack_quads(np.array([[[-256]], [[5]], [[0]], [[2047]]])).hex(" ")
+        '00 ff 05 00 00 00 ff 07'
+    """
+    t = np.asarray(samples)
+    if t.ndim != 3 or t.shape[0] < 1 or (t < -2048).any() or (t > 2047).any():
+        raise ValueError(f"pack_quads: expected integer samples (N, H, W) in [-2048, 2047], got "
                          f"shape {t.shape}")
-    return np.moveaxis(t, 0, -1).astype("<u2").tobytes()
+    return np.moveaxis(t, 0, -1).astype("<i2").tobytes()
 
 
-def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None) -> bytes:
+def quads_from_taps(taps, quads: int = 4) -> np.ndarray:
+    """Signed SDK-order samples ``(N, H, W)`` from integer model taps ``(4, H, W)`` in the
+    Fig. 1 order (``τ = 0, π, π/2, 3π/2``), for the simulator.
+
+    The SDK gives ``phase = arg(I + jQ)`` with ``I = Σ d_k cos(2πk/N)``, ``Q = Σ d_k
+    sin(2πk/N)`` (ToFFrameGenerator.cpp), so word ``k`` is the correlation sample at delay
+    ``−2πk/N``: for ``N = 4`` the words are ``c₁, c₄, c₂, c₃`` (``I = c₁ − c₂``, ``Q = c₄ − c₃``,
+    Eq. 7); for another ``N`` torchtof synthesises ``m + (I cos φ_k + Q sin φ_k)/2`` (``m`` the
+    taps' mean) rounded to integers. Each sample is then ``− QUAD_OFFSET``."""
+    t = np.asarray(taps).astype(np.int64)
+    if t.ndim != 3 or t.shape[0] != 4:
+        raise ValueError(f"quads_from_taps: expected taps (4, H, W), got {t.shape}")
+    quads = _check_quads(quads, "quads_from_taps")
+    if quads == 4:
+        d = t[[0, 3, 1, 2]]
+    else:
+        i, q, m = t[0] - t[1], t[3] - t[2], t.mean(axis=0)
+        phi = 2 * np.pi * np.arange(quads) / quads
+        d = np.rint(m[None] + 0.5 * (i[None] * np.cos(phi)[:, None, None]
+                                     + q[None] * np.sin(phi)[:, None, None])).astype(np.int64)
+    return np.clip(d - QUAD_OFFSET, -2048, 2047)
+
+
+def sdk_quad_iq(words: np.ndarray, quads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(samples, I, Q)`` of raw-quad words ``(H, W, N)`` as the SDK computes them
+    (``ToFFrameGenerator::_generateToFRawIQFrame``, quad branch): each 16-bit word's low 12
+    bits sign-extended (``(int16)(w << 4) >> 4``), ``I = Σ d_k cos(2πk/N)``, ``Q = Σ d_k
+    sin(2πk/N)`` in float64 (the SDK's sine/cosine tables, ``ToFFrameGenerator::
+    setParameters``). The top 4 bits are ignored, as the SDK ignores them."""
+    w = np.ascontiguousarray(words, dtype=np.uint16)
+    d = ((w << 4).view(np.int16) >> 4).astype(np.int32)
+    phi = 2 * np.pi * np.arange(quads) / quads
+    return d, d @ np.cos(phi), d @ np.sin(phi)
+
+
+def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None, quads: int = 4) -> bytes:
     """Encode one frame in ``mode`` from integer taps ``(4, H, W)`` (Fig. 1 order), as the
     camera would send it: phase and amplitude of Eqs. 7-8 rounded to 12 bits for the depth
-    modes, ``I = c₁ − c₂``, ``Q = c₄ − c₃`` for ``"iq"``, the taps for ``"quad"``."""
+    modes, ``I = c₁ − c₂``, ``Q = c₄ − c₃`` for ``"iq"``, ``quads`` signed SDK-order samples
+    per pixel for ``"quad"`` (:func:`quads_from_taps`)."""
     t = np.asarray(taps)
     if t.ndim != 3 or t.shape[0] != 4:
         raise ValueError(f"encode_frame: expected taps (4, H, W), got {t.shape}")
     if mode == "quad":
-        return pack_quads(t)
+        return pack_quads(quads_from_taps(t, quads))
     ti = t.astype(np.int64)
     i, q = ti[0] - ti[1], ti[3] - ti[2]
     if mode == "iq":
@@ -391,41 +456,61 @@ def split_frame_id(raw: bytes) -> tuple[int, bytes]:
     return raw[FRAME_ID_BYTE], raw[:FRAME_ID_BYTE] + b"\x00" + raw[FRAME_ID_BYTE + 1 :]
 
 
-def frame_bytes(width: int, height: int, mode: str) -> int:
-    """Bytes of one frame: ``width · height · pixel_data_size`` (TintinCDKCamera.cpp)."""
+def _check_quads(quads, where: str) -> int:
+    if isinstance(quads, bool) or not isinstance(quads, (int, np.integer)) or \
+            int(quads) not in QUAD_COUNTS:
+        raise ValueError(f"{where}: expected quads (quad_cnt_max) in {QUAD_COUNTS} "
+                         f"(OPT9221.dml), got {quads!r}")
+    return int(quads)
+
+
+def frame_bytes(width: int, height: int, mode: str, quads: int = 4) -> int:
+    """Bytes of one frame: ``width · height · pixel_data_size``, or ``· 2 · quad_cnt_max`` in
+    ``"quad"`` mode (``TintinCDKCamera::_setStreamerFrameSize``)."""
     if mode not in FRAME_MODES:
         raise ValueError(f"frame_bytes: unknown mode {mode!r}; expected one of "
                          f"{list(FRAME_MODES)}")
-    return int(width) * int(height) * FRAME_MODES[mode][1]
+    per_pixel = 2 * _check_quads(quads, "frame_bytes") if mode == "quad" else FRAME_MODES[mode][1]
+    return int(width) * int(height) * per_pixel
 
 
 def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str = "depth",
                  rules: CameraRules = CameraRules(), frame_id: int = 0,
-                 timestamp: float = 0.0, adc_bits: int = 12) -> Frame:
+                 timestamp: float = 0.0, adc_bits: int = 12, quads: int = 4) -> Frame:
     """Decode one bulk transfer into a :class:`Frame` (module docstring for the layouts).
 
-    Phase, amplitude and depth follow Eqs. 7, 8 and 1 and the camera rules (§2.2): from the
-    taps in ``"quad"`` mode and from ``I``/``Q`` in ``"iq"`` mode exactly as
-    :func:`torchtof.sensor.cw_tof_sensor` computes them; from the 12-bit words otherwise.
-    ``frame_id`` and ``timestamp`` come from the host (the frames carry neither).
+    ``"quad"``: ``quads`` signed 12-bit samples per pixel, ``I``/``Q`` as the SDK computes
+    them (:func:`sdk_quad_iq`); ``Frame.taps`` are Fig. 1-order taps with the same ``I``/``Q``
+    up to the factor ``N/4`` — for ``N = 4`` the samples themselves (``c₁, c₂, c₃, c₄ =
+    d₀, d₂, d₃, d₁``), else ``m ± 2I/N``, ``m ∓ 2Q/N`` around the samples' mean ``m`` (linear
+    in the light, so per-tap buckets stay linear) — and phase and amplitude follow Eqs. 7-8 on
+    them, i.e. ``phase = arg(I + jQ)`` as in the SDK and amplitude ``2|I + jQ|/N``.
+    ``"iq"``: phase and amplitude from ``I``/``Q`` (Eqs. 7, 8). Depth modes: the 12-bit words.
+    Then Eq. 1 and the camera rules (§2.2). ``frame_id`` and ``timestamp`` come from the host.
 
     Raises:
-        FrameError: wrong size, quad samples beyond ``adc_bits`` (reserved bits set), I/Q
-            beyond ``±(2^adc_bits − 1)``.
-        ValueError: unknown mode, or ``"depth8"`` with a width not divisible by 8.
+        FrameError: wrong size, I/Q beyond ``±(2^adc_bits − 1)``.
+        ValueError: unknown mode, a bad ``quads``, or ``"depth8"`` with a width not divisible
+            by 8.
     """
     raw = bytes(raw)
     h, w = int(height), int(width)
-    need = frame_bytes(w, h, mode)
+    need = frame_bytes(w, h, mode, quads)
     if len(raw) != need:
         raise FrameError(f"{len(raw)} bytes, a {w}x{h} {mode!r} frame has {need}")
     taps = ambient = flags = None
     limit = (1 << adc_bits) - 1
     if mode == "quad":
-        q = np.frombuffer(raw, dtype="<u2").reshape(h, w, 4)
-        if int(q.max(initial=0)) > limit:
-            raise FrameError(f"reserved bits set: a quad sample exceeds {adc_bits} bits")
-        taps = torch.from_numpy(np.ascontiguousarray(np.moveaxis(q, -1, 0)).astype(np.float32))
+        n = int(quads)
+        words = np.frombuffer(raw, dtype="<u2").reshape(h, w, n)
+        if n == 4:  # the samples themselves: I = d0 - d2, Q = d1 - d3 exactly
+            t = ((words << 4).view(np.int16) >> 4)[..., [0, 2, 3, 1]]
+        else:
+            d, i_sdk, q_sdk = sdk_quad_iq(words, n)
+            m = d.mean(axis=-1)
+            i4, q4 = i_sdk * (2.0 / n), q_sdk * (2.0 / n)
+            t = np.stack([m + i4, m - i4, m - q4, m + q4], axis=-1)
+        taps = torch.from_numpy(np.ascontiguousarray(np.moveaxis(t, -1, 0)).astype(np.float32))
         t4 = taps[None]
     elif mode == "iq":
         iq = np.frombuffer(raw, dtype="<i2").reshape(h, w, 2).astype(np.int64)
@@ -465,18 +550,30 @@ class OPT8241:
     """OPT8241-CDK-EVM frame source over any pyusb-like device (``ctrl_transfer`` and
     ``read``), e.g. ``usb.core.Device`` (:meth:`open`) or the simulator's fake camera.
 
+    **Precondition**: TI's SDK (Voxel Viewer, or ``voxelsdk``'s ``CameraSystem`` connecting
+    to the camera) has initialised the board since it was powered (illumination driver,
+    potentiometer, current monitors, profile: ``TintinCDKCamera::_init``,
+    ``ToFTintinCamera::_init``). torchtof does not repeat that; :meth:`start` reads back
+    ``tillum_slv_addr`` (0x71 at power-up, 0x72 after TI's initialisation) and refuses to
+    stream from an uninitialised board (:meth:`check_initialised`).
+
     Args:
         dev: the USB device.
         width, height: frame size in pixels (QVGA 320×240; smaller with an ROI).
         rules: the camera rules applied to the decoded depth.
-        mode: frame mode (:data:`FRAME_MODES`); ``"quad"`` (raw taps, assumed layout) is
-            needed for per-tap buckets.
+        mode: frame mode (:data:`FRAME_MODES`); ``"quad"`` (raw samples) is needed for
+            per-tap buckets.
         adc_bits: significant bits of the correlation samples (12, datasheet).
         slave: put the OPT9221 in ``slave_mode`` (one frame per external VD_IN sync).
         timeout_s: default frame timeout.
         clock: host clock for the frame timestamps (seconds), as the SDK stamps frames.
         frame_ids: enable the OPT9221's ``debug_frame_number_en``: each frame's id is the
             device's 8-bit frame number from byte 0 (module docstring), else a host count.
+        quads: ``quad_cnt_max`` written by :meth:`configure` (4 or 6, OPT9221.dml).
+        sub_frames: ``sub_frame_cnt_max`` written by :meth:`set_frame_time` (1, 2, 4, 8).
+        queue_frames: frames the reader thread may hold before it drops the oldest
+            (``USBBulkStreamer::putBuffer`` does the same); each drop is counted in
+            :attr:`stats` and reported by :meth:`grab` as a lost frame.
     """
 
     what = "TI OPT8241 ToF camera"
@@ -484,19 +581,32 @@ class OPT8241:
     def __init__(self, dev, width: int = 320, height: int = 240,
                  rules: CameraRules = CameraRules(), mode: str = "depth", adc_bits: int = 12,
                  slave: bool = True, timeout_s: float = 2.0, clock=time.time,
-                 frame_ids: bool = False) -> None:
+                 frame_ids: bool = False, quads: int = 4, sub_frames: int = 1,
+                 queue_frames: int = 64) -> None:
         if mode not in FRAME_MODES:
             raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
                              f"{list(FRAME_MODES)}")
         if int(width) < 1 or int(height) < 1 or (mode == "depth8" and int(width) % 8):
             raise ValueError(f"OPT8241: bad frame size {width}x{height} for mode {mode!r}")
+        if isinstance(sub_frames, bool) or sub_frames not in SUB_FRAME_COUNTS:
+            raise ValueError(f"OPT8241: expected sub_frames in {SUB_FRAME_COUNTS} "
+                             f"(OPT9221.dml sub_frame_cnt_max), got {sub_frames!r}")
+        if isinstance(queue_frames, bool) or not isinstance(queue_frames, int) or \
+                queue_frames < 1:
+            raise ValueError(f"OPT8241: expected queue_frames a positive int, got "
+                             f"{queue_frames!r}")
         self.dev, self.width, self.height = dev, int(width), int(height)
         self.rules, self.mode, self.adc_bits = rules, mode, int(adc_bits)
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
         self.frame_ids = bool(frame_ids)
+        self.quads = _check_quads(quads, "OPT8241")
+        self.sub_frames, self.queue_frames = int(sub_frames), int(queue_frames)
         self.registers = dict(REGISTERS)
         self.pattern_index: int | None = None  # set by acquire(): named in timeout errors
         self._next_id = 0
+        self._reader = None
+        self.stats = {"frames": 0, "host_dropped": 0, "bad_size": 0, "endpoint_resets": 0,
+                      "max_queued": 0}
 
     @classmethod
     def open(cls, **kwargs) -> OPT8241:
@@ -513,6 +623,21 @@ class OPT8241:
             raise translate_usb_error(exc, cls.what, "open") from exc
         return cls(dev, **kwargs)
 
+    def close(self) -> None:
+        """Stop streaming (if it runs) and release the USB device; safe to call twice."""
+        try:
+            if self._reader is not None:
+                self.stop()
+        except HardwareError:
+            pass
+        finally:
+            try:
+                import usb.util
+
+                usb.util.dispose_resources(self.dev)
+            except Exception:  # noqa: BLE001 - fake devices, already gone
+                pass
+
     # -- registers ---------------------------------------------------------------------------
     def write_register(self, address: int, value: int) -> None:
         """Write a whole register (``slave << 8 | reg``), little endian (VoxelUSBProgrammer)."""
@@ -522,25 +647,35 @@ class OPT8241:
                              f"{nbytes}-byte register 0x{address:04x}")
         data = int(value).to_bytes(nbytes, "little")
         name = f"write register 0x{address:04x}"
-        try:
-            n = self.dev.ctrl_transfer(rtype, req, wvalue, windex, data, 1000)
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        n = self._ctrl(name, rtype, req, wvalue, windex, data)
         if n != nbytes:
             raise ProtocolError(name, f"device accepted {n} of {nbytes} bytes")
+
+    #: attempts of a control transfer that stalls (EPIPE); register reads and writes are
+    #: idempotent, so a stalled one is simply repeated
+    ctrl_attempts = 3
+
+    def _ctrl(self, name: str, *request):
+        for attempt in range(self.ctrl_attempts):
+            try:
+                return self.dev.ctrl_transfer(*request, 1000)
+            except HardwareError:
+                raise
+            except Exception as exc:
+                if getattr(exc, "errno", None) in (32, -9) and attempt + 1 < self.ctrl_attempts:
+                    continue
+                err = translate_usb_error(exc, self.what, name)
+                if getattr(exc, "errno", None) in (32, -9):
+                    err = ProtocolError(name, f"the device stalled the request "
+                                        f"{self.ctrl_attempts} times (a value the register "
+                                        f"map calls invalid?): {exc}")
+                raise err from exc
 
     def read_register(self, address: int) -> int:
         """Read a whole register (``slave << 8 | reg``)."""
         rtype, req, wvalue, windex, nbytes = register_request(int(address), write=False)
         name = f"read register 0x{address:04x}"
-        try:
-            data = bytes(self.dev.ctrl_transfer(rtype, req, wvalue, windex, nbytes, 1000))
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, name) from exc
+        data = bytes(self._ctrl(name, rtype, req, wvalue, windex, nbytes))
         if len(data) != nbytes:
             raise ProtocolError(name, f"expected {nbytes} bytes, got {len(data)}")
         return int.from_bytes(data, "little")
@@ -569,7 +704,7 @@ class OPT8241:
                              f"{f.lsb}..{f.msb}") from None
         self.write_register(f.address, new)
 
-    # -- modulation frequency and integration time -------------------------------------------
+    # -- modulation frequency, frame time and integration time -------------------------------
     @property
     def freq_hz(self) -> float:
         """Modulation frequency in Hz from the PLL registers (module docstring)."""
@@ -577,15 +712,26 @@ class OPT8241:
             "mod_m1", "mod_m_frac1", "mod_n1", "mod_ps1", "quad_cnt_max")))
 
     def set_modulation_frequency(self, freq_hz: float) -> float:
-        """Program PLL 1 for ``freq_hz`` as the Voxel SDK does; returns the frequency the
-        registers now give (Hz)."""
+        """Program PLL 1 for ``freq_hz`` as the Voxel SDK does, then the illumination-delay
+        coefficient ``delay_fb_coeff_1 = ⌊f[MHz] · 1024 / 24⌋`` (DML description of
+        ``delay_fb_coeff_1``; ``TintinUnambiguousRangeParameter::set``, ToFTintinCamera.cpp,
+        writes it after each frequency change); returns the frequency the registers now give.
+
+        Raises:
+            ValueError: a frequency the PLL or the 12-bit delay coefficient cannot take.
+        """
         s = pll_settings(freq_hz, self.read_field("quad_cnt_max"))
+        coeff = int(float(freq_hz) / 1e6 * 1024 / 24)
+        if coeff > 4095:
+            raise ValueError(f"OPT8241: freq_hz {freq_hz!r} gives delay_fb_coeff_1 = {coeff} > "
+                             "4095 (12 bits, OPT9221.dml)")
         self.write_field("mod_pll_update", 1)
         try:
             for k in ("mod_m1", "mod_n1", "mod_m_frac1", "mod_ps1"):
                 self.write_field(k, s[k])
         finally:
             self.write_field("mod_pll_update", 0)
+        self.write_field("delay_fb_coeff_1", coeff)
         return self.freq_hz
 
     def _frame_cycles(self) -> int:
@@ -593,104 +739,306 @@ class OPT8241:
                 * self.read_field("sub_frame_cnt_max"))
 
     @property
+    def frame_time_us(self) -> float:
+        """``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` system clock cycles at 48 MHz
+        (DML description of ``pix_cnt_max``; ``ToFCamera::_getFrameRate``)."""
+        return self._frame_cycles() / SYSCLK_MHZ
+
+    def _check_flag(self, name: str, what: str) -> None:
+        if self.read_field(name):
+            raise HardwareError(f"{self.what}: the camera set {name} after {what} (OPT9221.dml: "
+                                f"{_FLAG_MEANING[name]}); choose a longer frame or a shorter "
+                                "integration time")
+
+    def set_frame_time(self, max_us: float, sub_frames: int | None = None) -> float:
+        """Program the frame time to at most ``max_us``: ``sub_frame_cnt_max`` (default
+        :attr:`sub_frames`) and ``pix_cnt_max = ⌊max_us · 48 / (quad_cnt_max ·
+        sub_frame_cnt_max)⌋`` as ``ToFCamera::_setFrameRate`` computes it, then the
+        ``pix_cnt_max_set_failed`` flag is read back (as there) and the integration duty
+        cycle re-checked; returns the frame time (µs).
+
+        Raises:
+            ValueError: ``max_us`` needs ``pix_cnt_max`` below the board's limit 50000
+                (``TintinCDKCamera::_init``) or beyond its 22 bits.
+            HardwareError: the camera set ``pix_cnt_max_set_failed``.
+        """
+        sub = self.sub_frames if sub_frames is None else sub_frames
+        if isinstance(sub, bool) or sub not in SUB_FRAME_COUNTS:
+            raise ValueError(f"OPT8241.set_frame_time: expected sub_frames in "
+                             f"{SUB_FRAME_COUNTS}, got {sub!r}")
+        quads = self.read_field("quad_cnt_max")
+        if isinstance(max_us, bool) or not isinstance(max_us, (int, float)) or \
+                not math.isfinite(max_us) or max_us <= 0:
+            raise ValueError(f"OPT8241.set_frame_time: expected a positive max_us, got {max_us!r}")
+        pix = int(max_us * SYSCLK_MHZ // (quads * sub))
+        if pix < PIX_CNT_MAX_MIN:
+            shortest = PIX_CNT_MAX_MIN * quads * sub / SYSCLK_MHZ
+            raise ValueError(f"OPT8241.set_frame_time: a frame of at most {max_us:g} us needs "
+                             f"pix_cnt_max = {pix} < {PIX_CNT_MAX_MIN} (the board's limit, "
+                             f"TintinCDKCamera.cpp); the shortest frame with {quads} quads and "
+                             f"{sub} sub-frame(s) is {shortest:g} us")
+        pix = min(pix, REGISTERS["pix_cnt_max"].mask >> REGISTERS["pix_cnt_max"].lsb)
+        self.write_field("sub_frame_cnt_max", sub)
+        self.write_field("pix_cnt_max", pix)
+        self._check_flag("pix_cnt_max_set_failed", f"pix_cnt_max = {pix}")
+        self._check_flag("intg_duty_cycle_set_failed", f"pix_cnt_max = {pix}")
+        return self.frame_time_us
+
+    @property
     def integration_time_us(self) -> float:
-        """``intg_duty_cycle / 63`` of the frame time (torchtof's µs conversion, module
-        docstring)."""
-        return self.read_field("intg_duty_cycle") / 63 * self._frame_cycles() / SYSCLK_MHZ
+        """``intg_duty_cycle · 100/64`` percent (DML description of ``intg_duty_cycle``,
+        ``IntegrationTimeParameter::get`` in ToFCamera.cpp) of the frame time (torchtof's µs
+        conversion: the SDK states only "percentage of total cycle time")."""
+        return self.read_field("intg_duty_cycle") / 64 * self.frame_time_us
 
     def set_integration_time(self, us: float) -> float:
-        """Nearest ``intg_duty_cycle`` (0-63) for ``us`` at the current frame time; returns
-        the integration time it gives (µs)."""
-        frame_us = self._frame_cycles() / SYSCLK_MHZ
+        """Nearest ``intg_duty_cycle = round(us / frame time · 64)`` (``IntegrationTimeParameter
+        ::set``), at most 20 on this board (``TintinCDKCamera::_init``), then the
+        ``intg_duty_cycle_set_failed`` flag read back; returns the integration time (µs).
+
+        Raises:
+            ValueError: beyond the duty-cycle limit 20 (31.25 % of the frame time).
+            HardwareError: the camera set ``intg_duty_cycle_set_failed``.
+        """
+        frame_us = self.frame_time_us
+        top = INTG_DUTY_CYCLE_MAX / 64 * frame_us
         if isinstance(us, bool) or not isinstance(us, (int, float)) or not math.isfinite(us) \
-                or not 0 <= us <= frame_us:
-            raise ValueError(f"OPT8241: expected integration time in [0, {frame_us:g}] us "
-                             f"(the frame time), got {us!r}")
-        self.write_field("intg_duty_cycle", min(63, round(us / frame_us * 63)))
+                or not 0 <= us:
+            raise ValueError(f"OPT8241: expected a non-negative integration time in us, got "
+                             f"{us!r}")
+        duty = int(us / frame_us * 64 + 0.5)
+        if duty > INTG_DUTY_CYCLE_MAX:
+            raise ValueError(f"OPT8241: integration time {us:g} us needs intg_duty_cycle = "
+                             f"{duty} > {INTG_DUTY_CYCLE_MAX} (the board's limit, "
+                             f"TintinCDKCamera.cpp): at most {top:g} us at this frame time")
+        self.write_field("intg_duty_cycle", duty)
+        self._check_flag("intg_duty_cycle_set_failed", f"intg_duty_cycle = {duty}")
         return self.integration_time_us
 
     def frame_counter(self) -> int:
         """Frames received since :meth:`start` (host-side, as the SDK numbers frames)."""
         return self._next_id
 
+    def check_initialised(self) -> None:
+        """The class docstring's precondition: ``tillum_slv_addr`` reads 0x72.
+
+        Raises:
+            HardwareError: it reads anything else (the board was not initialised by TI's SDK).
+        """
+        got = self.read_field("tillum_slv_addr")
+        if got != TILLUM_SLAVE_ADDR_INIT:
+            raise HardwareError(
+                f"{self.what}: tillum_slv_addr reads 0x{got:02x}, not 0x72: TI's board "
+                "initialisation (illumination driver, potentiometer, current monitors, profile) "
+                "has not run since the camera was powered. Connect to it once with TI's Voxel "
+                "Viewer (or voxelsdk), choose a profile, disconnect, then run torchtof.")
+
     # -- streaming ---------------------------------------------------------------------------
-    def configure(self) -> None:
-        """Output format of :attr:`mode`, no frame or block header (bulk device), slave mode,
-        device frame numbers on/off (:attr:`frame_ids`)."""
+    def configure(self, period_us: float | None = None, margin_us: float = 500.0) -> None:
+        """Output format of :attr:`mode` (no frame or block header: bulk device), de-aliasing
+        off and ``quad_cnt_max`` = :attr:`quads` with the modulation frequency kept
+        (``TintinUnambiguousRangeParameter::set`` for one frequency), slave mode, device frame
+        numbers on/off (:attr:`frame_ids`); with ``period_us`` the frame time is set to fit
+        one pattern period less ``margin_us`` (:meth:`set_frame_time`)."""
         out, size, arrange = FRAME_MODES[self.mode]
         self.write_field("tg_dis", 1)
+        if self.read_field("quad_cnt_max") != self.quads:
+            freq = self.freq_hz
+            self.write_field("quad_cnt_max", self.quads)
+            self.set_modulation_frequency(freq)
+        self.write_field("dealias_en", 0)
+        self.write_field("dealias_16bit_op_enable", 0)
         self.write_field("output_mode", out)
-        self.write_field("pixel_data_size", size)
+        if self.mode != "quad":  # the SDK sizes quad frames from quad_cnt_max (FRAME_MODES)
+            self.write_field("pixel_data_size", size)
         self.write_field("op_data_arrange_mode", arrange)
         self.write_field("blk_header_en", 0)
         if self.frame_ids:  # the number must be byte 0 of the transfer: no frame header
             self.write_field("frm_header_en", 0)
         self.write_field("debug_frame_number_en", int(self.frame_ids))
         self.write_field("slave_mode", int(self.slave))
+        if period_us is not None:
+            self.set_frame_time(float(period_us) - float(margin_us))
 
     def start(self) -> None:
-        self.configure()
+        """Check the precondition, configure (unless :meth:`configure` ran since the last
+        stop), reset the bulk endpoint and start the reader thread (``USBBulkStreamer``:
+        ``resetBulkEndPoint`` then a capture thread), then ``tg_dis = 0`` (OPT9221.dml: '0'
+        normal operation, '1' TFC stops all processing)."""
+        self.check_initialised()
+        if not getattr(self, "_configured", False):
+            self.configure()
         self._freq = self.freq_hz
         self._next_id = 0
+        self._reset_endpoint()
+        self._start_reader()
         self.write_field("tg_dis", 0)
+        self._configured = False
 
     def stop(self) -> None:
-        self.write_field("tg_dis", 1)
+        """``tg_dis = 1`` (streaming halts), then the reader thread is stopped."""
+        try:
+            self.write_field("tg_dis", 1)
+        finally:
+            self._stop_reader()
+
+    def _reset_endpoint(self) -> None:
+        clear = getattr(self.dev, "clear_halt", None)
+        if clear is None:
+            return
+        try:
+            clear(EP_FRAMES)  # USBIO::resetBulkEndPoint: libusb_clear_halt
+        except Exception as exc:
+            raise translate_usb_error(exc, self.what, "reset bulk endpoint") from exc
+        self.stats["endpoint_resets"] += 1
 
     @property
     def frame_size(self) -> int:
-        return frame_bytes(self.width, self.height, self.mode)
+        return frame_bytes(self.width, self.height, self.mode, self.quads)
 
     def _read(self, timeout_s: float):
         return self.dev.read(EP_FRAMES, self.frame_size + BULK_EXTRA,
                              max(1, int(timeout_s * 1000)))
 
+    # The reader thread: reads transfers continuously into a bounded queue (USBBulkStreamer:
+    # a capture thread, 200 ms transfer timeout, oldest buffer dropped when the consumer is
+    # slow). Items: (raw bytes, host time) or (exception, None); a drop puts a marker first.
+    def _start_reader(self) -> None:
+        import threading
+
+        self._stop_reader()
+        self._items: deque = deque()
+        self._queued = 0  # frames (not markers) in _items
+        self._cond = threading.Condition()
+        self._halt = threading.Event()
+        self._reader = threading.Thread(target=self._read_loop, name="torchtof-opt8241-reader",
+                                        daemon=True)
+        self._reader.start()
+
+    def _read_loop(self) -> None:
+        import usb.core
+
+        while not self._halt.is_set():
+            try:
+                item = (bytes(self._read(0.2)), float(self.clock()))
+            except usb.core.USBTimeoutError:
+                continue
+            except Exception as exc:  # noqa: BLE001 - handed to grab() to translate
+                item = (exc, None)
+                if getattr(exc, "errno", None) in (32, -9):  # EPIPE: a stalled endpoint
+                    try:  # USBBulkStreamer resets the endpoint and goes on
+                        self._reset_endpoint()
+                        item = (_Stalled(), None)
+                    except HardwareError:
+                        pass
+            with self._cond:
+                if isinstance(item[0], bytes):
+                    if self._queued >= self.queue_frames:  # host too slow: drop the oldest
+                        i = next(k for k, it in enumerate(self._items) if isinstance(it[0], bytes))
+                        self._items[i] = (_Dropped(), None)
+                        self._queued -= 1
+                        self.stats["host_dropped"] += 1
+                    self._queued += 1
+                    self.stats["max_queued"] = max(self.stats["max_queued"], self._queued)
+                self._items.append(item)
+                self._cond.notify()
+            if not isinstance(item[0], (bytes, _Stalled)):
+                return
+
+    def _stop_reader(self) -> None:
+        t = getattr(self, "_reader", None)
+        if t is not None:
+            self._halt.set()
+            if t is not threading_current():
+                t.join(timeout=5.0)
+        self._reader = None
+
+    def _next_raw(self, timeout: float):
+        if getattr(self, "_cond", None) is None:
+            raise HardwareError(f"{self.what}: not streaming (call start() first)")
+        with self._cond:
+            if not self._cond.wait_for(lambda: bool(self._items), timeout=timeout):
+                raise FrameTimeoutError(self.pattern_index, timeout)
+            raw, stamp = self._items.popleft()
+            if isinstance(raw, bytes):
+                self._queued -= 1
+        return raw, stamp
+
     def grab(self, timeout_s: float | None = None) -> Frame:
-        """Read and decode the next frame from bulk endpoint 0x82; its id is the device's
+        """The next frame from the reader thread's queue, decoded; its id is the device's
         frame number (``frame_ids=True``, :func:`split_frame_id`) or the next host count, its
-        timestamp the host time.
+        timestamp the host time the transfer completed.
 
         Raises:
             FrameTimeoutError: nothing arrived (names :attr:`pattern_index` when set).
-            FrameError: the bytes do not decode (wrong size, reserved bits).
+            FrameError: a transfer of the wrong size (the SDK drops those; torchtof reports
+                them so that the sequence is re-acquired), or the host queue overflowed and
+                dropped frames (``host_dropped`` in :attr:`stats`).
             DeviceLostError: the camera disappeared.
         """
         import usb.core
 
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
-        try:
-            raw = self._read(timeout)
-        except usb.core.USBTimeoutError as exc:
-            raise FrameTimeoutError(self.pattern_index, timeout) from exc
-        except HardwareError:
-            raise
-        except Exception as exc:
-            raise translate_usb_error(exc, self.what, "bulk read") from exc
-        stamp = float(self.clock())
+        raw, stamp = self._next_raw(timeout)
+        if isinstance(raw, _Dropped):
+            raise FrameError("the host fell behind: the reader queue was full and dropped a "
+                             f"frame (queue_frames={self.queue_frames})", self.pattern_index)
+        if isinstance(raw, _Stalled):
+            raise FrameError("the bulk endpoint stalled and was reset: a frame may be lost",
+                             self.pattern_index)
+        if isinstance(raw, BaseException):
+            self._stop_reader()
+            if isinstance(raw, HardwareError):
+                raise raw
+            if isinstance(raw, usb.core.USBTimeoutError):
+                raise FrameTimeoutError(self.pattern_index, timeout) from raw
+            raise translate_usb_error(raw, self.what, "bulk read") from raw
         freq = getattr(self, "_freq", None) or self.freq_hz
-        raw = bytes(raw)
         try:
             fid, data = split_frame_id(raw) if self.frame_ids else (self._next_id, raw)
             frame = decode_frame(data, self.width, self.height, freq, self.mode,
-                                 self.rules, fid, stamp, self.adc_bits)
+                                 self.rules, fid, stamp, self.adc_bits, self.quads)
         except FrameError as exc:
+            self.stats["bad_size"] += 1
             raise FrameError(str(exc).removeprefix("corrupt frame: "), self.pattern_index) from exc
         self._next_id += 1
+        self.stats["frames"] += 1
         if self.frame_ids:
             frame = replace(frame, raw=raw)  # as received, number included (duplicate check)
         return frame
 
     def flush(self, timeout_s: float = 0.05) -> int:
         """Discard queued frames until none arrives within ``timeout_s``; returns the count."""
-        import usb.core
-
         n, t0 = 0, time.monotonic()
         while time.monotonic() - t0 < 10.0:
             try:
-                self._read(timeout_s)
-            except usb.core.USBTimeoutError:
+                raw, _ = self._next_raw(timeout_s)
+            except FrameTimeoutError:
                 return n
-            except Exception as exc:
-                raise translate_usb_error(exc, self.what, "flush") from exc
-            n += 1
+            if isinstance(raw, BaseException):
+                self._stop_reader()
+                if isinstance(raw, HardwareError):
+                    raise raw
+                raise translate_usb_error(raw, self.what, "flush") from raw
+            n += isinstance(raw, bytes)
         raise ProtocolError("flush", "camera keeps sending frames after 10 s")
+
+
+class _Dropped:
+    """Queue marker: the reader dropped a frame here because the host queue was full."""
+
+
+class _Stalled:
+    """Queue marker: a bulk read failed with a stalled endpoint, which was reset."""
+
+
+def threading_current():
+    import threading
+
+    return threading.current_thread()
+
+
+_FLAG_MEANING = {
+    "pix_cnt_max_set_failed": "indicates the pix_cnt_max setting is too low",
+    "intg_duty_cycle_set_failed": "indicates that the integration duty cycle is too high",
+}

@@ -17,8 +17,10 @@ its frame number). With ``debug_frame_number_en`` set, byte 0 of every packet is
 of a counter that advances once per frame the camera outputs — delivered, dropped or
 spurious — starting at ``frame_number_start`` (:mod:`.opt8241` on what is assumed).
 
-Noise is drawn frame by frame from one generator seeded with ``seed``, so an uninterrupted
-acquisition equals ``PaperExperiment(..., chunk_frames=1).run(seed)`` bucket for bucket.
+Each frame's noise comes from a generator seeded from ``seed`` and the displayed pattern
+(:meth:`SimulatedBench.noise_generator`), so a retried or resumed frame is the frame the
+uninterrupted run recorded; a noise-free acquisition equals ``PaperExperiment`` bucket for
+bucket.
 
 Fault injection (:class:`Faults`): frame-level faults are keyed by the camera's frame
 ordinal (0 = first frame rendered), command faults by the command's occurrence count.
@@ -26,7 +28,10 @@ ordinal (0 = first frame rendered), command faults by the command's occurrence c
 
 from __future__ import annotations
 
+import hashlib
+import math
 import struct
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -63,13 +68,22 @@ class Faults:
     """Faults to inject. Frame ordinals count every frame the camera renders (from 0).
 
     Attributes:
-        frame_timeout: frames delivered late: the first read for them times out.
+        frame_timeout: triggers the camera misses: no frame and no frame number (the host
+            waits for it in vain: a frame timeout).
         drop: frames rendered but never delivered (a frame-id gap).
         duplicate: frames delivered twice.
         extra: frames followed by one spurious, different frame (its words in reverse order),
             made by the camera itself: it takes the next frame number.
-        corrupt: frames with bit 14 of their third 16-bit word flipped (a reserved bit in the
-            ``"quad"`` and ``"iq"`` modes; undetectable in the depth modes).
+        corrupt: frames delivered 2 bytes short (a transfer of the wrong size: the only
+            damage the format can show, since the SDK ignores the top 4 bits of a quad word).
+        split: frames delivered as two bulk transfers (each of the wrong size).
+        stall: frames whose bulk read fails with a stalled endpoint (EPIPE); the frame is lost.
+        ctrl_fail: control-transfer ordinals (from 0) that fail once with EPIPE.
+        late_reply: ``{command: {occurrence}}``: the LightCrafter answers too late: the first
+            read times out and the reply is the next one read (stale, its sequence number the
+            old command's).
+        set_failed: OPT9221 failure flags forced to 1 (``"pix_cnt_max_set_failed"``,
+            ``"intg_duty_cycle_set_failed"``).
         nack: ``{command: {occurrence, ...}}``: the LightCrafter NACKs these writes
             (occurrence counts from 0 per command).
         reply_timeout: ``{command: {occurrence}}``: the LightCrafter does not answer.
@@ -88,6 +102,11 @@ class Faults:
     corrupt: set[int] = field(default_factory=set)
     nack: dict[str, set[int]] = field(default_factory=dict)
     reply_timeout: dict[str, set[int]] = field(default_factory=dict)
+    split: set[int] = field(default_factory=set)
+    stall: set[int] = field(default_factory=set)
+    ctrl_fail: set[int] = field(default_factory=set)
+    late_reply: dict[str, set[int]] = field(default_factory=dict)
+    set_failed: set[str] = field(default_factory=set)
     vanish_after_frames: int | None = None
     hang_at_frame: int | None = None
     hang_at_read: int | None = None
@@ -98,9 +117,10 @@ class Faults:
     def from_dict(cls, d: dict) -> Faults:
         kw = {}
         for k, v in d.items():
-            if k in ("frame_timeout", "drop", "duplicate", "extra", "corrupt"):
+            if k in ("frame_timeout", "drop", "duplicate", "extra", "corrupt", "split", "stall",
+                     "ctrl_fail", "set_failed"):
                 kw[k] = set(v)
-            elif k in ("nack", "reply_timeout"):
+            elif k in ("nack", "reply_timeout", "late_reply"):
                 kw[k] = {c: set(o) for c, o in v.items()}
             elif k in cls.__dataclass_fields__:
                 kw[k] = v
@@ -135,6 +155,9 @@ class FakeLightCrafter(_Gone):
         self.bench = bench
         self._asm = dlp.Assembler()
         self._replies: deque[bytes] = deque()
+        self._late: list[bytes] = []
+        self._mode_at = 0.0  # simulated time the last display-mode switch completes
+        self._prev_mode = False
         self.counts: dict[str, int] = {}
         self.log: list[dlp.Message] = []
         self.video_frame: np.ndarray | None = None
@@ -169,6 +192,10 @@ class FakeLightCrafter(_Gone):
         self._alive()
         if endpoint != dlp.EP_IN:
             raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
+        if self._late:  # a reply that comes too late: this read times out, the next gets it
+            self._replies.extendleft(reversed(self._late))
+            self._late.clear()
+            raise _usb_timeout()
         if not self._replies:
             raise _usb_timeout()
         return bytearray(self._replies.popleft()[:size])
@@ -181,6 +208,15 @@ class FakeLightCrafter(_Gone):
         self.counts[name] = occ + 1
         if occ in self.bench.faults.reply_timeout.get(name, ()):
             return
+        if occ in self.bench.faults.late_reply.get(name, ()):
+            n = len(self._replies)
+            self._handle_now(msg, name)
+            self._late.extend(self._replies.pop() for _ in range(len(self._replies) - n))
+            return
+        self._handle_now(msg, name)
+
+    def _handle_now(self, msg: dlp.Message, name: str) -> None:
+        occ = self.counts[name] - 1
         if occ in self.bench.faults.nack.get(name, ()) or name not in dlp.COMMANDS:
             self._replies.append(dlp.encode_reply(msg, nack=True))
             return
@@ -206,6 +242,9 @@ class FakeLightCrafter(_Gone):
             return b"\x01"  # internal memory test passed
         if name == "STATUS_MAIN":
             return bytes([0x01 | (0x02 if self.state["running"] else 0)])  # DMD parked? running
+        if name == "DISP_MODE":  # the old mode until the switch completes
+            switched = self.bench.now() >= self._mode_at
+            return bytes([int(self.state["pattern_mode"] if switched else self._prev_mode)])
         if name == "GET_VERSION":
             return struct.pack("<IIII", 0x03000000, 0x00010000, 0, 0)
         return None
@@ -219,6 +258,11 @@ class FakeLightCrafter(_Gone):
         elif name == "DISP_MODE":
             if p[0] > 1:
                 return False
+            self._prev_mode = s["pattern_mode"]
+            if s["pattern_mode"] != (p[0] == 1):
+                self._mode_at = self.bench.now() + self.bench.mode_latency_s
+                if not self.bench.realtime:
+                    self.bench.sim_time = self._mode_at
             s["pattern_mode"] = p[0] == 1
         elif name == "PAT_DISP_MODE":
             if p[0] not in (0, 3):
@@ -268,10 +312,11 @@ class FakeLightCrafter(_Gone):
                     return False
                 s["running"] = True
                 self._next = 0
-                if s["trigger"] == 1 and self._internal():
+                if (s["trigger"] == 1 and self._internal()) or s["trigger"] == 0:
                     self._play_all()
             else:
                 s["running"] = False
+                self.bench.camera_usb.cancel_triggers_after(self.bench.now())
         return True
 
     def _internal(self) -> bool:
@@ -285,6 +330,13 @@ class FakeLightCrafter(_Gone):
             status |= 0x01 | (0x10 if e is not None and per is not None and e < per else 0)
         cfg = s["config"]
         entries = [dlp.unpack_lut_entry(v) for v in self.pattern_lut]
+        if s["trigger"] == 0 and per is not None:  # exposures within one input frame
+            runs, k = [], 0
+            for x in entries:
+                k = 1 if x["trig"] != 3 else k + 1
+                runs.append(k)
+            if runs and max(runs) * per > 1e6 / self.bench.video_hz:
+                status |= 0x01
         if (cfg is None or not entries or cfg[0] + 1 != len(entries)
                 or any(x["pattern"] > 23 or x["bit_depth"] != 1 for x in entries)):
             status |= 0x02
@@ -305,44 +357,99 @@ class FakeLightCrafter(_Gone):
         plane = dlp.unpack_bitplane(frame, e["pattern"])
         return 1 - plane if e["invert"] else plane
 
+    def _times(self) -> list[float]:
+        """Start time (simulated s) of each LUT entry: every ``period`` on the internal
+        trigger; in VSYNC mode an entry with trigger type 1 waits for the next VSYNC of the
+        ``video_hz`` source and one with type 3 follows its predecessor (pyCrafter4500
+        ``pattern_mode``)."""
+        per = (self.state["period_us"] or 0) * 1e-6
+        t0 = self.bench.now()
+        entries = [dlp.unpack_lut_entry(v) for v in self.pattern_lut]
+        if self.state["trigger"] != 0:
+            return [t0 + k * per for k in range(len(entries))]
+        frame = 1.0 / self.bench.video_hz
+        times, t, vsync = [], t0, math.ceil(t0 / frame - 1e-9) * frame
+        for e in entries:
+            if e["trig"] != 3:
+                vsync = max(vsync, math.ceil(t / frame - 1e-9) * frame)
+                t = vsync
+                vsync += frame
+            times.append(t)
+            t += per
+        return times
+
     def _play_all(self) -> None:
-        for k in range(len(self.pattern_lut)):
-            self._show(k)
+        times = self._times()
+        for k, t in enumerate(times):
+            self._show(k, t)
+        if not self.bench.realtime and times:
+            per = (self.state["period_us"] or 0) * 1e-6
+            self.bench.sim_time = times[-1] + per
         self.state["running"] = False
 
-    def _show(self, k: int) -> None:
+    def _show(self, k: int, t: float | None = None) -> None:
         pat = self._pattern(k)
         self.shown.append(pat)
-        self.bench.camera_usb.trigger(pat)
+        self.bench.camera_usb.trigger(pat, t)
 
-    def trigger_in(self) -> None:
-        """A TRIG_IN edge (external trigger mode): show the next pattern."""
+    def trigger_in(self, t: float | None = None) -> None:
+        """A TRIG_IN edge at simulated time ``t`` (external trigger mode): show the next
+        pattern."""
         if self.state["running"] and self._next < len(self.pattern_lut):
-            self._show(self._next)
+            t = self.bench.now() if t is None else float(t)
+            self._show(self._next, t)
             self._next += 1
+            if not self.bench.realtime:
+                self.bench.sim_time = t + (self.state["period_us"] or 0) * 1e-6
 
 
 class FakeOPT8241(_Gone):
     """An OPT8241-CDK-EVM: 24-bit OPT9221 registers (and the 1/2-byte board slaves) behind
     the vendor control transfers, frames on bulk IN in the format its registers select
-    (``output_mode``, ``pixel_data_size``, ``op_data_arrange_mode``, :mod:`.opt8241`):
-    raw bytes, no header; byte 0 the frame number when ``debug_frame_number_en`` is set
-    (module docstring). Registers start at the OPT9221.dml defaults with PLL 1
-    set for the configuration's modulation frequency."""
+    (``output_mode``, ``pixel_data_size``, ``op_data_arrange_mode``, ``quad_cnt_max``,
+    :mod:`.opt8241`): raw bytes, no header; byte 0 the frame number when
+    ``debug_frame_number_en`` is set (module docstring). Registers start at the OPT9221.dml
+    defaults (frame time 100000 · 4 · 4 / 48 MHz = 33.3 ms) with PLL 1 set for the
+    configuration's modulation frequency and ``tillum_slv_addr`` = 0x72 when the bench says
+    TI's SDK initialised the board.
+
+    Like a device it: rejects (stalls) writes of values the register map calls invalid
+    (``quad_cnt_max`` ∉ {4, 6}, ``sub_frame_cnt_max`` ∉ {1, 2, 4, 8}, ``pixel_data_size`` ∉
+    {2, 4}) and keeps its read-only flags; sets ``pix_cnt_max_set_failed`` below
+    ``pix_cnt_max`` 50000 and ``intg_duty_cycle_set_failed`` above duty cycle 20 (simulator
+    choices: the board's limits, TintinCDKCamera.cpp); takes one frame time per frame and
+    ignores a trigger that comes while a frame is still being taken (a missed trigger: no
+    frame, no number); and, with ``bench.realtime``, delivers each frame only once its frame
+    time has passed on the wall clock and holds at most ``bench.fifo_frames`` undelivered
+    frames (a full FIFO drops the newest frame after numbering it: a frame-id gap).
+    """
+
+    _VALID = {"quad_cnt_max": (4, 6), "sub_frame_cnt_max": (1, 2, 4, 8),
+              "pixel_data_size": (2, 4)}
+    _READ_ONLY = ("pix_cnt_max_set_failed", "intg_duty_cycle_set_failed")
 
     def __init__(self, bench: SimulatedBench) -> None:
         self.bench = bench
         self.regs: dict[int, int] = {}
         defaults = {"mod_n1": 2, "mod_ps1": 1, "mod_m1": 16, "quad_cnt_max": 4,
                     "sub_frame_cnt_max": 4, "pix_cnt_max": 100000, "intg_duty_cycle": 6,
-                    "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1}
+                    "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1,
+                    "delay_fb_coeff_1": 2048,
+                    "tillum_slv_addr": 0x72 if bench.sdk_initialised else 0x71}
         defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
         for name, value in defaults.items():
             self._set(name, value)
         self._fifo: deque[tuple[int, bytes]] = deque()
-        self._late: set[int] = set()
+        # (ready time, pattern, trigger time) of frames being taken
+        self._pending: deque[tuple[float, np.ndarray, float]] = deque()
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
         self.rendered = 0
         self.delivered = 0
+        self.missed_triggers = 0
+        self.fifo_dropped = 0
+        self.ctrl_count = 0
+        self.busy_until = -1.0
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
         self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
 
@@ -354,10 +461,19 @@ class FakeOPT8241(_Gone):
         f = opt.REGISTERS[name]
         return f.get(self.regs.get(f.address, 0))
 
+    @property
+    def frame_time_s(self) -> float:
+        """``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max / 48 MHz``."""
+        return (self.field("pix_cnt_max") * self.field("quad_cnt_max")
+                * self.field("sub_frame_cnt_max")) / (opt.SYSCLK_MHZ * 1e6)
+
     def ctrl_transfer(self, bmRequestType: int, bRequest: int, wValue: int = 0, wIndex: int = 0,
                       data_or_wLength=None, timeout: int | None = None):
         self._alive()
         stall = _usb_error("Pipe error (request stalled)", 32)
+        ordinal, self.ctrl_count = self.ctrl_count, self.ctrl_count + 1
+        if ordinal in self.bench.faults.ctrl_fail:
+            raise stall
         for slave, (rd, wr, shift, _) in opt.SLAVES.items():
             if wValue == slave << shift and bRequest in (rd, wr):
                 break
@@ -373,14 +489,39 @@ class FakeOPT8241(_Gone):
             data = bytes(data_or_wLength)
             if len(data) != nbytes:
                 raise stall
-            self.regs[address] = int.from_bytes(data, "little")
+            value = int.from_bytes(data, "little")
+            for name, valid in self._VALID.items():
+                f = opt.REGISTERS[name]
+                if f.address == address and f.get(value) not in valid:
+                    raise stall  # a value the register map calls invalid
+            old = self.regs.get(address, 0)
+            for name in self._READ_ONLY:
+                f = opt.REGISTERS[name]
+                if f.address == address:
+                    value = f.put(value, f.get(old))
+            self.regs[address] = value
+            self._update_flags()
             return len(data)
         if int(data_or_wLength) != nbytes:
             raise stall
         return bytearray(self.regs.get(address, 0).to_bytes(nbytes, "little"))
 
+    def _update_flags(self) -> None:
+        forced = self.bench.faults.set_failed
+        self._set("pix_cnt_max_set_failed", int(self.field("pix_cnt_max") < 50_000
+                                                 or "pix_cnt_max_set_failed" in forced))
+        self._set("intg_duty_cycle_set_failed", int(self.field("intg_duty_cycle") > 20
+                                                     or "intg_duty_cycle_set_failed" in forced))
+
+    def clear_halt(self, endpoint: int) -> None:
+        self._alive()
+        if endpoint != opt.EP_FRAMES:
+            raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
+
     @property
     def mode(self) -> str:
+        if self.field("output_mode") == 15:
+            return "quad"
         key = (self.field("output_mode"), self.field("pixel_data_size"),
                self.field("op_data_arrange_mode"))
         for name, value in opt.FRAME_MODES.items():
@@ -392,8 +533,19 @@ class FakeOPT8241(_Gone):
         self._alive()
         if endpoint != opt.EP_FRAMES:
             raise _usb_error(f"invalid endpoint 0x{endpoint:02x}", 22)
-        if not self._fifo:
-            raise _usb_timeout()
+        deadline = time.monotonic() + (timeout or 1000) / 1000
+        with self._cond:
+            while True:
+                self._complete(self.bench.now() if self.bench.realtime else math.inf)
+                if self._fifo:
+                    break
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise _usb_timeout()
+                if self._pending and self.bench.realtime:
+                    left = min(left, max(0.0, (self._pending[0][0] - self.bench.now())
+                                         / self.bench.speed))
+                self._cond.wait(left)
         f = self.bench.faults
         if f.vanish_after_frames is not None and self.delivered >= f.vanish_after_frames:
             self.bench.vanished = True
@@ -402,16 +554,15 @@ class FakeOPT8241(_Gone):
             if f.hang_file:
                 Path(f.hang_file).write_text(str(self.delivered))
             time.sleep(f.hang_s)
-        ordinal, packet = self._fifo[0]
-        if ordinal in self._late:
-            self._late.discard(ordinal)
-            raise _usb_timeout()
-        self._fifo.popleft()
+        with self._lock:
+            ordinal, packet, stamp = self._fifo.popleft()
+        if ordinal in f.stall:
+            f.stall.discard(ordinal)
+            raise _usb_error("Pipe error (endpoint stalled)", 32)
         if len(packet) > size:
             raise _usb_error("Overflow", 75)
         self.delivered += 1
-        period = self.bench.lightcrafter_usb.state["period_us"] or 0
-        self.time_s = max(ordinal, 0) * period * 1e-6
+        self.time_s = stamp
         return bytearray(packet)
 
     @property
@@ -419,39 +570,73 @@ class FakeOPT8241(_Gone):
         return opt.pll_frequency_hz(*(self.field(k) for k in (
             "mod_m1", "mod_m_frac1", "mod_n1", "mod_ps1", "quad_cnt_max")))
 
-    def trigger(self, pattern: np.ndarray) -> None:
-        """A trigger from the DMD's TRIG_OUT1: render and queue one frame (if streaming)."""
+    def trigger(self, pattern: np.ndarray, t: float | None = None) -> None:
+        """A trigger from the DMD's TRIG_OUT1 at simulated time ``t`` (s): start a frame if
+        streaming and no frame is being taken; it is ready one frame time later."""
         if self.field("tg_dis"):
             return
+        t = self.bench.now() if t is None else float(t)
+        with self._lock:
+            if t < self.busy_until - 1e-9:
+                self.missed_triggers += 1
+                return
+            self.busy_until = t + self.frame_time_s
+            self._pending.append((self.busy_until, pattern, t))
+            if not self.bench.realtime:
+                self._complete(math.inf)
+            self._cond.notify_all()
+
+    def _complete(self, now: float) -> None:
+        while self._pending and self._pending[0][0] <= now:
+            ready, pattern, _ = self._pending.popleft()
+            self._output(pattern, ready)
+
+    def cancel_triggers_after(self, t: float) -> None:
+        """The DMD stopped at ``t``: triggers scheduled after it never come."""
+        with self._lock:
+            self._pending = deque(e for e in self._pending if e[2] <= t)
+            if self._pending:
+                self.busy_until = self._pending[-1][0]
+
+    def _output(self, pattern: np.ndarray, ready: float) -> None:
         f = self.bench.faults
         ordinal = self.rendered
+        self.rendered += 1
+        if ordinal in f.frame_timeout:  # a missed trigger: no frame, no number
+            self.missed_triggers += 1
+            return
         if f.hang_at_frame is not None and ordinal == f.hang_at_frame:
             if f.hang_file:
                 Path(f.hang_file).write_text(str(ordinal))
             time.sleep(f.hang_s)
         frame = self.bench.render(pattern, self.freq_hz)
-        self.rendered += 1
         taps = frame.taps[0].numpy()
         taps = np.concatenate([np.zeros_like(taps[:, :1]), taps], axis=1)  # dark guard row 0
         # ambient / flags nibbles: simulator choices (TI does not document their meaning)
         sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
         ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
         packet = opt.encode_frame(self.mode, taps.astype(np.int64), ambient=ambient,
-                                  flags=sat.astype(np.uint32))
-        if ordinal in f.corrupt:
-            b = bytearray(packet)
-            b[5] ^= 0x40  # bit 14 of the 3rd 16-bit word: beyond 12 bits (quad / IQ modes)
-            packet = bytes(b)
+                                  flags=sat.astype(np.uint32), quads=self.field("quad_cnt_max"))
         packet = self._numbered(packet)
-        if ordinal in f.frame_timeout:
-            self._late.add(ordinal)
-        if ordinal not in f.drop:
-            self._fifo.append((ordinal, packet))
-            if ordinal in f.duplicate:
-                self._fifo.append((ordinal, packet))
+        cap = self.bench.fifo_frames if self.bench.realtime else None
+        if cap is not None and len(self._fifo) >= cap:
+            self.fifo_dropped += 1  # numbered, then lost: a frame-id gap
+            return
+        if ordinal in f.drop:
+            return
+        if ordinal in f.corrupt:
+            self._fifo.append((ordinal, packet[:-2], ready))
+        elif ordinal in f.split:
+            half = len(packet) // 2
+            self._fifo.append((ordinal, packet[:half], ready))
+            self._fifo.append((ordinal, packet[half:], ready))
+        else:
+            self._fifo.append((ordinal, packet, ready))
+        if ordinal in f.duplicate:
+            self._fifo.append((ordinal, packet, ready))
         if ordinal in f.extra:
             spurious = np.frombuffer(packet, "<u2")[::-1].tobytes()
-            self._fifo.append((ordinal, self._numbered(spurious)))
+            self._fifo.append((ordinal, self._numbered(spurious), ready))
 
     def _numbered(self, packet: bytes) -> bytes:
         """One more frame out of the OPT9221: its number in byte 0 if enabled (OPT9221.dml
@@ -476,10 +661,24 @@ class SimulatedBench:
     Args:
         config: the simulated set-up (:class:`~torchtof.experiment.ExperimentConfig`); the
             camera frame is ``roi_px × roi_px``, the DMD pattern ``n × n``.
-        seed: noise seed (one generator, frames drawn in order).
+        seed: noise seed. Each frame's noise comes from its own generator, seeded from
+            ``seed`` and the displayed pattern's bits (in a DMD-split Hadamard run every
+            pattern is different, so this is the frame index), so a re-acquired or resumed
+            frame gets the noise the uninterrupted run gave it.
         faults: faults to inject (:class:`Faults`).
         frame_number_start: the camera's frame counter at power-up (its real start value is
             not documented; tests move it to exercise the 8-bit wrap).
+        realtime: frames take their frame time on the wall clock (scaled by ``speed``) and
+            the camera's FIFO holds at most ``fifo_frames``; otherwise every frame is ready
+            at once (fast tests) while frame times and missed triggers still follow the
+            simulated clock.
+        speed: how much faster than real time the realtime bench runs.
+        fifo_frames: undelivered frames the camera holds (realtime only; a simulator choice).
+        sdk_initialised: whether TI's SDK initialised the camera since power-up
+            (``tillum_slv_addr`` reads 0x72, else 0x71).
+        video_hz: video frame rate of the simulated video source (VSYNC trigger mode).
+        mode_latency_s: simulated time the DLPC350 takes to switch display mode (a read of
+            ``DISP_MODE`` shows the old mode until then).
 
     Example:
         >>> bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,)))
@@ -489,16 +688,39 @@ class SimulatedBench:
     """
 
     def __init__(self, config: ExperimentConfig | None = None, seed: int = 0,
-                 faults: Faults | None = None, frame_number_start: int = 0) -> None:
+                 faults: Faults | None = None, frame_number_start: int = 0,
+                 realtime: bool = False, speed: float = 1.0, fifo_frames: int = 4,
+                 sdk_initialised: bool = True, video_hz: float = 60.0,
+                 mode_latency_s: float = 0.0) -> None:
         cfg = (config or ExperimentConfig()).validate()
+        if cfg.gain_e_per_dn is not None and not (isinstance(cfg.gain_e_per_dn, (int, float))
+                                             and math.isfinite(cfg.gain_e_per_dn)
+                                             and cfg.gain_e_per_dn > 0):
+            raise ValueError(f"SimulatedBench: expected a positive finite gain_e_per_dn, got "
+                             f"{cfg.gain_e_per_dn!r}")
+        if isinstance(cfg.chunk_frames, bool) or not isinstance(cfg.chunk_frames, int) or \
+                cfg.chunk_frames < 1:
+            raise ValueError(f"SimulatedBench: expected chunk_frames a positive int, got "
+                             f"{cfg.chunk_frames!r}")
         if cfg.adc_bits is None or cfg.adc_bits > 12:
             raise ValueError(f"SimulatedBench: the OPT8241 sends 12-bit samples: expected "
                              f"adc_bits in [1, 12], got {cfg.adc_bits}")
-        self.config, self.seed = cfg, seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise TypeError(f"SimulatedBench: expected an integer seed, got {seed!r}")
+        if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+            raise ValueError(f"SimulatedBench: expected a positive speed, got {speed!r}")
+        if isinstance(fifo_frames, bool) or not isinstance(fifo_frames, int) or fifo_frames < 1:
+            raise ValueError(f"SimulatedBench: expected fifo_frames a positive int, got "
+                             f"{fifo_frames!r}")
+        self.config, self.seed = cfg, int(seed)
         self.faults = faults or Faults()
         self.frame_number_start = int(frame_number_start)
+        self.realtime, self.speed, self.fifo_frames = bool(realtime), float(speed), fifo_frames
+        self.sdk_initialised, self.video_hz = bool(sdk_initialised), float(video_hz)
+        self.mode_latency_s = float(mode_latency_s)
         self.vanished = False
-        self.generator = torch.Generator().manual_seed(seed)
+        self._t0 = time.monotonic()
+        self.sim_time = 0.0  # the simulated clock when not realtime
         self.scene = get_scene(cfg.scene, cfg.n, cfg.object_m, dtype=torch.float32)
         self.dust = None
         if cfg.scattering:
@@ -509,6 +731,20 @@ class SimulatedBench:
         self.camera_usb = FakeOPT8241(self)
         self.video = _SimVideo(self.lightcrafter_usb)
 
+    def now(self) -> float:
+        """The simulated clock (s): wall time × ``speed`` when realtime, else the time the
+        last simulated event set."""
+        if self.realtime:
+            return (time.monotonic() - self._t0) * self.speed
+        return self.sim_time
+
+    def noise_generator(self, pattern: np.ndarray) -> torch.Generator:
+        """The generator of a frame showing ``pattern``: seeded from ``seed`` and the
+        pattern's bits (BLAKE2b), independent of when or how often it is shown."""
+        h = hashlib.blake2b(np.ascontiguousarray(pattern, dtype=np.uint8).tobytes(),
+                            digest_size=8, key=self.seed.to_bytes(8, "little", signed=True))
+        return torch.Generator().manual_seed(int.from_bytes(h.digest(), "little") >> 1)
+
     def render(self, pattern: np.ndarray, freq_hz: float):
         """One ToF frame of the scene through a 0/1 pattern ``(n, n)`` (simulate_frames)."""
         cfg = self.config
@@ -518,7 +754,8 @@ class SimulatedBench:
         if abs(freq_hz - cfg.freq_hz) > 0.5e3:
             cfg = replace(cfg, freq_hz=freq_hz)
         pats = torch.from_numpy(pattern.astype(np.float32))[None]
-        return simulate_frames(self.scene, pats, cfg, self.generator, self.dust, self.stray)
+        return simulate_frames(self.scene, pats, cfg, self.noise_generator(pattern), self.dust,
+                               self.stray)
 
     def lightcrafter(self, **kwargs) -> LightCrafter4500:
         """A :class:`LightCrafter4500` driver on the fake device with the simulated video port."""

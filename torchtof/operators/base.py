@@ -13,6 +13,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_rank, check_shape
+from .._memory import check_memory
 
 __all__ = ["LinearOperator"]
 
@@ -91,6 +92,10 @@ class LinearOperator(nn.Module):
         key = (dtype, device)
         cache = self.__dict__.setdefault("_pinv_cache", {})
         if key not in cache:
+            big = self.n * self.n
+            check_memory(8 * (3 * self.m * big + min(self.m, big) ** 2),
+                         f"the dense {self.m}x{big} pseudo-inverse (float64 SVD)",
+                         f"{type(self).__name__}.pinv", "use an operator with orthonormal rows")
             a = self.matrix(dtype=torch.float64)
             cache[key] = torch.linalg.pinv(a).to(dtype=dtype, device=device)
         return cache[key]
@@ -98,6 +103,10 @@ class LinearOperator(nn.Module):
     def matrix(self, dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:
         """The dense matrix ``A`` of shape ``(m, n*n)``, built by applying ``Aᵀ`` to the unit
         measurement vectors (small problems and tests only: O(m·n²) memory)."""
+        item = torch.empty((), dtype=dtype).element_size()
+        check_memory(item * self.m * (self.m + 2 * self.n * self.n),
+                     f"the dense {self.m}x{self.n * self.n} matrix",
+                     f"{type(self).__name__}.matrix")
         eye = torch.eye(self.m, dtype=dtype, device=device).reshape(self.m, 1, self.m)
         cols = self.adjoint(eye)  # (m, 1, n, n): row i of A
         return cols.reshape(self.m, self.n * self.n)

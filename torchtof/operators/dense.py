@@ -61,6 +61,10 @@ class PatternOperator(LinearOperator):
         super().__init__(patterns.shape[1], patterns.shape[0])
         self.register_buffer("patterns", patterns.detach().clone(), persistent=False)
         g = patterns.reshape(self.m, -1).double()
+        if g.is_meta:  # shape inference: no values to test or invert
+            self.orthonormal_rows = False
+            self.register_buffer("pinv_matrix", g.new_empty(g.shape[1], self.m), persistent=False)
+            return
         self.orthonormal_rows = bool(
             torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64), atol=1e-6)
         )

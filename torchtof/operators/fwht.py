@@ -23,7 +23,7 @@ import functools
 
 import torch
 
-from .._checks import check_power_of_two, check_tensor
+from .._checks import check_finite, check_power_of_two, check_tensor
 
 __all__ = ["fwht", "fwht2", "fwht2_matmul", "fwht_kron", "kron_factors", "sylvester"]
 
@@ -43,8 +43,16 @@ def fwht(x: torch.Tensor) -> torch.Tensor:
         tensor([1., 1., 1., 1.])
     """
     check_tensor(x, "x", "fwht")
+    if x.ndim < 1:
+        raise ValueError(f"fwht: expected x with at least one axis, got shape {tuple(x.shape)}")
+    check_power_of_two(x.shape[-1], "x.shape[-1]", "fwht")
+    check_finite(x, "x", "fwht")
+    return _fwht(x)
+
+
+def _fwht(x: torch.Tensor) -> torch.Tensor:
+    """:func:`fwht` without the checks (callers validated ``x``)."""
     n = x.shape[-1]
-    check_power_of_two(n, "x.shape[-1]", "fwht")
     lead = x.shape[:-1]
     h = 1
     y = x
@@ -62,7 +70,7 @@ def fwht2(x: torch.Tensor) -> torch.Tensor:
     """Separable 2-D transform ``H_n X H_nᵀ`` of the last two axes by butterflies."""
     # H_{n1 n2} = H_{n1} ⊗ H_{n2}: one 1-D transform of the row-major flattened image.
     n1, n2 = x.shape[-2], x.shape[-1]
-    return fwht(x.reshape(*x.shape[:-2], n1 * n2)).reshape(x.shape)
+    return _fwht(x.reshape(*x.shape[:-2], n1 * n2)).reshape(x.shape)
 
 
 @functools.lru_cache(maxsize=32)

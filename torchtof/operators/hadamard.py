@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import torch
 
+from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
-from .patterns import _check_n_order, hadamard_order, num_patterns
+from .patterns import check_n_order, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
 
@@ -117,7 +118,7 @@ class Hadamard(LinearOperator):
         order: str = "cake_cutting",
         method: str = "auto",
     ) -> None:
-        _check_n_order(n, order, "Hadamard")
+        check_n_order(n, order, "Hadamard")
         if sr is None and m is None:
             m = n * n
         m = num_patterns(n, sr, m, func="Hadamard")
@@ -152,21 +153,34 @@ class Hadamard(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "Hadamard.forward")
-        return hadamard_forward(x, self.index, self.transform_spec(x))
+        return hadamard_forward(x, self.index.to(x.device), self.transform_spec(x))
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "Hadamard.adjoint")
-        return hadamard_adjoint(y, self.index, self.n, self.transform_spec(y))
+        return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
         return self.adjoint(y)
 
-    def patterns(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    def patterns(
+        self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
+    ) -> torch.Tensor:
         """The selected ±1 patterns ``(M, n, n)`` (unnormalised: row ``r`` of ``A`` is
-        ``patterns[r] / n``)."""
+        ``patterns[r] / n``), or only rows ``start:stop`` (``(stop − start, n, n)``: stream a
+        large set in chunks instead of materialising all ``M·n²`` entries).
+
+        Raises:
+            ValueError: for a range outside ``[0, M]`` or a stack larger than the memory
+                limit (:func:`torchtof.set_memory_limit`).
+        """
+        start, stop = check_rows(start, stop, self.m, "Hadamard.patterns")
+        check_memory((stop - start) * self.n**2 * itemsize(dtype, "Hadamard.patterns"),
+                     f"{stop - start} patterns of {self.n}x{self.n}", "Hadamard.patterns",
+                     "ask for rows start:stop in chunks")
         h = self.h.to(dtype)
-        i, j = self.index // self.n, self.index % self.n
+        idx = self.index[start:stop]
+        i, j = idx // self.n, idx % self.n
         return h[i][:, :, None] * h[j][:, None, :]
 
     def extra_repr(self) -> str:

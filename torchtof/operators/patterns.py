@@ -28,6 +28,7 @@ import functools
 import torch
 
 from .._checks import check_in_range, check_power_of_two
+from .._memory import check_memory
 from .fwht import sylvester
 
 __all__ = [
@@ -73,7 +74,7 @@ def _order_cpu(n: int, order: str) -> torch.Tensor:
     return torch.argsort(key, stable=True)
 
 
-def _check_n_order(n: int, order: str, func: str) -> None:
+def check_n_order(n: int, order: str, func: str) -> None:
     check_power_of_two(n, "n", func, lo=N_MIN, hi=N_MAX)
     if order not in ORDERS:
         raise ValueError(f"{func}: expected order in {ORDERS}, got {order!r}")
@@ -97,7 +98,7 @@ def hadamard_order(n: int, order: str = "cake_cutting") -> torch.Tensor:
         >>> hadamard_order(4, "natural")[:3]
         tensor([0, 1, 2])
     """
-    _check_n_order(n, order, "hadamard_order")
+    check_n_order(n, order, "hadamard_order")
     return _order_cpu(n, order).clone()
 
 
@@ -129,12 +130,26 @@ def hadamard_patterns(
     Pattern ``r`` is ``h_i h_jᵀ`` with ``(i, j) = divmod(order[r], n)``; only the
     requested patterns are materialised (never the full ``N × N`` basis).
     """
-    _check_n_order(n, order, "hadamard_patterns")
+    check_n_order(n, order, "hadamard_patterns")
     m = n * n if m is None else num_patterns(n, m=m, func="hadamard_patterns")
+    check_memory(m * n * n * torch.empty((), dtype=dtype).element_size(),
+                 f"{m} patterns of {n}x{n}", "hadamard_patterns")
     idx = _order_cpu(n, order)[:m]
     h = sylvester(n, dtype, device)
     i, j = idx // n, idx % n
     return h[i.to(h.device)][:, :, None] * h[j.to(h.device)][:, None, :]
+
+
+def _check_sizes(m: object, n: object, dtype: object, func: str) -> None:
+    """``m``, ``n`` ints >= 1 and an ``(m, n, n)`` float64 draw within the memory limit."""
+    for name, v in (("m", m), ("n", n)):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
+        if v < 1:
+            raise ValueError(f"{func}: expected {name} >= 1, got {v}")
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"{func}: expected dtype to be a floating torch.dtype, got {dtype!r}")
+    check_memory(2 * m * n * n * 8, f"{m} random patterns of {n}x{n}", func)
 
 
 def random_binary_patterns(
@@ -143,8 +158,7 @@ def random_binary_patterns(
 ) -> torch.Tensor:
     """I.i.d. Bernoulli(``p``) 0/1 DMD patterns, shape ``(m, n, n)``, from ``generator``."""
     check_in_range(p, 0.0, 1.0, "p", "random_binary_patterns", lo_open=True, hi_open=True)
-    if m < 1 or n < 1:
-        raise ValueError(f"random_binary_patterns: expected m, n >= 1, got m={m}, n={n}")
+    _check_sizes(m, n, dtype, "random_binary_patterns")
     u = torch.rand(m, n, n, generator=generator, dtype=torch.float64)
     return (u < p).to(dtype)
 
@@ -159,9 +173,8 @@ def gaussian_speckle_patterns(
     re-standardises it, giving speckle grains of about ``grain`` pixels
     (pseudo-thermal light, Shapiro 2008 computational GI).
     """
+    _check_sizes(m, n, dtype, "gaussian_speckle_patterns")
     check_in_range(grain, 0.0, float(n), "grain", "gaussian_speckle_patterns")
-    if m < 1 or n < 1:
-        raise ValueError(f"gaussian_speckle_patterns: expected m, n >= 1, got m={m}, n={n}")
     z = torch.randn(m, 1, n, n, generator=generator, dtype=torch.float64)
     if grain > 0:
         import kornia

@@ -12,15 +12,26 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import check_shape
+from .._checks import check_finite, check_rank, check_shape
+from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .hadamard import Hadamard
+
+#: ±1 rows split at a time by :meth:`DMDSplit.patterns`.
+PATTERN_CHUNK = 256
 
 __all__ = ["DMDSplit", "combine_split", "split_patterns"]
 
 
 def split_patterns(patterns: torch.Tensor) -> torch.Tensor:
     """±1 patterns ``(M, n, n)`` → interleaved 0/1 DMD patterns ``(2M, n, n)``."""
+    func = "split_patterns"
+    check_rank(patterns, 3, "patterns", func, "(M, n, n)")
+    if patterns.is_complex():
+        raise TypeError(
+            f"{func}: expected patterns to be a real tensor, got dtype {patterns.dtype}"
+        )
+    check_finite(patterns, "patterns", func)
     plus = (1 + patterns) / 2
     minus = (1 - patterns) / 2
     return torch.stack((plus, minus), dim=1).reshape(-1, *patterns.shape[1:])
@@ -35,7 +46,8 @@ def combine_split(y_split: torch.Tensor, n: int) -> torch.Tensor:
             f"combine_split: expected y_split with an even number of measurements, "
             f"got {y_split.shape[-1]}"
         )
-    y = y_split.reshape(*y_split.shape[:-1], -1, 2)
+    check_finite(y_split, "y_split", "combine_split")
+    y = y_split.reshape(*y_split.shape[:-1], y_split.shape[-1] // 2, 2)  # no -1: B = 0
     return (y[..., 0] - y[..., 1]) / n
 
 
@@ -66,7 +78,7 @@ class DMDSplit(LinearOperator):
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "DMDSplit.adjoint")
-        y2 = y.reshape(*y.shape[:-1], -1, 2)
+        y2 = y.reshape(*y.shape[:-1], self.m // 2, 2)  # no -1: B = 0 has no size to infer
         s, d = y2[..., 0] + y2[..., 1], y2[..., 0] - y2[..., 1]
         ones = s.sum(dim=-1)[..., None, None] / 2
         return ones + self.hadamard.adjoint(d) * (self.n / 2)
@@ -75,6 +87,42 @@ class DMDSplit(LinearOperator):
         """``(y⁺ − y⁻)/n``: the measurements of the underlying orthonormal ``A``."""
         return combine_split(y_split, self.n)
 
-    def patterns(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """The ``2M`` 0/1 DMD patterns ``(2M, n, n)`` in acquisition order."""
-        return split_patterns(self.hadamard.patterns(dtype))
+    def patterns(
+        self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
+    ) -> torch.Tensor:
+        """The ``2M`` 0/1 DMD patterns ``(2M, n, n)`` in acquisition order, or only rows
+        ``start:stop`` of them.
+
+        Built in chunks of :data:`PATTERN_CHUNK` ±1 rows straight into the result, so the
+        peak is the result itself (``(stop − start)·n²`` entries) plus one chunk, never the
+        ±1 stack next to its two halves; :meth:`iter_patterns` streams them instead.
+
+        Raises:
+            ValueError: for a range outside ``[0, 2M]`` or a result larger than the memory
+                limit (:func:`torchtof.set_memory_limit`).
+        """
+        func = "DMDSplit.patterns"
+        start, stop = check_rows(start, stop, self.m, func)
+        n = self.n
+        rows = stop - start + min(2 * PATTERN_CHUNK, stop - start + 2)  # result + one chunk
+        check_memory(rows * n * n * itemsize(dtype, func),
+                     f"{stop - start} DMD patterns of {n}x{n}", func,
+                     "stream them with DMDSplit.iter_patterns(chunk) or ask for rows "
+                     "start:stop")
+        out = torch.empty(stop - start, n, n, dtype=dtype, device=self.hadamard.h.device)
+        lo, hi = start // 2, (stop + 1) // 2  # the ±1 rows that cover split rows start:stop
+        for a in range(lo, hi, PATTERN_CHUNK):
+            b = min(a + PATTERN_CHUNK, hi)
+            rows = split_patterns(self.hadamard.patterns(dtype, a, b))  # split rows 2a:2b
+            s0, s1 = max(2 * a, start), min(2 * b, stop)
+            out[s0 - start : s1 - start] = rows[s0 - 2 * a : s1 - 2 * a]
+        return out
+
+    def iter_patterns(self, chunk: int = 256, dtype: torch.dtype = torch.float32):
+        """Yield ``(start, patterns[start:start + chunk])`` over the ``2M`` DMD patterns in
+        acquisition order: at most ``chunk·n²`` entries alive at a time."""
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+            raise ValueError(f"DMDSplit.iter_patterns: expected chunk to be an int >= 1, "
+                             f"got {chunk!r}")
+        for start in range(0, self.m, chunk):
+            yield start, self.patterns(dtype, start, min(start + chunk, self.m))

@@ -3,6 +3,7 @@
 :func:`get` and :func:`names` read the one table of reconstructors (:mod:`.registry`).
 """
 
+from .base import ReconResult
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
 from .dct import DCT2, Haar2, dct2, haar2, idct2, ihaar2
@@ -20,6 +21,7 @@ from .depth import (
     tap_noise_sigma,
 )
 from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_dip
+from .learned import Learned, LearnedResult, learned
 from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
@@ -29,6 +31,7 @@ from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
 __all__ = [
+    "ReconResult",
     "REGISTRY",
     "ReconSpec",
     "get",
@@ -49,6 +52,9 @@ __all__ = [
     "Auto",
     "AutoResult",
     "auto",
+    "Learned",
+    "LearnedResult",
+    "learned",
     "TVAL3Result",
     "tval3",
     "bucket_noise_sigma",

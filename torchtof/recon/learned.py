@@ -9,6 +9,14 @@ operator at every step and one convolutional prior shared by all ``K`` steps. Fr
     z_k &= x_{k-1} - γ_k\\, Aᵀ(A x_{k-1} - b) \\\\
     x_k &= z_k + R_θ(z_k;\\ c_k), \\qquad k = 1 … K
 
+followed by one noise-weighted data-consistency step
+
+.. math::
+    x = x_K + w\\, Aᵀ(b - A x_K), \\qquad w = \\frac{1}{1 + (σ_n / τ)^2},
+
+the exact projection onto ``{A x = b}`` for noise-free buckets (``w = 1``) and a Wiener-like
+shrinkage of it as the noise grows (``τ``: one scalar, set by
+:func:`~torchtof.recon.learned_train.calibrate_tau` on training data).
 ``γ_k = 2 sigmoid(g_k) ∈ (0, 2)`` are learned step sizes (``A Aᵀ = I`` makes ``AᵀA`` a
 projector, so any ``γ`` in that interval is a contraction of the data term). ``R_θ`` is a
 residual two-scale CNN (a small U-Net, Ronneberger et al. 2015) whose weights are the same
@@ -75,6 +83,8 @@ DEFAULT_N_LAYERS = 6
 STOP_REASON = "n_layers"
 #: Floor of ``σ_n`` inside the log of the conditioning (noise-free buckets).
 SIGMA_FLOOR = 1e-3
+#: Initial ``τ`` of the final data-consistency weight (module docstring).
+TAU_INIT = 0.1
 
 
 class LearnedResult(NamedTuple):
@@ -245,6 +255,7 @@ def _unrolled(
     A: LinearOperator,
     prior: LearnedPrior,
     step_raw: torch.Tensor,
+    log_tau: torch.Tensor | None,
     noise_sigma,
     func: str,
 ) -> torch.Tensor:
@@ -284,7 +295,11 @@ def _unrolled(
         z = (xi - g * adj(fwd(xi) - bf)).reshape(flat)
         tk = torch.full_like(base[:, :1], (k + 1) / K)
         x = z + prior(z, torch.cat((base, tk), dim=-1))
-    return x.reshape(B, C, n, n) * s[..., None]
+    x = x.reshape(B, C, n, n)
+    if log_tau is not None:  # final noise-weighted data consistency
+        w = 1 / (1 + (sigma_n / torch.exp(log_tau.to(y.dtype))) ** 2)  # (B, C)
+        x = x + w[..., None, None] * adj(bf - fwd(x))
+    return x * s[..., None]
 
 
 # -- weights -------------------------------------------------------------------------------
@@ -353,6 +368,9 @@ class Learned(nn.Module):
         self.noise_sigma = noise_sigma
         self.prior = LearnedPrior(width=width)
         self.step_raw = nn.Parameter(torch.zeros(n_layers))
+        self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
+        #: apply the final data-consistency step (training of the prior switches it off)
+        self.final_dc = True
         self.weights_file: str | None = None
         if pretrained is True:
             if not WEIGHTS_FILE.is_file():
@@ -385,6 +403,7 @@ class Learned(nn.Module):
         self.prior.load_state_dict(blob["prior"])
         with torch.no_grad():
             self.step_raw.copy_(blob["step_raw"])
+            self.log_tau.copy_(blob["log_tau"])
         self.weights_file = os.fspath(path)
 
     def save_weights(self, path: str | os.PathLike, **meta: object) -> None:
@@ -392,6 +411,7 @@ class Learned(nn.Module):
         blob = {
             "prior": {k: v.detach().clone() for k, v in self.prior.state_dict().items()},
             "step_raw": self.step_raw.detach().clone(),
+            "log_tau": self.log_tau.detach().clone(),
             "meta": {**self.meta(), **meta},
         }
         torch.save(blob, Path(path))
@@ -412,7 +432,8 @@ class Learned(nn.Module):
         self._check_y(y, func)
         if y.shape[0] == 0 and not is_tracing():
             return y.new_zeros(0, y.shape[1], self.A.n, self.A.n)
-        return _unrolled(y, self.A, self.prior, self.step_raw, self.noise_sigma, func)
+        log_tau = self.log_tau if self.final_dc else None
+        return _unrolled(y, self.A, self.prior, self.step_raw, log_tau, self.noise_sigma, func)
 
     def solve(self, y: torch.Tensor) -> LearnedResult:
         """:meth:`forward` plus the per-sample residual ``‖A x − y‖ / ‖y‖`` and the fields of
@@ -445,13 +466,14 @@ def learned(
     n_layers: int = DEFAULT_N_LAYERS,
     noise_sigma: float | torch.Tensor | str = "auto",
     pretrained: bool | str | os.PathLike = True,
+    width: int = 16,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width: as in :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``.
@@ -462,5 +484,5 @@ def learned(
         >>> learned(A(torch.rand(1, 1, 32, 32)), A, pretrained=False).shape
         torch.Size([1, 1, 32, 32])
     """
-    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained)
+    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained, width=width)
     return net.to(y.device)(y)

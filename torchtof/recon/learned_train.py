@@ -14,6 +14,11 @@ Data parallel under ``torchrun`` exactly as :func:`torchtof.recon.train_unrolled
 set-up, :func:`torchtof.recon.train.dist_setup`): rank ``r`` of ``W`` draws scenes
 ``[r B/W, (r+1) B/W)`` of the same global batch, and DDP averages the gradients.
 
+The final data-consistency step of :class:`Learned` is off while the prior trains; its one
+scalar ``τ`` is then set by :func:`calibrate_tau`: a grid search of the mean PSNR on batches
+of the same recipe at steps ``10⁶ …`` (never drawn by a run of fewer steps, and disjoint
+from the evaluation seeds).
+
 Outputs in ``out``: ``checkpoint.pt`` (model, optimiser, scheduler, step; written every
 ``checkpoint_every`` steps, ``resume=True`` continues from it), ``log.json`` (one record per
 logged step), and at the end ``learned.pt`` (:meth:`Learned.save_weights`) with
@@ -45,7 +50,21 @@ from ..operators.patterns import ORDERS
 from .learned import DEFAULT_N_LAYERS, Learned
 from .train import dist_setup
 
-__all__ = ["train_learned", "LearnedTrainResult", "step_config", "psnr_loss", "add_arguments", "main"]
+__all__ = [
+    "train_learned",
+    "LearnedTrainResult",
+    "step_config",
+    "psnr_loss",
+    "calibrate_tau",
+    "TAU_GRID",
+    "add_arguments",
+    "main",
+]
+
+#: Grid of ``τ`` searched by :func:`calibrate_tau`.
+TAU_GRID = (0.02, 0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.3, 0.5)
+#: First step of the calibration batches (beyond any training run).
+CALIBRATION_STEP0 = 1_000_000
 
 
 class LearnedTrainResult(NamedTuple):
@@ -108,8 +127,52 @@ def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range):
     return A, x, y
 
 
+def calibrate_tau(
+    model: Learned,
+    seed: int = 0,
+    batches: int = 24,
+    batch_size: int = 8,
+    sizes: tuple[int, ...] = (32, 64),
+    p_large: float = 0.3,
+    sr_range: tuple[float, float] = (0.0625, 0.5),
+    orders: tuple[str, ...] = ORDERS,
+    grid: tuple[float, ...] = TAU_GRID,
+) -> dict:
+    """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
+    :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
+    ``CALIBRATION_STEP0 + k``, and switch the final data-consistency step on.
+
+    The network up to the last prior step is run once per batch; each ``τ`` then costs one
+    ``A`` and one ``Aᵀ``. Returns ``{"tau": τ, "losses": {τ: loss}, "loss_off": loss}``
+    (``loss_off``: without the final step).
+    """
+    outs = []
+    model.final_dc = False
+    with torch.no_grad():
+        for k in range(batches):
+            step = CALIBRATION_STEP0 + k
+            n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
+            A, x, y = _batch(seed, step, n, m, order, range(batch_size))
+            model.A = A
+            outs.append((A, x, y, model(y)))
+    model.final_dc = True
+    losses = {}
+    with torch.no_grad():
+        off = float(np.mean([float(psnr_loss(xk, x)) for _, x, _, xk in outs]))
+        for tau in grid:
+            model.log_tau.fill_(math.log(tau))
+            tot = []
+            for A, x, y, _ in outs:
+                model.A = A
+                tot.append(float(psnr_loss(model(y), x)))
+            losses[tau] = float(np.mean(tot))
+        best = min(losses, key=losses.get)
+        model.log_tau.fill_(math.log(best))
+    return {"tau": best, "losses": losses, "loss_off": off}
+
+
 def train_learned(
-    steps: int = 1800,
+    steps: int = 1300,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -127,6 +190,7 @@ def train_learned(
     distributed: bool | None = None,
     max_minutes: float | None = None,
     command: str | None = None,
+    calibrate: bool = True,
 ) -> LearnedTrainResult:
     """Train :class:`Learned` from its random initialisation (module docstring).
 
@@ -148,6 +212,8 @@ def train_learned(
         distributed: ``None`` detects torchrun, ``True`` requires it, ``False`` never.
         max_minutes: stop (and save) after that much wall time, even before ``steps``.
         command: the command line recorded in ``recipe.json``.
+        calibrate: set the final step's ``τ`` by :func:`calibrate_tau` at the end (else the
+            final step stays off).
 
     Returns:
         :class:`LearnedTrainResult`.
@@ -174,6 +240,8 @@ def train_learned(
 
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False, width=width)
+    model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
+    model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
     opt = torch.optim.Adam(params, lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -184,7 +252,10 @@ def train_learned(
     ckpt = outdir / "checkpoint.pt" if outdir is not None else None
     if resume and ckpt is not None and ckpt.is_file():
         state = torch.load(ckpt, weights_only=False)
-        model.load_state_dict(state["model"])
+        missing, unexpected = model.load_state_dict(state["model"], strict=False)
+        if unexpected or set(missing) - {"log_tau"}:  # log_tau: calibrated after training
+            raise ValueError(f"{func}: checkpoint {ckpt} does not match the model: "
+                             f"missing {missing}, unexpected {unexpected}")
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         start, log, wall0 = state["step"], state["log"], state["wall_s"]
@@ -254,6 +325,9 @@ def train_learned(
         if bar is not None:
             bar.close()
         wall = wall0 + time.perf_counter() - t0
+        model.log_tau.requires_grad_(True)
+        calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
+                              orders=orders) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -275,6 +349,7 @@ def train_learned(
                     "noise": {"p_clean": 0.2, "gaussian_levels": list(TRAIN_LEVELS),
                               "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
                 },
+                "final_step_calibration": calib,
                 "final_loss": float(np.mean(losses[-max(1, len(losses) // 10):])) if losses else None,
                 "torch_version": str(torch.__version__),
                 "wall_s": round(wall, 1),
@@ -294,34 +369,65 @@ def train_learned(
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of ``torchtof train --model learned``."""
-    p.add_argument("--steps", type=int, default=1800)
-    p.add_argument("--batch-size", type=int, default=12)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64])
-    p.add_argument("--p-large", type=float, default=0.3)
-    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5])
-    p.add_argument("--orders", nargs="+", default=list(ORDERS))
-    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS)
-    p.add_argument("--width", type=int, default=16)
-    p.add_argument("--out", default="train_learned_out")
-    p.add_argument("--checkpoint-every", type=int, default=100)
-    p.add_argument("--resume", action="store_true")
-    p.add_argument("--log-every", type=int, default=10)
-    p.add_argument("--max-minutes", type=float, default=None)
-    p.add_argument("--no-progress", action="store_true")
+    """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
+    d = " (default: %(default)s)"
+    p.add_argument("--steps", type=int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--batch-size", type=int, default=12, help="global batch" + d)
+    p.add_argument("--lr", type=float, default=2e-3, help="peak Adam learning rate" + d)
+    p.add_argument("--seed", type=int, default=0, help="seed of every draw" + d)
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64], help="image sides" + d)
+    p.add_argument("--p-large", type=float, default=0.3,
+                   help="probability of the largest size" + d)
+    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5],
+                   help="sampling-rate range" + d)
+    p.add_argument("--orders", nargs="+", default=list(ORDERS), help="Hadamard orders" + d)
+    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS, help="unrolled steps K" + d)
+    p.add_argument("--width", type=int, default=16, help="channels of the prior" + d)
+    p.add_argument("--out", default="train_learned_out",
+                   help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
+    p.add_argument("--checkpoint-every", type=int, default=100,
+                   help="steps between checkpoints" + d)
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--log-every", type=int, default=10, help="steps between log records" + d)
+    p.add_argument("--max-minutes", type=float, default=None,
+                   help="stop and save after this wall time" + d)
+    p.add_argument("--no-progress", action="store_true", help="no tqdm progress bar")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="leave the final data-consistency step off (no calibrate_tau)")
+    p.add_argument("--calibrate-only", action="store_true",
+                   help="load OUT/checkpoint.pt, run calibrate_tau, rewrite OUT/learned.pt and "
+                        "add the calibration to OUT/recipe.json")
 
 
 def main(args: argparse.Namespace) -> int:
     """Run :func:`train_learned` from parsed :func:`add_arguments` options."""
+    command = shlex.join(["torchtof", *sys.argv[1:]]) if sys.argv else None
+    if args.calibrate_only:
+        out = Path(args.out)
+        state = torch.load(out / "checkpoint.pt", weights_only=False)
+        model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
+                        pretrained=False, width=args.width)
+        model.load_state_dict(state["model"], strict=False)
+        t0 = time.perf_counter()
+        calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
+                              sr_range=tuple(args.sr_range), orders=tuple(args.orders))
+        recipe_path = out / "recipe.json"
+        recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+        recipe.update(final_step_calibration=calib, calibration_command=command,
+                      calibration_wall_s=round(time.perf_counter() - t0, 1))
+        model.A = Hadamard(args.sizes[0], sr=0.25)
+        model.save_weights(out / "learned.pt", seed=args.seed, steps=state["step"],
+                           torch_version=str(torch.__version__))
+        recipe_path.write_text(json.dumps(recipe, indent=1))
+        print(f"tau = {calib['tau']}; wrote {out / 'learned.pt'}")
+        return 0
     r = train_learned(
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
         orders=tuple(args.orders), n_layers=args.n_layers, width=args.width, out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
-        command=shlex.join(["torchtof", *sys.argv[1:]]) if sys.argv else None,
+        command=command, calibrate=not args.no_calibrate,
     )
     print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
     return 0

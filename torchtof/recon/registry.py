@@ -35,6 +35,7 @@ from .bp import BasisPursuit, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, tgi
 from .depth import JointTV, joint_tv
 from .dip import DIP, dip
+from .learned import Learned, learned
 from .pinv import PseudoInverse, pseudo_inverse
 from .tval3 import TVAL3, tval3
 from .unrolled import UnrolledTVAL3, unrolled_tval3
@@ -101,6 +102,8 @@ _SPECS = (
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
           differentiable=True, exportable=True, budget="n_layers",
           summary="unrolled TVAL3, K layers with learned per-layer scalars"),
+    _spec("learned", "Learned", learned, Learned, differentiable=True, exportable=True,
+          summary="learned proximal gradient: shared FiLM CNN prior, one weights file, any n/SR"),
     # a DIP budget is a cap: ES-WMV still stops the fit earlier
     _spec("dip", "DIP", dip, DIP, iterative=True, budget="max_iter", per_sample=True,
           positive_prior=True,

@@ -29,8 +29,8 @@ from torch import nn
 from .._checks import check_in_range, check_positive
 from ..constants import PAPER_SRS
 from ..operators.hadamard import Hadamard
-from .synthetic import measurement_noise, synthetic_scenes
 from .base import renamed_option
+from .synthetic import measurement_noise, synthetic_scenes
 from .unrolled import DEFAULT_N_LAYERS, UnrolledTVAL3
 
 __all__ = ["train_unrolled", "TrainResult", "PAPER_SRS", "noisy_measurements"]

@@ -68,8 +68,8 @@ from torch import nn
 from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
-from .tv import grad2, grad2_adjoint, shrink
 from .base import ReconResult, direct_result, renamed_option
+from .tv import grad2, grad2_adjoint, shrink
 
 __all__ = [
     "UnrolledTVAL3",
@@ -184,7 +184,8 @@ def unrolled_tval3(
             ap = (1 - ka_k) * ic_k * (at + q)  # A p = (1 − κ) A d / c
             dp = grad2(p)
             num = (t * p).sum(dim=(-2, -1))[..., None] + (q * ap).sum(dim=-1, keepdim=True)  # dᵀp
-            den = (dp * dp).sum(dim=(-3, -2, -1))[..., None] + rho_k * (ap * ap).sum(-1, keepdim=True)
+            den = (dp * dp).sum(dim=(-3, -2, -1))[..., None] + rho_k * (ap * ap).sum(
+                -1, keepdim=True)
             tau = step_k * num / (den + tiny)  # (B, C, 1)
             u = u - tau[..., None] * p
             du = du - tau[..., None, None] * dp

@@ -50,7 +50,7 @@ TAP_ORDERS: dict[str, tuple[tuple[int, int], ...]] = {
 }
 
 
-def _check_phasor(phasor: object, func: str, name: str = "phasor") -> torch.Tensor:
+def check_phasor(phasor: object, func: str, name: str = "phasor") -> torch.Tensor:
     """Raise unless ``phasor`` is a complex tensor of shape ``(B, 1, H, W)``."""
     check_tensor(phasor, name, func)
     if not phasor.is_complex():
@@ -60,7 +60,7 @@ def _check_phasor(phasor: object, func: str, name: str = "phasor") -> torch.Tens
     return phasor
 
 
-def _check_real(x: object, name: str, func: str) -> torch.Tensor:
+def check_real(x: object, name: str, func: str) -> torch.Tensor:
     """Raise unless ``x`` is a real floating-point tensor."""
     check_tensor(x, name, func)
     if x.is_complex():
@@ -68,7 +68,7 @@ def _check_real(x: object, name: str, func: str) -> torch.Tensor:
     return x
 
 
-def _check_order(order: str, func: str) -> tuple[tuple[int, int], ...]:
+def check_order(order: str, func: str) -> tuple[tuple[int, int], ...]:
     if order not in TAP_ORDERS:
         raise ValueError(f"{func}: expected order in {tuple(TAP_ORDERS)}, got {order!r}")
     return TAP_ORDERS[order]
@@ -120,7 +120,7 @@ def phasor_from_depth(
         (torch.complex64, 2.0)
     """
     func = "phasor_from_depth"
-    _check_real(depth_m, "depth_m", func)
+    check_real(depth_m, "depth_m", func)
     f = check_positive(freq_hz, "freq_hz", func)
     if depth_m.dtype not in (torch.float32, torch.float64):
         raise TypeError(
@@ -129,7 +129,7 @@ def phasor_from_depth(
         )
     check_finite(depth_m, "depth_m", func)
     if isinstance(amplitude, torch.Tensor):
-        _check_real(amplitude, "amplitude", func)
+        check_real(amplitude, "amplitude", func)
         check_finite(amplitude, "amplitude", func)
     else:
         if isinstance(amplitude, bool) or not isinstance(amplitude, (int, float)):
@@ -185,10 +185,10 @@ def correlation_taps(
         [2.0, 0.0, 1.0, 1.0]
     """
     func = "correlation_taps"
-    _check_phasor(phasor, func)
-    table = _check_order(order, func)
+    check_phasor(phasor, func)
+    table = check_order(order, func)
     if isinstance(offset, torch.Tensor):
-        _check_real(offset, "offset", func)
+        check_real(offset, "offset", func)
     re, im = phasor.real, phasor.imag
     # Re(P e^{jτ}) = Re P cos τ − Im P sin τ, with cos τ, sin τ ∈ {0, ±1} (loop over 4 taps)
     return offset + 0.5 * torch.cat([c * re - s * im for c, s in table], dim=1)
@@ -196,7 +196,7 @@ def correlation_taps(
 
 def _safe_iq(taps: torch.Tensor, func: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``q = c₄ − c₃``, ``i = c₁ − c₂`` and the mask ``(q, i) ≠ 0`` (Eq. 7/8 operands)."""
-    _check_real(taps, "taps", func)
+    check_real(taps, "taps", func)
     check_shape(taps, (None, 4, None, None), "taps", func, "(B, 4, H, W)")
     check_finite(taps, "taps", func)
     c1, c2, c3, c4 = taps.unbind(dim=1)
@@ -301,8 +301,9 @@ def phase_to_depth(phase: torch.Tensor, freq_hz: float) -> torch.Tensor:
         2.4983
     """
     func = "phase_to_depth"
-    _check_real(phase, "phase", func)
+    check_real(phase, "phase", func)
     f = check_positive(freq_hz, "freq_hz", func)
+    check_finite(phase, "phase", func)
     return phase * (SPEED_OF_LIGHT / (4.0 * math.pi * f))
 
 
@@ -355,14 +356,16 @@ def camera_rules(
         [1.0, 2.0, 5.0, 5.0]
     """
     func = "camera_rules"
-    _check_real(depth, "depth", func)
-    _check_real(amplitude, "amplitude", func)
+    check_real(depth, "depth", func)
+    check_real(amplitude, "amplitude", func)
     check_shape(depth, (None, 1, None, None), "depth", func, "(B, 1, H, W)")
     if amplitude.shape != depth.shape:
         raise ValueError(
             f"{func}: expected amplitude of shape {tuple(depth.shape)} (as depth), "
             f"got {tuple(amplitude.shape)}"
         )
+    check_finite(depth, "depth", func)
+    check_finite(amplitude, "amplitude", func)
     for name, v in (("min_m", min_m), ("max_m", max_m), ("no_photon_m", no_photon_m)):
         check_positive(v, name, func, strict=False)
     if not max_m > min_m:

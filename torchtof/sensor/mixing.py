@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_positive, check_rank, check_tensor
+from .._memory import check_memory
 
 __all__ = ["area_overlap_matrix", "dmd_to_sensor", "DMDToSensor", "blur_phasor"]
 
@@ -46,7 +47,7 @@ def _check_size(value: object, name: str, func: str) -> int:
     return value
 
 
-def _pair(value: object, name: str, func: str) -> tuple[int, int]:
+def size_pair(value: object, name: str, func: str) -> tuple[int, int]:
     if isinstance(value, (tuple, list)):
         if len(value) != 2:
             raise ValueError(f"{func}: expected {name} to be (rows, cols), got {value!r}")
@@ -100,6 +101,7 @@ def area_overlap_matrix(
     func = "area_overlap_matrix"
     _check_size(n_in, "n_in", func)
     _check_size(n_out, "n_out", func)
+    check_memory(3 * n_in * n_out * 8, f"an {n_out}x{n_in} overlap matrix", func)
     dtype = torch.get_default_dtype() if dtype is None else dtype
     return _overlap_cpu(n_in, n_out).to(dtype=dtype, device=device, copy=True)
 
@@ -148,7 +150,7 @@ def dmd_to_sensor(x: torch.Tensor, out_hw: int | tuple[int, int]) -> torch.Tenso
     """
     func = "dmd_to_sensor"
     _check_input(x, func)
-    p1, p2 = _pair(out_hw, "out_hw", func)
+    p1, p2 = size_pair(out_hw, "out_hw", func)
     return _apply(x, _overlap_cpu(x.shape[-2], p1), _overlap_cpu(x.shape[-1], p2))
 
 
@@ -174,8 +176,8 @@ class DMDToSensor(nn.Module):
     def __init__(self, in_hw: int | tuple[int, int], out_hw: int | tuple[int, int]) -> None:
         super().__init__()
         func = "DMDToSensor"
-        self.in_hw = _pair(in_hw, "in_hw", func)
-        self.out_hw = _pair(out_hw, "out_hw", func)
+        self.in_hw = size_pair(in_hw, "in_hw", func)
+        self.out_hw = size_pair(out_hw, "out_hw", func)
         rows = area_overlap_matrix(self.in_hw[0], self.out_hw[0], torch.float64)
         cols = area_overlap_matrix(self.in_hw[1], self.out_hw[1], torch.float64)
         self.register_buffer("k_rows", rows, persistent=False)

@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from .._checks import check_positive
-from .functional import SPEED_OF_LIGHT, _check_phasor, _check_real
+from .functional import SPEED_OF_LIGHT, check_phasor, check_real
 from .mixing import blur_phasor
 
 __all__ = ["add_multipath", "Multipath"]
@@ -30,7 +30,7 @@ __all__ = ["add_multipath", "Multipath"]
 
 def _check_scalar_or_real(value: object, name: str, func: str) -> torch.Tensor | float:
     if isinstance(value, torch.Tensor):
-        return _check_real(value, name, func)
+        return check_real(value, name, func)
     return check_positive(value, name, func, strict=False)
 
 
@@ -74,7 +74,7 @@ def add_multipath(
         True
     """
     func = "add_multipath"
-    _check_phasor(phasor, func)
+    check_phasor(phasor, func)
     strength = _check_scalar_or_real(strength, "strength", func)
     extra_path_m = _check_scalar_or_real(extra_path_m, "extra_path_m", func)
     f = check_positive(freq_hz, "freq_hz", func)

@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_positive, check_shape, is_tracing
-from .functional import _check_real
+from .functional import check_real
 
 __all__ = ["SHOT_MODES", "shot_noise", "read_noise", "adc_quantize", "tof_noise", "ToFNoise"]
 
@@ -35,7 +35,7 @@ POISSON_MAX_MEAN = float(2**40)
 
 
 def _check_taps(taps: object, func: str) -> torch.Tensor:
-    _check_real(taps, "taps", func)
+    check_real(taps, "taps", func)
     check_shape(taps, (None, 4, None, None), "taps", func, "(B, 4, H, W)")
     check_finite(taps, "taps", func)
     return taps
@@ -49,7 +49,7 @@ def _check_bits(bits: object, name: str, func: str) -> int:
     return bits
 
 
-def _check_noise_config(
+def check_noise_config(
     func: str,
     shot: str | None,
     read_noise_e: float,
@@ -117,7 +117,7 @@ def shot_noise(
     if mode == "poisson":
         r = rate.detach()
         big = r > POISSON_MAX_MEAN
-        if is_tracing() or not bool(big.any()):  # one check per call, not per pixel
+        if is_tracing() or r.is_meta or not bool(big.any()):  # one check per call
             counts = torch.poisson(r, generator=generator)
         else:
             # torch.poisson converts through int64 and wraps to −9.2e18 above ~9e18 (and
@@ -233,7 +233,7 @@ def tof_noise(
     """
     func = "tof_noise"
     _check_taps(taps, func)
-    _check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
+    check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
     if shot is not None:
         taps = shot_noise(taps, shot, generator)
     taps = read_noise(taps, read_noise_e, generator)
@@ -262,7 +262,7 @@ class ToFNoise(nn.Module):
         gain_e_per_dn: float = 1.0,
     ) -> None:
         super().__init__()
-        _check_noise_config("ToFNoise", shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
+        check_noise_config("ToFNoise", shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
         self.shot = shot
         self.read_noise_e = float(read_noise_e)
         self.full_well_e = full_well_e

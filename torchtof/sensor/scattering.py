@@ -30,8 +30,9 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_in_range, check_positive, check_rank, check_tensor
-from .functional import SPEED_OF_LIGHT, _check_phasor, _check_real
-from .mixing import _pair, blur_phasor
+from .._memory import check_memory
+from .functional import SPEED_OF_LIGHT, check_phasor, check_real
+from .mixing import blur_phasor, size_pair
 
 __all__ = [
     "SCATTER_MODES",
@@ -53,7 +54,7 @@ def _check_term(value: object, x: torch.Tensor, name: str, func: str) -> torch.T
     """A non-negative number or a real tensor that broadcasts to ``x`` (cast to its dtype)."""
     if not isinstance(value, torch.Tensor):
         return check_positive(value, name, func, strict=False)
-    _check_real(value, name, func)
+    check_real(value, name, func)
     try:
         shape = torch.broadcast_shapes(value.shape, x.shape)
     except RuntimeError:
@@ -98,7 +99,8 @@ def dust_map(
         (torch.Size([1, 1, 16, 16]), 0.0, 1.0)
     """
     func = "dust_map"
-    h, w = _pair(size, "size", func)
+    h, w = size_pair(size, "size", func)
+    check_memory(4 * h * w * 8, f"a {h}x{w} dust map", func)
     sigma = check_positive(sigma_px, "sigma_px", func)
     noise = torch.randn((1, 1, h, w), generator=generator, dtype=torch.float64)
     if min(h, w) > 1:
@@ -133,7 +135,7 @@ def scatter_depth(
         [2.0]
     """
     func = "scatter_depth"
-    _check_real(depth, "depth", func)
+    check_real(depth, "depth", func)
     check_rank(depth, 4, "depth", func, "(B, C, H, W)")
     check_finite(depth, "depth", func)
     a = _check_alpha(alpha, func)
@@ -176,11 +178,13 @@ def scatter_phasor(
         True
     """
     func = "scatter_phasor"
-    _check_phasor(phasor, func)
+    check_phasor(phasor, func)
     a = _check_alpha(alpha, func)
     b = _check_term(backscatter, phasor, "backscatter", func)
     d_s = check_positive(sheet_m, "sheet_m", func, strict=False)
     f = check_positive(freq_hz, "freq_hz", func)
+    if blur_sigma is not None:
+        check_positive(blur_sigma, "blur_sigma", func)
     direct = phasor if blur_sigma is None else blur_phasor(phasor, blur_sigma)
     theta = 4.0 * math.pi * f * d_s / SPEED_OF_LIGHT
     return a * direct + b * complex(math.cos(theta), math.sin(theta))
@@ -281,7 +285,7 @@ class ScatteringMedium(nn.Module):
         if mode not in SCATTER_MODES:
             raise ValueError(f"{func}: expected mode in {SCATTER_MODES}, got {mode!r}")
         self.mode = mode
-        self.size = _pair(size, "size", func)
+        self.size = size_pair(size, "size", func)
         self.dust_m = check_positive(dust_m, "dust_m", func, strict=False)
         self.blur_sigma = (
             None if blur_sigma is None else check_positive(blur_sigma, "blur_sigma", func)
@@ -290,7 +294,7 @@ class ScatteringMedium(nn.Module):
         self.sheet_m = check_positive(sheet_m, "sheet_m", func, strict=False)
         self.freq_hz = check_positive(freq_hz, "freq_hz", func)
         if isinstance(depth_s, torch.Tensor):
-            _check_real(depth_s, "depth_s", func)
+            check_real(depth_s, "depth_s", func)
             self.register_buffer("depth_s", depth_s.detach().clone(), persistent=False)
         else:
             self.depth_s = (

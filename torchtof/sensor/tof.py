@@ -20,12 +20,12 @@ from torch import nn
 
 from .._checks import check_finite, check_positive, check_rank
 from .functional import (
-    _check_order,
-    _check_phasor,
-    _check_real,
+    check_order,
+    check_phasor,
+    check_real,
     correlation_taps,
 )
-from .noise import _check_noise_config, tof_noise
+from .noise import check_noise_config, tof_noise
 from .readout import camera_readout
 
 __all__ = ["ToFFrame", "cw_tof_sensor", "CWToFSensor"]
@@ -156,14 +156,14 @@ def cw_tof_sensor(
         (2.0, 50.0)
     """
     func = "cw_tof_sensor"
-    _check_phasor(phasor, func)
-    _check_order(order, func)
+    check_phasor(phasor, func)
+    check_order(order, func)
     _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, step_m)
-    _check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
+    check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
     if intensity is None:
         intensity = 0.5 * phasor.abs()
     else:
-        _check_real(intensity, "intensity", func)
+        check_real(intensity, "intensity", func)
         check_rank(intensity, 4, "intensity", func, "(B, 1, H, W)")
         if intensity.shape != phasor.shape:
             raise ValueError(
@@ -212,9 +212,9 @@ class CWToFSensor(nn.Module):
     ) -> None:
         super().__init__()
         func = "CWToFSensor"
-        _check_order(order, func)
+        check_order(order, func)
         _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, step_m)
-        _check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
+        check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
         config = dict(
             freq_hz=float(freq_hz),
             order=order,

@@ -184,7 +184,8 @@ def plot_sweep(points: list[dict], path: Path, title: str = "") -> Path:
 
 def bench_recon(quick: bool = False, plot: bool = False, out: str | Path = "bench_out",
                 ns=None, srs=None) -> dict:
-    """``torchtof bench recon``: issue-3 grid (n ∈ {32, 64, 128}, SR ∈ {6.25, 12.5, 25, 37.5} %)."""
+    """``torchtof bench recon``: the full grid (n ∈ {32, 64, 128}, SR ∈ {6.25, 12.5, 25,
+    37.5} %)."""
     ns = ns or ((32, 64) if quick else (32, 64, 128))
     srs = srs or ((0.125, 0.25) if quick else (0.0625, 0.125, 0.25, 0.375))
     scenes = ("sky", "steps", "binary:horse") if quick else SCENES

@@ -1,0 +1,290 @@
+"""Held-out evaluation of the learned reconstructor against TVAL3's defaults (and the unrolled
+TVAL3 where it ships weights).
+
+Scenes that training never saw: three classes, each from generators seeded at
+``torchtof.data.EVAL_SEED_BASE`` and up (checked disjoint from every scene seed of the shipped
+run) or from held-out scikit-image images:
+
+- ``depth``: piecewise-planar and piecewise-smooth depth maps (eval seeds);
+- ``silhouette``: the horse (held-out image, Otsu mask), the paper's character 天
+  (:func:`torchtof.scenes.sky_character`) and a random silhouette (eval seed);
+- ``natural``: camera, astronaut, Shepp–Logan (held-out images).
+
+Buckets: ``Hadamard(n, sr, order)`` with Gaussian noise of ``level × (max y − min y)``
+(the package's convention), one seeded draw per scene. Score: PSNR (paper Eqs. 13–14 with
+MAX = 1, no quantisation) and SSIM of the reconstruction clipped to [0, 1] against the scene.
+Time: wall time of one batched call over the class's scenes divided by their number, one
+thread, after a warm-up call, TVAL3 and the learned model interleaved (same machine load).
+
+usage: python benchmarks/eval_learned.py [--sizes 32 64 128] [--srs 0.0625 0.125 0.25 0.375]
+       [--levels 0 0.01 0.05] [--out docs/learned_eval.json] [--generalisation]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import warnings
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from torchtof.data import EVAL_SEED_BASE, NoiseRecipe, draw_scene, grey_image, noisy_buckets
+from torchtof.metrics import psnr, ssim
+from torchtof.operators import Hadamard
+from torchtof.recon.learned import WEIGHTS_FILE, Learned
+from torchtof.recon.synthetic import scene_seed
+from torchtof.recon.tval3 import tval3
+from torchtof.recon.unrolled import UnrolledTVAL3, weight_path
+from torchtof.scenes import binary_scene, sky_character
+
+CLASSES = ("depth", "silhouette", "natural")
+
+
+def _resize(img: torch.Tensor, n: int) -> torch.Tensor:
+    h, w = img.shape
+    s = min(h, w)
+    img = img[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s]
+    x = F.interpolate(img[None, None], size=(n, n), mode="bilinear", antialias=True)
+    return x.clamp(0, 1)
+
+
+def scenes(cls: str, n: int) -> torch.Tensor:
+    """The held-out scenes of a class, ``(3, 1, n, n)`` in [0, 1]."""
+    if cls == "depth":
+        xs = [draw_scene(n, EVAL_SEED_BASE + 0, "planar"), draw_scene(n, EVAL_SEED_BASE + 1, "smooth"),
+              draw_scene(n, EVAL_SEED_BASE + 2, "planar")]
+    elif cls == "silhouette":
+        xs = [binary_scene("horse", n), sky_character(n), draw_scene(n, EVAL_SEED_BASE + 3, "silhouette")]
+    else:
+        xs = [_resize(grey_image(k), n) for k in ("camera", "astronaut", "shepp_logan_phantom")]
+    return torch.cat(xs).float()
+
+
+def check_seeds_unseen(recipe: dict) -> None:
+    """Every scene seed of the shipped run differs from the evaluation seeds."""
+    steps, batch, seed = recipe["steps_run"], recipe["batch_size"], recipe["seed"]
+    eval_seeds = {EVAL_SEED_BASE + i for i in range(4)}
+    for step in range(steps):
+        for i in range(batch):
+            if scene_seed(seed, step, i) in eval_seeds:
+                raise SystemExit(f"evaluation seed {scene_seed(seed, step, i)} was seen in training")
+
+
+def buckets(A: Hadamard, x: torch.Tensor, level: float, salt: int) -> torch.Tensor:
+    gens = [torch.Generator().manual_seed(10_000 * salt + i) for i in range(x.shape[0])]
+    return noisy_buckets(A, x, [NoiseRecipe(level=level)] * x.shape[0], gens)
+
+
+def timed(fn, y: torch.Tensor) -> tuple[torch.Tensor, float]:
+    with torch.no_grad():
+        fn(y[:1])  # warm-up
+        t = time.perf_counter()
+        x = fn(y)
+        return x, (time.perf_counter() - t) / y.shape[0]
+
+
+def score(x_hat: torch.Tensor, x: torch.Tensor) -> tuple[float, float]:
+    xh = x_hat.clamp(0, 1).double()
+    return (float(psnr(xh, x.double(), bits=None).mean()), float(ssim(xh, x.double()).mean()))
+
+
+def run_cell(n, sr, order, level, cls, learned_net_cache, unrolled=True):
+    A = Hadamard(n, sr=sr, order=order)
+    x = scenes(cls, n)
+    y = buckets(A, x, level, salt=n + int(sr * 1e4) + int(level * 1e4))
+    net = Learned(A)
+    row = {"n": n, "sr": sr, "order": order, "level": level, "class": cls}
+    xl, tl = timed(net, y)
+    xt, tt = timed(lambda v: tval3(v, A).x, y)
+    row["learned"], row["tval3"] = score(xl, x), score(xt, x)
+    row["t_learned"], row["t_tval3"] = tl, tt
+    if unrolled and order == "cake_cutting" and weight_path(n, A.m, 12).is_file():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            un = UnrolledTVAL3(A)
+        xu, tu = timed(un, y)
+        row["unrolled"], row["t_unrolled"] = score(xu, x), tu
+    return row
+
+
+def table(rows: list[dict]) -> str:
+    """Markdown: one line per (n, SR, noise), the PSNR difference learned − TVAL3 per class,
+    the mean PSNRs and SSIMs, and the time ratio."""
+    out = ["| n | SR % | noise % | " + " | ".join(f"Δ {c} dB" for c in CLASSES)
+           + " | learned dB / SSIM | TVAL3 dB / SSIM | unrolled dB | learned ms | TVAL3 ms |",
+           "|---" * (8 + len(CLASSES)) + "|"]
+    keys = sorted({(r["n"], r["sr"], r["level"]) for r in rows if not r.get("generalisation")})
+    for n, sr, level in keys:
+        cell = [r for r in rows if (r["n"], r["sr"], r["level"]) == (n, sr, level)
+                and not r.get("generalisation")]
+        by = {r["class"]: r for r in cell}
+        d = [f"{by[c]['learned'][0] - by[c]['tval3'][0]:+.2f}" if c in by else "-" for c in CLASSES]
+        ml = np.mean([r["learned"][0] for r in cell])
+        mt = np.mean([r["tval3"][0] for r in cell])
+        sl = np.mean([r["learned"][1] for r in cell])
+        st = np.mean([r["tval3"][1] for r in cell])
+        un = [r["unrolled"][0] for r in cell if "unrolled" in r]
+        tl = np.mean([r["t_learned"] for r in cell]) * 1e3
+        tt = np.mean([r["t_tval3"] for r in cell]) * 1e3
+        out.append(f"| {n} | {sr * 100:g} | {level * 100:g} | " + " | ".join(d)
+                   + f" | {ml:.2f} / {sl:.3f} | {mt:.2f} / {st:.3f} | "
+                   + (f"{np.mean(un):.2f}" if un else "-") + f" | {tl:.1f} | {tt:.1f} |")
+    return "\n".join(out)
+
+
+def gen_table(rows: list[dict]) -> str:
+    """Markdown: mean PSNR difference learned − TVAL3 over the classes per (order, SR), n = 64,
+    noise 1 %."""
+    rows = [r for r in rows if r.get("generalisation")]
+    orders = sorted({r["order"] for r in rows})
+    srs = sorted({r["sr"] for r in rows})
+    out = ["| order | " + " | ".join(f"SR {s * 100:g} %" for s in srs) + " |",
+           "|---" * (1 + len(srs)) + "|"]
+    for o in orders:
+        cells = []
+        for s in srs:
+            c = [r["learned"][0] - r["tval3"][0] for r in rows if r["order"] == o and r["sr"] == s]
+            cells.append(f"{np.mean(c):+.2f}")
+        out.append(f"| {o} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
+    """Export at batch 2 (dynamic batch) to a temporary file, then the median time per image
+    of onnxruntime (1 thread) and of eager PyTorch on a batch of ``batch`` at SR 12.5 %, and
+    the max abs difference on [0, 1] scenes."""
+    import tempfile
+
+    import onnxruntime as ort
+
+    out = []
+    for n in sizes:
+        A = Hadamard(n, sr=0.125)
+        net = Learned(A).eval()
+        x = torch.cat([draw_scene(n, EVAL_SEED_BASE + 10 + i) for i in range(batch)])
+        y = A(x)
+        with tempfile.TemporaryDirectory() as d, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            path = f"{d}/learned.onnx"
+            torch.onnx.export(net, (y[:2],), path, dynamo=False, opset_version=17,
+                              input_names=["y"], output_names=["x"],
+                              dynamic_axes={"y": {0: "batch"}, "x": {0: "batch"}})
+            so = ort.SessionOptions()
+            so.intra_op_num_threads = 1
+            sess = ort.InferenceSession(path, so, providers=["CPUExecutionProvider"])
+            feed = {"y": y.numpy()}
+            sess.run(None, feed)
+            t_ort = []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                got = sess.run(None, feed)[0]
+                t_ort.append((time.perf_counter() - t) / batch)
+        t_pt = []
+        with torch.no_grad():
+            ref = net(y)
+            for _ in range(repeats):
+                t = time.perf_counter()
+                net(y)
+                t_pt.append((time.perf_counter() - t) / batch)
+        out.append({"n": n, "batch": batch, "ort_ms": 1e3 * float(np.median(t_ort)),
+                    "torch_ms": 1e3 * float(np.median(t_pt)),
+                    "max_abs_err": float(np.abs(got - ref.numpy()).max())})
+        print(out[-1], flush=True)
+    return out
+
+
+def paper(realisations: int = 3) -> list[dict]:
+    """The paper's experiment (:class:`torchtof.experiment.PaperExperiment`, 天 at n = 32, in
+    air, default stray light), depth buckets without and with the 3 m gate, the paper's SRs:
+    :func:`torchtof.metrics.compare` (8-bit PSNR after min-max normalisation, physics
+    polarity), mean over ``realisations`` noise draws, learned vs TVAL3's defaults."""
+    from torchtof.experiment import PaperExperiment
+    from torchtof.metrics import compare
+
+    data = PaperExperiment(sr=0.375).run(seed=0, realisations=realisations)
+    out = []
+    for gate in (False, True):
+        for sr in (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375):
+            A, y = data.measurements(sr, gate=gate)
+            x = data.x.to(y.dtype).expand(y.shape[0], -1, -1, -1)
+            pol = data.polarity(gate)
+            row = {"sr": sr, "gate": gate}
+            for name, fn in (("learned", lambda v: Learned(A)(v)),
+                             ("tval3", lambda v: tval3(v, A).x)):
+                with torch.no_grad():
+                    s = compare(fn(y), x, pol)
+                row[name] = (float(s["psnr"].mean()), float(s["ssim"].mean()))
+            out.append(row)
+            print(row, flush=True)
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
+    p.add_argument("--srs", type=float, nargs="+", default=[0.0625, 0.125, 0.25, 0.375])
+    p.add_argument("--levels", type=float, nargs="+", default=[0.0, 0.01, 0.05])
+    p.add_argument("--classes", nargs="+", default=list(CLASSES))
+    p.add_argument("--generalisation", action="store_true",
+                   help="also orders other than cake-cutting and SRs beyond training (n=64, 1 %%)")
+    p.add_argument("--onnx", action="store_true", help="only the onnxruntime timing/parity")
+    p.add_argument("--paper", action="store_true", help="only the paper's experiment")
+    p.add_argument("--out", default=None, help="JSON file of every row")
+    p.add_argument("--table", default=None, help="print the markdown tables of a JSON file and exit")
+    args = p.parse_args()
+    if args.table:
+        rows = json.load(open(args.table))["rows"]
+        print(table(rows))
+        if any(r.get("generalisation") for r in rows):
+            print()
+            print(gen_table(rows))
+        return 0
+    torch.set_num_threads(1)
+    if args.onnx or args.paper:
+        rows = onnx_times() if args.onnx else paper()
+        if args.out:
+            with open(args.out, "w") as f:
+                json.dump(rows, f, indent=0)
+        return 0
+    if not WEIGHTS_FILE.is_file():
+        raise SystemExit(f"no shipped weights at {WEIGHTS_FILE}")
+    recipe = json.loads((WEIGHTS_FILE.parent / "recipe.json").read_text())
+    check_seeds_unseen(recipe)
+    rows = []
+    t0 = time.perf_counter()
+    for n in args.sizes:
+        for sr in args.srs:
+            for level in args.levels:
+                for cls in args.classes:
+                    r = run_cell(n, sr, "cake_cutting", level, cls, None)
+                    rows.append(r)
+                    d = r["learned"][0] - r["tval3"][0]
+                    print(f"n={n:3d} sr={sr:.4f} noise={level:.2f} {cls:10s} learned "
+                          f"{r['learned'][0]:6.2f} tval3 {r['tval3'][0]:6.2f} d={d:+5.2f} dB  "
+                          f"t {r['t_learned'] * 1e3:7.1f} / {r['t_tval3'] * 1e3:7.1f} ms"
+                          + (f"  unrolled {r['unrolled'][0]:6.2f}" if "unrolled" in r else ""),
+                          flush=True)
+    if args.generalisation:
+        for order in ("cake_cutting", "sequency", "russian_doll", "natural"):
+            for sr in (0.125, 0.25, 0.5, 0.75):
+                for cls in args.classes:
+                    r = run_cell(64, sr, order, 0.01, cls, None, unrolled=False)
+                    r["generalisation"] = True
+                    rows.append(r)
+                    print(f"gen order={order:12s} sr={sr:.3f} {cls:10s} learned "
+                          f"{r['learned'][0]:6.2f} tval3 {r['tval3'][0]:6.2f} "
+                          f"d={r['learned'][0] - r['tval3'][0]:+5.2f}", flush=True)
+    print(f"total {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump({"recipe": recipe, "rows": rows}, f, indent=0)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,361 @@
+"""Learned proximal-gradient reconstructor, its procedural data and its training.
+
+Known answers: with the prior switched off (``R ≡ 0``) the iteration's fixed point from
+``Aᵀy`` is ``Aᵀy`` itself (``A Aᵀ = I``), for any step size; the reconstructor is equivariant
+to any non-zero scale of ``y``; a DMD split's frames give what their combined ±1 buckets give;
+the noise model's variances follow from the Poisson law of each frame.
+"""
+
+import json
+import math
+import warnings
+
+import pytest
+import torch
+
+from torchtof.data import (
+    FAMILIES,
+    HELD_OUT_IMAGES,
+    TRAIN_IMAGES,
+    NoiseRecipe,
+    draw_scene,
+    draw_scenes,
+    grey_image,
+    noisy_buckets,
+)
+from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
+from torchtof.recon.learned import WEIGHTS_FILE, Learned, LearnedResult, learned
+from torchtof.recon.learned_train import _batch, psnr_loss, step_config, train_learned
+
+
+def _net(n=16, sr=0.25, K=3, width=4, seed=0, order="cake_cutting", noise_sigma="auto"):
+    torch.manual_seed(seed)
+    return Learned(Hadamard(n, sr=sr, order=order), n_layers=K, width=width, pretrained=False,
+                   noise_sigma=noise_sigma)
+
+
+def _y(A, b=2, c=1, dtype=torch.float32, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return A(torch.rand(b, c, A.n, A.n, generator=g, dtype=torch.float64)).to(dtype)
+
+
+def _prior_off(net):
+    with torch.no_grad():
+        net.prior.out.weight.zero_()
+        net.prior.out.bias.zero_()
+    return net
+
+
+# -- contract: shapes, dtypes, batching, function == module -----------------------------------
+
+
+@pytest.mark.parametrize("b,c", [(1, 1), (3, 2)])
+def test_shapes_dtype_batched_equals_stacked(b, c, dtype):
+    net = _net().to(dtype)
+    y = _y(net.A, b, c, dtype)
+    out = net(y)
+    assert out.shape == (b, c, 16, 16) and out.dtype == dtype
+    stacked = torch.cat([net(y[i : i + 1]) for i in range(b)])
+    torch.testing.assert_close(out, stacked, rtol=1e-5, atol=1e-6)
+
+
+def test_float64_input_runs_in_float64_with_float32_weights():
+    net = _net()
+    y = _y(net.A, dtype=torch.float64)
+    out = net(y)
+    assert out.dtype == torch.float64
+    torch.testing.assert_close(out.float(), net(y.float()), rtol=1e-4, atol=1e-5)
+
+
+def test_empty_batch_and_zero_buckets():
+    net = _net()
+    assert net(torch.zeros(0, 2, net.A.m)).shape == (0, 2, 16, 16)
+    assert torch.equal(net(torch.zeros(2, 1, net.A.m)), torch.zeros(2, 1, 16, 16))
+
+
+def test_function_equals_module(tmp_path):
+    net = _net(K=2)
+    path = tmp_path / "w.pt"
+    net.save_weights(path)
+    y = _y(net.A)
+    torch.testing.assert_close(learned(y, net.A, n_layers=2, pretrained=path, width=4), net(y))
+
+
+@pytest.mark.parametrize("c", [3.0, 1e-3, -2.0])
+def test_scale_and_sign_equivariance(c):
+    net = _net(noise_sigma="auto")
+    y = _y(net.A, b=3, dtype=torch.float64)
+    torch.testing.assert_close(net.double()(c * y), c * net.double()(y), rtol=1e-10, atol=1e-12)
+
+
+# -- the iteration's arithmetic ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("order", ["cake_cutting", "natural"])
+@pytest.mark.parametrize("step", [-1.0, 0.0, 2.0])
+def test_prior_off_is_the_pseudo_inverse(order, step):
+    """R ≡ 0: x₀ = Aᵀy, z = x₀ − γAᵀ(AAᵀy − y) = x₀ for every γ (A Aᵀ = I)."""
+    net = _prior_off(_net(order=order))
+    with torch.no_grad():
+        net.step_raw.fill_(step)
+    y = _y(net.A, b=2, dtype=torch.float64)
+    x = net.double()(y)
+    torch.testing.assert_close(x, net.A.adjoint(y), rtol=1e-10, atol=1e-12)
+    r = net.solve(y)
+    assert isinstance(r, LearnedResult)
+    assert torch.all(r.residual < 1e-12) and r.n_iter.tolist() == [[3], [3]]
+    assert r.converged.all() and r.stop_reason == (("n_layers",), ("n_layers",))
+
+
+def test_final_step_noise_free_is_the_exact_projection():
+    """σ = 0: w = 1, x = x_K + Aᵀ(b − A x_K) satisfies A x = y exactly whatever the prior;
+    σ ≫ τ: w → 0, the output is the network without the final step."""
+    net = _net(noise_sigma=0.0).double()
+    with torch.no_grad():
+        net.prior.out.bias.fill_(0.3)  # the prior adds a bright offset at every step
+    y = _y(net.A, b=2, dtype=torch.float64)
+    r = net.solve(y)
+    assert float(r.residual.max()) < 1e-12
+    net.final_dc = False
+    assert float(net.solve(y).residual.min()) > 1e-3  # the prior alone does not fit y
+    loud = _net(noise_sigma=1e12).double()
+    loud.load_state_dict(net.state_dict())
+    on = loud(y)
+    loud.final_dc = False
+    torch.testing.assert_close(on, loud(y), rtol=1e-12, atol=1e-12)
+
+
+def test_calibrate_tau_picks_the_grid_minimum():
+    from torchtof.recon.learned_train import calibrate_tau
+
+    net = _net(n=16, K=2)
+    out = calibrate_tau(net, seed=1, batches=2, batch_size=2, sizes=(16,), grid=(0.01, 0.1, 1.0))
+    assert out["tau"] == min(out["losses"], key=out["losses"].get)
+    assert math.isclose(float(net.log_tau.exp()), out["tau"], rel_tol=1e-6) and net.final_dc
+
+
+def test_dmd_split_frames_equal_combined_buckets():
+    A = Hadamard(16, sr=0.25)
+    S = DMDSplit(A)
+    torch.manual_seed(0)
+    net_a = Learned(A, n_layers=2, width=4, pretrained=False, noise_sigma=0.01)
+    net_s = Learned(S, n_layers=2, width=4, pretrained=False, noise_sigma=0.01 * 16 / math.sqrt(2))
+    net_s.load_state_dict(net_a.state_dict())
+    x = torch.rand(2, 1, 16, 16, dtype=torch.float64)
+    torch.testing.assert_close(net_s.double()(S(x)), net_a.double()(A(x)), rtol=1e-9, atol=1e-10)
+
+
+def test_gradcheck_float64():
+    torch.manual_seed(0)
+    net = Learned(Hadamard(8, sr=0.5), n_layers=2, width=2, pretrained=False, noise_sigma=0.01)
+    net = net.double()
+    y = _y(net.A, b=1, dtype=torch.float64).requires_grad_(True)
+    assert torch.autograd.gradcheck(net, (y,), eps=1e-6, atol=1e-5)
+
+
+def test_state_dict_round_trip_and_weights_file(tmp_path):
+    a, b = _net(seed=0), _net(seed=1)
+    y = _y(a.A)
+    assert not torch.allclose(a(y), b(y))
+    b.load_state_dict(a.state_dict())
+    torch.testing.assert_close(b(y), a(y))
+    path = tmp_path / "w.pt"
+    a.save_weights(path, note="x")
+    c = Learned(a.A, n_layers=3, width=4, pretrained=path)
+    torch.testing.assert_close(c(y), a(y))
+    with pytest.raises(ValueError, match="n_layers"):
+        Learned(a.A, n_layers=4, width=4, pretrained=path)
+
+
+# -- bad inputs ----------------------------------------------------------------------------
+
+
+def test_bad_inputs_raise():
+    A = Hadamard(16, sr=0.25)
+    with pytest.raises(TypeError, match="A"):
+        Learned("A", pretrained=False)
+    P = PatternOperator(random_binary_patterns(64, 16, generator=torch.Generator().manual_seed(0)))
+    with pytest.raises(ValueError, match="orthonormal"):
+        Learned(P, pretrained=False)
+    with pytest.raises(ValueError, match="n_layers"):
+        Learned(A, n_layers=0, pretrained=False)
+    with pytest.raises(TypeError, match="n_layers"):
+        Learned(A, n_layers=2.0, pretrained=False)
+    with pytest.raises(ValueError, match="noise_sigma"):
+        Learned(A, noise_sigma=-1.0, pretrained=False)
+    with pytest.raises(ValueError, match="noise_sigma"):
+        Learned(A, noise_sigma="pairs?", pretrained=False)
+    net = Learned(A, pretrained=False, width=4)
+    with pytest.raises(ValueError, match="y"):
+        net(torch.zeros(1, 1, A.m + 1))
+    with pytest.raises(ValueError, match="y"):
+        net(torch.full((1, 1, A.m), float("nan")))
+    with pytest.raises(TypeError, match="y"):
+        net(torch.zeros(1, 1, A.m, dtype=torch.int64))
+    bad = Learned(A, pretrained=False, width=4, noise_sigma=torch.ones(3))
+    with pytest.raises(ValueError, match="noise_sigma"):
+        bad(torch.zeros(2, 1, A.m))
+
+
+# -- data --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_scenes_seeded_in_range_and_shard_invariant(family):
+    a = draw_scene(32, 7, family)
+    assert torch.equal(a, draw_scene(32, 7, family)) and not torch.equal(a, draw_scene(32, 8, family))
+    assert a.shape == (1, 1, 32, 32) and 0 <= float(a.min()) and float(a.max()) <= 1
+    whole = draw_scenes(32, 3, 5, range(4), family)
+    torch.testing.assert_close(whole, torch.cat([draw_scenes(32, 3, 5, range(0, 2), family),
+                                                 draw_scenes(32, 3, 5, range(2, 4), family)]))
+
+
+def test_held_out_images_are_disjoint_and_never_drawn_for_training():
+    assert not set(TRAIN_IMAGES) & set(HELD_OUT_IMAGES)
+    held = [torch.nn.functional.interpolate(grey_image(k)[None, None], size=(8, 8),
+                                            mode="area") for k in HELD_OUT_IMAGES]
+    with pytest.raises(ValueError, match="name"):
+        grey_image("not_an_image")
+    with pytest.raises(ValueError, match="family"):
+        draw_scene(32, 0, "cats")
+    assert len(held) == 4
+
+
+def test_noise_clean_gaussian_and_shot_variances():
+    n = 64
+    A = Hadamard(n)  # M = n² measurements: sample variances are tight
+    x = draw_scene(n, 1, "planar", dtype=torch.float64)
+    g = [torch.Generator().manual_seed(0)]
+    assert torch.equal(noisy_buckets(A, x, [NoiseRecipe()], g), A(x))
+    y0 = A(x)
+    spread = float(y0.max() - y0.min())
+    e = noisy_buckets(A, x, [NoiseRecipe(level=0.01)], g) - y0
+    assert abs(float(e.std()) / (0.01 * spread) - 1) < 0.03
+    # shot noise: var((c⁺ − c⁻)/(p n)) = (c⁺ + c⁻)/(p n)² with c⁺ + c⁻ = p Σx (1 + stray)
+    for stray in (0.0, 2.0):
+        p = 50.0
+        e = noisy_buckets(A, x, [NoiseRecipe(photons=p, stray=stray)], g) - y0
+        want = math.sqrt(p * float(x.sum()) * (1 + stray)) / (p * n)
+        assert abs(float(e.std()) / want - 1) < 0.03
+        assert abs(float(e.mean())) < 4 * want / n  # stray light cancels in y⁺ − y⁻
+
+
+# -- training ---------------------------------------------------------------------------------
+
+
+def test_short_training_run_lowers_the_loss():
+    """25 steps of the shipped recipe (batch 2, n = 32, lr 3e-3) lower the loss (negative
+    mean PSNR) on fixed batches drawn by the same recipe at steps the run does not see; the
+    untrained network starts at the pseudo-inverse's loss."""
+    kw = dict(sizes=(32,), sr_range=(0.0625, 0.5), seed=5)
+    held = []
+    for step in (1000, 1001, 1002):
+        n, m, order = step_config(5, step, (32,), 0.0, kw["sr_range"], ("cake_cutting",))
+        held.append(_batch(5, step, n, m, order, range(4)))
+
+    def loss(model):
+        with torch.no_grad():
+            tot = 0.0
+            for A, x, y in held:
+                model.A = A
+                tot += float(psnr_loss(model(y), x))
+            return tot / len(held)
+
+    torch.manual_seed(5)
+    untrained = Learned(Hadamard(32, sr=0.25), pretrained=False, width=16)
+    untrained.final_dc = False  # as the prior trains
+    before = loss(untrained)
+    r = train_learned(steps=25, batch_size=2, lr=3e-3, progress=False, calibrate=False, **kw)
+    after = loss(r.model)
+    assert after < before - 0.2, (before, after)
+
+
+def test_resume_continues_the_same_run(tmp_path):
+    kw = dict(batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False, log_every=1,
+              calibrate=False)
+    straight = train_learned(steps=4, **kw).model
+    train_learned(steps=4, out=tmp_path, checkpoint_every=1, max_minutes=0.0, **kw)
+    resumed = train_learned(steps=4, out=tmp_path, resume=True, **kw).model
+    for k, v in straight.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[k], v, rtol=1e-5, atol=1e-6)
+    log = json.loads((tmp_path / "log.json").read_text())
+    assert [r["step"] for r in log] == [1, 2, 3, 4]
+    assert (tmp_path / "recipe.json").is_file() and (tmp_path / "learned.pt").is_file()
+
+
+# -- ONNX ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [32, pytest.param(128, marks=pytest.mark.slow)])
+def test_onnx_parity_other_batch_sizes(n, tmp_path):
+    """Exported at batch 2 (dynamic batch axis), onnxruntime at batch 1 and 3, images in
+    [0, 1]: max abs error <= 1e-4."""
+    ort = pytest.importorskip("onnxruntime")
+    import numpy as np
+
+    A = Hadamard(n, sr=0.125)
+    torch.manual_seed(0)
+    net = Learned(A, pretrained=WEIGHTS_FILE.is_file()).eval()
+    path = tmp_path / "learned.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net, (A(torch.rand(2, 1, n, n)),), path, dynamo=False, opset_version=17,
+                          input_names=["y"], output_names=["x"],
+                          dynamic_axes={"y": {0: "batch"}, "x": {0: "batch"}})
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    for b in (1, 3):
+        x = draw_scenes(n, 99, 0, range(b))
+        y = A(x)
+        with torch.no_grad():
+            ref = net(y)
+        out = sess.run(None, {"y": y.numpy()})[0]
+        assert np.abs(out - ref.numpy()).max() <= 1e-4
+
+
+# -- shipped weights -----------------------------------------------------------------------
+
+
+@pytest.mark.skipif(not WEIGHTS_FILE.is_file(), reason="weights not trained yet")
+def test_shipped_weights_serve_every_size_sr_order_without_warning():
+    recipe = json.loads((WEIGHTS_FILE.parent / "recipe.json").read_text())
+    assert {"command", "seed", "data", "torch_version", "wall_s"} <= set(recipe)
+    assert WEIGHTS_FILE.stat().st_size < 5 * 2**20
+    cases = [Hadamard(32, sr=0.0625), Hadamard(64, sr=0.375, order="natural"),
+             Hadamard(128, sr=1.0, order="sequency"), DMDSplit(Hadamard(32, sr=0.25))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for A in cases:
+            x = draw_scene(A.n, 123_456_789, "silhouette")
+            out = Learned(A)(A(x))
+            assert out.shape == x.shape and torch.isfinite(out).all()
+
+
+@pytest.mark.slow
+def test_ddp_two_processes_train_the_single_process_model(tmp_path):
+    """``torchrun`` with 2 processes (gloo, loopback) on ``torchtof train --model learned``
+    trains the model one process trains on the same global batch."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    args = ("train --model learned --steps 3 --batch-size 4 --sizes 16 --n-layers 2 --width 4 "
+            "--seed 3 --no-progress --checkpoint-every 0 --no-calibrate").split()
+    env = dict(os.environ, PYTHONPATH=str(root), OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
+    for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
+        env.pop(k, None)
+    launcher = "-m torch.distributed.run --standalone --nproc_per_node 2".split()
+    cmd = [sys.executable, *launcher, "-m", "torchtof.cli", *args, "--out", str(tmp_path)]
+    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    recipe = json.loads((tmp_path / "recipe.json").read_text())
+    assert recipe["world_size"] == 2 and recipe["steps_run"] == 3
+    got = torch.load(tmp_path / "learned.pt", weights_only=True)
+    single = train_learned(steps=3, batch_size=4, sizes=(16,), n_layers=2, width=4, seed=3,
+                           progress=False, distributed=False, calibrate=False).model
+    for k, v in single.prior.state_dict().items():
+        torch.testing.assert_close(got["prior"][k], v, rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(got["step_raw"], single.step_raw.detach(), rtol=1e-4, atol=1e-6)
