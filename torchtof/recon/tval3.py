@@ -38,6 +38,7 @@ from .._checks import (
     check_shape,
     check_tensor,
     is_tracing,
+    unchecked,
 )
 from ..operators.base import LinearOperator
 from .tv import (
@@ -520,8 +521,9 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
-               boundary=boundary, disc_bound=bound)
+    with unchecked():  # y was validated above: operator calls in the loop skip check_finite
+        u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+                   boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
