@@ -49,7 +49,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape, check_tensor
+from .._checks import check_finite, check_positive, check_shape, check_tensor, is_tracing
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
 from .tv import admm_tv, largest_eig_normal
@@ -63,6 +63,7 @@ __all__ = [
     "iq_phase_amplitude",
     "joint_tv",
     "JointTV",
+    "JointTVResult",
     "depth_resolved",
     "DepthResolved",
     "dual_frequency_depth",
@@ -217,6 +218,7 @@ def joint_tv(
     tol: float = 1e-6,
     noise_sigma: float | torch.Tensor | None = None,
     adaptive: bool = True,
+    return_result: bool = False,
 ) -> torch.Tensor:
     """Reconstruct ``C`` images that share their edges: vectorial TV by ADMM.
 
@@ -266,6 +268,7 @@ def joint_tv(
         noise_sigma: bucket noise std ``(B,)`` tensor or float, for ``mu="auto"``.
         adaptive: early stop (``False``: exactly ``n_iter`` iterations, no Python branch
             on tensor values).
+        return_result: return a :class:`JointTVResult` instead of the images.
 
     Returns:
         ``(B, C, n, n)`` images in the units of ``A⁺y``.
@@ -287,6 +290,13 @@ def joint_tv(
     fn = "joint_tv"
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
+    if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
+        x = y.new_zeros(*y.shape[:2], A.n, A.n)
+        per = y.shape[:2]
+        res = JointTVResult(x, torch.zeros(per, dtype=torch.int64, device=y.device),
+                            y.new_zeros(per), torch.ones(per, dtype=torch.bool, device=y.device),
+                            ())
+        return res if return_result else x
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     sq = math.sqrt(inv_s2)
@@ -315,7 +325,32 @@ def joint_tv(
         inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
         done=zero[:, None].expand(per), stop_over_channels=True,
     )
-    return out.u * (sq / gain).reshape(-1, 1, 1, 1)
+    x = out.u * (sq / gain).reshape(-1, 1, 1, 1)
+    if not return_result:
+        return x
+    ynorm = y.norm(dim=-1)
+    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    names = () if is_tracing() else tuple(
+        tuple("tol" if d else "max_iter" for d in row) for row in out.converged.tolist())
+    return JointTVResult(x, out.n_iter, residual, out.converged, names)
+
+
+class JointTVResult(NamedTuple):
+    """Output of :meth:`JointTV.solve` (and ``joint_tv(..., return_result=True)``).
+
+    Attributes:
+        x: images ``(B, C, n, n)``.
+        n_iter: iterations per sample ``(B, C)`` (channels of one sample stop together).
+        residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)``.
+        converged: ``(B, C)`` bool (the change test met before ``n_iter``).
+        stop_reason: ``"tol"`` or ``"max_iter"`` per sample ``[b][c]``.
+    """
+
+    x: torch.Tensor
+    n_iter: torch.Tensor
+    residual: torch.Tensor
+    converged: torch.Tensor
+    stop_reason: tuple
 
 
 def _check_jtv_options(fn: str, mu, beta, n_iter, tol) -> None:
@@ -333,10 +368,15 @@ def _check_jtv_options(fn: str, mu, beta, n_iter, tol) -> None:
 
 
 class JointTV(nn.Module):
-    """Module of :func:`joint_tv`: ``forward(y (B, C, M), noise_sigma=None) -> (B, C, n, n)``.
+    """Module of :func:`joint_tv`: ``forward(y (B, C, M)) -> (B, C, n, n)``.
+
+    The noise level of the buckets (for ``mu="auto"``) is a second input: give it to the
+    constructor (``noise_sigma``, e.g. :func:`tap_noise_sigma` of the tap buckets) or per call
+    as ``forward(y, noise_sigma)`` / ``solve(y, noise_sigma)`` (which
+    :class:`DepthResolved` does with the I/Q noise it measures); the per-call value wins.
 
     Args:
-        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive: as
+        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive, noise_sigma: as
             :func:`joint_tv`.
 
     Example:
@@ -350,18 +390,26 @@ class JointTV(nn.Module):
 
     def __init__(self, A: LinearOperator, joint: bool = True, mu: float | str = "auto",
                  beta: float = 2.0**5, n_iter: int = 300, tol: float = 1e-6,
-                 adaptive: bool = True) -> None:
+                 adaptive: bool = True, noise_sigma: float | None = None) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
         _check_jtv_options("JointTV", mu, beta, n_iter, tol)
+        if noise_sigma is not None:
+            check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
+        self.noise_sigma = noise_sigma
         self.options = dict(joint=bool(joint), mu=mu, beta=beta, n_iter=n_iter, tol=tol,
                             adaptive=adaptive)
 
+    def solve(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
+              ) -> JointTVResult:
+        ns = self.noise_sigma if noise_sigma is None else noise_sigma
+        return joint_tv(y, self.A, noise_sigma=ns, return_result=True, **self.options)
+
     def forward(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
                 ) -> torch.Tensor:
-        return joint_tv(y, self.A, noise_sigma=noise_sigma, **self.options)
+        return self.solve(y, noise_sigma).x
 
     def extra_repr(self) -> str:
         o = self.options

@@ -38,6 +38,7 @@ from .._checks import (
     check_shape,
     check_tensor,
     is_tracing,
+    unchecked,
 )
 from ..operators.base import LinearOperator
 from .tv import (
@@ -71,6 +72,8 @@ AUTO_TVL2_BETA = 4.0
 #: ``mu="auto"``: the constrained model is kept when its hold-out error is within this relative
 #: slack of the TV-L2 model's (fewer training rows bias hold-out towards smoothing).
 AUTO_CV_SLACK = 0.1
+#: ``mu="auto"``: iteration cap of the hold-out solves (bounds the check's cost).
+AUTO_CV_MAX_ITER = 300
 #: :func:`bucket_noise_sigma`: fraction of the measurements (from the end) and the quantile used.
 NOISE_TAIL = 0.25
 NOISE_QUANTILE = 0.2
@@ -518,8 +521,9 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
-               boundary=boundary, disc_bound=bound)
+    with unchecked():  # y was validated above: operator calls in the loop skip check_finite
+        u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+                   boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
@@ -546,10 +550,12 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     Hold-out folds of :func:`holdout_split` with ``k = 3`` (for low-to-high Hadamard orders
     the last quarter of the rows predicted from the rows before it, and the quarter before
     that from the first half; else three random folds), both
-    models fitted with the same options and budget as the final solve, batched as two
-    channels of one call. A tail noise estimate reads signal as noise where the high-order
-    rows still carry signal (low SR, smooth or textured scenes); this check keeps the
-    published model there (``docs/auto.md``: the loss on noise-free buckets).
+    models fitted with the same options as the final solve and at most
+    :data:`AUTO_CV_MAX_ITER` iterations, batched as four channels of one call (cost: at
+    most 4 × 300 batched iterations, run only when the estimate chose TV-L2). A tail noise
+    estimate reads signal as noise where the high-order rows still carry signal (low SR,
+    smooth or textured scenes); this check keeps the published model there
+    (``docs/auto.md``: the loss on noise-free buckets).
     """
     b, c, m = y.shape
     held, train = holdout_split(A, 3, y, 0, default_split(A))  # (F, M), F = 2 or 3
@@ -559,7 +565,8 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     yt = ys * train.repeat_interleave(2, dim=0).to(y.dtype)
     mus = torch.stack((torch.full_like(mu_f, AUTO_MU_MAX), mu_f), dim=-1).reshape(b * c, 2)
     tl = torch.tensor([False, True], device=y.device).repeat(nf)
-    r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=max_iter, tv=tv,
+    budget = min(max_iter, AUTO_CV_MAX_ITER)
+    r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=budget, tv=tv,
               nonneg=nonneg, bounds=bounds, boundary=boundary)
     hm = held.repeat_interleave(2, dim=0).to(y.dtype)
     err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, 2).sum(1)  # (BC, 2)
