@@ -534,12 +534,19 @@ def method_means(data: dict) -> str:
     for c in data["cells"]:
         for k, v in c["results"].items():
             names.setdefault(k, []).append(v["psnr"])
+    gaps: dict[str, list[float]] = {}
     wins: dict[str, int] = {}
     for c in data["cells"]:
-        wins[c["headline"]["best_peer"]] = wins.get(c["headline"]["best_peer"], 0) + 1
-    lines = ["| method | cells | mean PSNR dB | best peer in cells |", "|---|---|---|---|"]
-    for k, v in sorted(names.items(), key=lambda kv: -statistics.mean(kv[1])):
-        lines.append(f"| {k} | {len(v)} | {statistics.mean(v):.2f} | {wins.get(k, 0)} |")
+        h = c["headline"]
+        wins[h["best_peer"]] = wins.get(h["best_peer"], 0) + 1
+        for k, v in c["results"].items():
+            gaps.setdefault(k, []).append(v["psnr"] - h["best_peer_psnr"])
+    lines = ["| method | cells | mean PSNR dB | mean − best tuned peer of the same cell, dB "
+             "(min … max) | best peer in cells |", "|---|---|---|---|---|"]
+    for k, v in sorted(names.items(), key=lambda kv: -statistics.mean(gaps[kv[0]])):
+        g = gaps[k]
+        lines.append(f"| {k} | {len(v)} | {statistics.mean(v):.2f} | {statistics.mean(g):+.2f} "
+                     f"({min(g):+.2f} … {max(g):+.2f}) | {wins.get(k, 0)} |")
     return "\n".join(lines)
 
 
@@ -661,6 +668,7 @@ def main(argv=None) -> int:
     a = parse(argv)
     if a.report is not None:
         data = merge([json.loads(p.read_text()) for p in a.report])
+        data["cells"] = [c for c in data["cells"] if c["headline"]["best_peer"]]  # comparable
         print(markdown(data))
         print()
         print(method_means(data))
