@@ -524,7 +524,8 @@ def markdown(data: dict) -> str:
             f"{h['best_ours'].replace('torchtof ', '')} | {r[h['best_ours']]['psnr']:.2f} | "
             f"{bp}{' (edge)' if bp and _edge(r[bp]) else ''} | "
             f"{h['best_peer_psnr']:.2f} | {h['gap_db']:+.2f} | "
-            f"{r[h['default']]['time_s']:.3f} | {r[bp]['time_s']:.3f} |"
+            f"{r[h['default']]['time_s']:.3f}{'*' if r[h['default']].get('other_process') else ''}"
+            f" | {r[bp]['time_s']:.3f} |"
         )
     return "\n".join(lines)
 
