@@ -631,7 +631,7 @@ def plot(data: dict, path: Path) -> None:
     ax[0].set_title("per cell (blue n=32, orange 64, green 128)")
     ax[1].bar(range(len(cells)), np.array(d) - np.array(b), color="C3", label="default − best peer")
     ax[1].plot(range(len(cells)), np.array(o) - np.array(b), "k.", ms=4,
-               label="best torchtof default − best peer")
+               label="best torchtof call (any above) − best peer")
     ax[1].axhline(0, color="k", lw=0.8)
     ax[1].set_xlabel("cell (sorted by n, noise, order, scene, SR)")
     ax[1].set_ylabel("dB")
