@@ -198,6 +198,32 @@ def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
     return out
 
 
+def paper(realisations: int = 3) -> list[dict]:
+    """The paper's experiment (:class:`torchtof.experiment.PaperExperiment`, 天 at n = 32, in
+    air, default stray light), depth buckets without and with the 3 m gate, the paper's SRs:
+    :func:`torchtof.metrics.compare` (8-bit PSNR after min-max normalisation, physics
+    polarity), mean over ``realisations`` noise draws, learned vs TVAL3's defaults."""
+    from torchtof.experiment import PaperExperiment
+    from torchtof.metrics import compare
+
+    data = PaperExperiment(sr=0.375).run(seed=0, realisations=realisations)
+    out = []
+    for gate in (False, True):
+        for sr in (0.0625, 0.125, 0.1875, 0.25, 0.3125, 0.375):
+            A, y = data.measurements(sr, gate=gate)
+            x = data.x.to(y.dtype).expand(y.shape[0], -1, -1, -1)
+            pol = data.polarity(gate)
+            row = {"sr": sr, "gate": gate}
+            for name, fn in (("learned", lambda v: Learned(A)(v)),
+                             ("tval3", lambda v: tval3(v, A).x)):
+                with torch.no_grad():
+                    s = compare(fn(y), x, pol)
+                row[name] = (float(s["psnr"].mean()), float(s["ssim"].mean()))
+            out.append(row)
+            print(row, flush=True)
+    return out
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
@@ -207,6 +233,7 @@ def main() -> int:
     p.add_argument("--generalisation", action="store_true",
                    help="also orders other than cake-cutting and SRs beyond training (n=64, 1 %%)")
     p.add_argument("--onnx", action="store_true", help="only the onnxruntime timing/parity")
+    p.add_argument("--paper", action="store_true", help="only the paper's experiment")
     p.add_argument("--out", default=None, help="JSON file of every row")
     p.add_argument("--table", default=None, help="print the markdown tables of a JSON file and exit")
     args = p.parse_args()
@@ -218,8 +245,8 @@ def main() -> int:
             print(gen_table(rows))
         return 0
     torch.set_num_threads(1)
-    if args.onnx:
-        rows = onnx_times()
+    if args.onnx or args.paper:
+        rows = onnx_times() if args.onnx else paper()
         if args.out:
             with open(args.out, "w") as f:
                 json.dump(rows, f, indent=0)

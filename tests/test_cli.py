@@ -125,7 +125,6 @@ def test_reproduce_refuses_zero_realisations(tmp_path):
 HARDWARE_PENDING = {
     "acquire": "hardware CLI options without help (hardware owner)",
     "reconstruct": "hardware CLI options without help (hardware owner)",
-    "train": "learned_train.add_arguments options without help (learned owner)",
 }
 
 

@@ -19,10 +19,7 @@ ROOT = Path(__file__).resolve().parents[1] / "torchtof"
 #: Private names imported across modules that other parts of the redesign still have to
 #: remove: (importing module, imported module, name) -> reason. Each runs as an xfail;
 #: delete the entry when the import is gone.
-PENDING: dict[tuple[str, str, str], str] = {
-    ("torchtof.hardware.cli", "torchtof.methods", "_scores"):
-        "hardware reconstruct scores with methods._scores (hardware/recon registry owners)",
-}
+PENDING: dict[tuple[str, str, str], str] = {}
 
 
 def _module_name(path: Path) -> str:

@@ -5,7 +5,8 @@ import torch
 
 from torchtof.operators import Hadamard
 from torchtof.recon import Auto, auto, get, tval3
-from torchtof.recon.auto import AUTO_WEIGHTS, _folds, candidates, default_split
+from torchtof.recon.auto import AUTO_WEIGHTS, candidates
+from torchtof.recon.tval3 import default_split, holdout_split
 
 
 def _square(n=16, dtype=torch.float64):
@@ -22,7 +23,7 @@ def _noisy(A, x, level, seed=0):
 
 def test_folds_partition_and_keep_the_mean_row():
     A = Hadamard(16, sr=0.25)
-    held, train = _folds(A, 3, torch.zeros(1, dtype=torch.float64), 0, "random")
+    held, train = holdout_split(A, 3, torch.zeros(1, dtype=torch.float64), 0, "random")
     assert held.shape == (3, A.m) and torch.equal(train, ~held)
     assert held.sum(0).max() == 1  # each row held out at most once
     ones = A(torch.ones(1, 1, 16, 16, dtype=torch.float64)).reshape(-1)
@@ -36,7 +37,7 @@ def test_tail_split_predicts_later_rows_from_earlier_ones():
     A = Hadamard(16, sr=0.25)  # M = 64, cake-cutting: tail split by default
     assert default_split(A) == "tail"
     assert default_split(Hadamard(16, sr=0.25, order="natural")) == "random"
-    held, train = _folds(A, 3, torch.zeros(1), 0, "tail")  # K − 1 = 2 folds of h = 16 rows
+    held, train = holdout_split(A, 3, torch.zeros(1), 0, "tail")  # K − 1 = 2 folds of h = 16 rows
     assert held.shape == (2, 64)
     assert held[0].nonzero().flatten().tolist() == list(range(48, 64))
     assert held[1].nonzero().flatten().tolist() == list(range(32, 48))

@@ -349,7 +349,7 @@ def test_ddp_two_processes_train_the_single_process_model(tmp_path):
         env.pop(k, None)
     launcher = "-m torch.distributed.run --standalone --nproc_per_node 2".split()
     cmd = [sys.executable, *launcher, "-m", "torchtof.cli", *args, "--out", str(tmp_path)]
-    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=180)
+    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
     recipe = json.loads((tmp_path / "recipe.json").read_text())
     assert recipe["world_size"] == 2 and recipe["steps_run"] == 3

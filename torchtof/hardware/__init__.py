@@ -23,11 +23,14 @@ __all__ = [
     "CameraRules",
     "SimulatedBench",
     "Faults",
+    "StoreDamagedError",
+    "WindowVideoPort",
     "errors",
     "dlpc350",
     "opt8241",
     "frames",
     "simulated",
+    "video",
 ]
 
 _LAZY = {
@@ -41,8 +44,11 @@ _LAZY = {
     "CameraRules": ("opt8241", "CameraRules"),
     "SimulatedBench": ("simulated", "SimulatedBench"),
     "Faults": ("simulated", "Faults"),
+    "StoreDamagedError": ("acquisition", "StoreDamagedError"),
+    "WindowVideoPort": ("video", "WindowVideoPort"),
 }
-_MODULES = {"errors", "dlpc350", "opt8241", "frames", "simulated", "acquisition", "cli"}
+_MODULES = {"errors", "dlpc350", "opt8241", "frames", "simulated", "acquisition", "cli",
+            "video", "throughput"}
 
 
 def __getattr__(name: str):

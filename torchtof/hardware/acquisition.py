@@ -291,9 +291,9 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
             if old.get(key) != attrs[key]:
                 raise ValueError(f"acquire: cannot resume {path}: it was recorded with "
                                  f"{key}={old.get(key)!r}, this run has {key}={attrs[key]!r}")
-        key = _first_difference(old, json_safe(attrs))
+        key = _first_difference(old, _json_safe(attrs))
         if key is not None:
-            o, n = _lookup(old, key), _lookup(json_safe(attrs), key)
+            o, n = _lookup(old, key), _lookup(_json_safe(attrs), key)
             raise ValueError(f"acquire: cannot resume {path}: it was recorded with {key}={o!r}, "
                              f"this run has {key}={n!r} (the data would mix two set-ups)")
         ok = _verify(path, group, f)
@@ -324,7 +324,7 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
     for k in ("depth", "gated", "intensity"):
         arr(f"buckets_{k}", (1, 1, f), "float32", (1, 1, chunk), nan)
     arr("buckets_taps", (1, 4, f), "float32", (1, 4, chunk), nan)
-    group.attrs.update({**json_safe(attrs), "status": "running", "m_acquired": 0})
+    group.attrs.update({**_json_safe(attrs), "status": "running", "m_acquired": 0})
     return group, np.zeros(f, dtype=np.uint8)
 
 
@@ -334,7 +334,7 @@ def _lookup(d, dotted: str):
     return d
 
 
-def json_safe(value):
+def _json_safe(value):
     """``value`` as it reads back from a zarr attribute (tuples become lists)."""
     import json
 

@@ -45,15 +45,16 @@ def embed_patterns(frame: np.ndarray, shape: tuple[int, int] = DMD_SHAPE,
         ValueError: a frame that is not ``(h, w, 3)`` uint8, or does not fit.
 
     Example:
+        >>> # largest scale that fits 8x6: 2 columns (4 rows) per pixel, centred
         >>> embed_patterns(np.ones((2, 2, 3), np.uint8), (8, 6), row_scale=2)[:, :, 0]
-        array([[0, 0, 0, 0, 0, 0],
-               [0, 0, 0, 0, 0, 0],
-               [0, 1, 1, 0, 0, 0],
-               [0, 1, 1, 0, 0, 0],
-               [0, 1, 1, 0, 0, 0],
-               [0, 1, 1, 0, 0, 0],
-               [0, 0, 0, 0, 0, 0],
-               [0, 0, 0, 0, 0, 0]], dtype=uint8)
+        array([[0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0],
+               [0, 1, 1, 1, 1, 0]], dtype=uint8)
     """
     f = np.asarray(frame)
     if f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:

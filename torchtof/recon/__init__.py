@@ -21,6 +21,7 @@ from .depth import (
     tap_noise_sigma,
 )
 from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_dip
+from .learned import Learned, LearnedResult, learned
 from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
@@ -51,6 +52,9 @@ __all__ = [
     "Auto",
     "AutoResult",
     "auto",
+    "Learned",
+    "LearnedResult",
+    "learned",
     "TVAL3Result",
     "tval3",
     "bucket_noise_sigma",

@@ -46,9 +46,9 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
-from .tval3 import STOP_REASONS, check_buckets, tval3
+from .tval3 import STOP_REASONS, MaskedRows, check_buckets, default_split, holdout_split, tval3
 
-__all__ = ["auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "candidates", "default_split"]
+__all__ = ["auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "candidates"]
 
 #: TV-L2 weights tried (on the buckets scaled as TVAL3's ``Scaleb``); ``inf``: the published
 #: equality-constrained model with ``μ = 2⁸``.
@@ -82,29 +82,6 @@ class AutoResult(NamedTuple):
     candidates: tuple
 
 
-class _Masked(LinearOperator):
-    """``A`` with a 0/1 row mask per channel: ``forward(u) = m ⊙ A u``, ``adjoint(r) = Aᵀ(m ⊙ r)``.
-
-    ``normal`` is ``A``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``A``'s largest eigenvalue.
-    """
-
-    def __init__(self, A: LinearOperator, mask: torch.Tensor) -> None:
-        super().__init__(A.n, A.m)
-        self.inner = A
-        self.orthonormal_rows = A.orthonormal_rows
-        self.register_buffer("mask", mask)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.inner(x) * self.mask.to(x.dtype)
-
-    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
-        return self.inner.adjoint(y * self.mask.to(y.dtype))
-
-    def normal(self, x: torch.Tensor) -> torch.Tensor:
-        return self.inner.normal(x)
-
-
 def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
     """The candidate list of :func:`auto`: dicts ``tv``, ``bounds``, ``mu`` (``None``: the
     constrained model with ``μ = 2⁸``)."""
@@ -115,42 +92,6 @@ def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
             for mu in AUTO_WEIGHTS:
                 out.append(dict(tv=tv, bounds=box, mu=None if mu == float("inf") else mu))
     return tuple(out)
-
-
-def _folds(A: LinearOperator, k: int, like: torch.Tensor, seed: int, split: str = "random"
-           ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(held, train)``, each ``(F, M)`` bool, one row per fold.
-
-    ``"random"``: ``k`` folds of a random partition (rows that alone carry the mean, i.e.
-    ``A·1`` nonzero on at most a quarter of the rows, are never held out); train = the rest.
-    ``"tail"``: for rows in a low-to-high order, fold ``j < k − 1`` holds out the block
-    ``[M − (j+1)h, M − jh)``, ``h = ⌈M/(2(k−1))⌉``, trained on the rows before it only; each
-    fold predicts the next rows of the order from the earlier ones, as the final
-    reconstruction predicts the unmeasured rows from the measured ones.
-    """
-    m = A.m
-    if split == "tail":
-        nf = max(1, k - 1)
-        h = max(1, -(-m // (2 * nf)))
-        held = torch.zeros(nf, m, dtype=torch.bool, device=like.device)
-        train = torch.zeros_like(held)
-        for j in range(nf):
-            lo, hi = max(1, m - (j + 1) * h), m - j * h
-            held[j, lo:hi] = True
-            train[j, :lo] = True
-        return held, train
-    with torch.no_grad():
-        ones = torch.ones(1, 1, A.n, A.n, dtype=like.dtype, device=like.device)
-        a = A(ones).reshape(-1).abs()
-    dc = a > 1e-6 * a.max()
-    keep = dc if int(dc.sum()) <= m // 4 else torch.zeros_like(dc)
-    idx = torch.nonzero(~keep).reshape(-1)
-    g = torch.Generator().manual_seed(seed)
-    perm = idx[torch.randperm(len(idx), generator=g).to(idx.device)]
-    held = torch.zeros(k, m, dtype=torch.bool, device=like.device)
-    for j in range(k):
-        held[j, perm[j::k]] = True
-    return held, ~held
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
@@ -170,15 +111,6 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
     check_positive(slack, "slack", fn, strict=False)
 
 
-#: Hadamard orders whose rows run from low to high sequency (cross-validation holds out the tail).
-_ORDERED = ("cake_cutting", "sequency", "russian_doll")
-
-
-def default_split(A: LinearOperator) -> str:
-    """``"tail"`` for Hadamard rows in a low-to-high order, else ``"random"``."""
-    return "tail" if getattr(A, "order", None) in _ORDERED else "random"
-
-
 def auto(
     y: torch.Tensor,
     A: LinearOperator,
@@ -188,21 +120,20 @@ def auto(
     max_iter: int = 1025,
     *,
     split: str | None = None,
-    slack: float = 0.1,
+    slack: float = 0.0,
     seed: int = 0,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
     """TV reconstruction with prior, bounds and weight chosen by cross-validation (module doc).
 
-    Choice: the least regularised candidate (largest ``μ``; the constrained model counts as
-    ``μ = ∞``) whose CV error is within ``1 + slack`` of the smallest, the lowest CV error
-    among those. The folds fit fewer rows than the refit, and CV with smaller training sets is
-    known to over-regularise (Shao 1993, JASA 88, "Linear model selection by
-    cross-validation"; the bias of K-fold CV, Hastie, Tibshirani & Friedman 2009 §7.10.1), so
-    near-ties are broken towards less smoothing (``slack = 0.1``, measured in
-    ``docs/auto.md``). The refit runs the chosen TV-L2 model to convergence (``max_iter``),
-    the constrained model with the ``cv_iter`` budget that was validated (its iteration count
-    is its regulariser: run longer, it fits more noise).
+    Choice: the candidate with the smallest CV error; with ``slack > 0`` the least
+    regularised one (largest ``μ``; the constrained model counts as ``μ = ∞``) whose CV error
+    is within ``1 + slack`` of the smallest (CV with fewer training rows tends to
+    over-regularise, Shao 1993, JASA 88; but measured over the scenes of ``docs/auto.md``
+    ``slack = 0.1`` lost up to 10 dB on smooth images, ``slack = 0`` is the default). The
+    refit runs a chosen TV-L2 model to convergence (``max_iter``) and the constrained model
+    with the ``cv_iter`` budget that was validated (its iteration count is its regulariser:
+    run longer, it fits more noise).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``, float32/float64; every sample chooses alone.
@@ -251,10 +182,10 @@ def auto(
     nw = len(AUTO_WEIGHTS)
     boxes = [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
     pairs = [(tv, box) for tv in ("isotropic", "anisotropic") for box in boxes]
-    held, train = _folds(A, folds, y, seed, split)  # (F, M)
+    held, train = holdout_split(A, folds, y, seed, split)  # (F, M)
     nf = held.shape[0]
     mask = train.repeat_interleave(nw, dim=0)  # channel j: fold j // nw, weight j % nw
-    op = _Masked(A, mask)
+    op = MaskedRows(A, mask)
     wts = torch.tensor(AUTO_WEIGHTS, dtype=y.dtype, device=y.device)
     mus = torch.where(wts.isinf(), torch.full_like(wts, _CONSTRAINED_MU), wts).repeat(nf)
     tvl2 = (~wts.isinf()).repeat(nf)
@@ -320,7 +251,7 @@ class Auto(nn.Module):
 
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int = 2,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
-                 slack: float = 0.1, seed: int = 0) -> None:
+                 slack: float = 0.0, seed: int = 0) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")

@@ -241,6 +241,7 @@ def train_learned(
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False, width=width)
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
+    model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
     opt = torch.optim.Adam(params, lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -324,6 +325,7 @@ def train_learned(
         if bar is not None:
             bar.close()
         wall = wall0 + time.perf_counter() - t0
+        model.log_tau.requires_grad_(True)
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
                               orders=orders) if calibrate else None
         if outdir is not None and rank == 0:
@@ -367,23 +369,29 @@ def train_learned(
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of ``torchtof train --model learned``."""
-    p.add_argument("--steps", type=int, default=1300)
-    p.add_argument("--batch-size", type=int, default=12)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64])
-    p.add_argument("--p-large", type=float, default=0.3)
-    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5])
-    p.add_argument("--orders", nargs="+", default=list(ORDERS))
-    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS)
-    p.add_argument("--width", type=int, default=16)
-    p.add_argument("--out", default="train_learned_out")
-    p.add_argument("--checkpoint-every", type=int, default=100)
-    p.add_argument("--resume", action="store_true")
-    p.add_argument("--log-every", type=int, default=10)
-    p.add_argument("--max-minutes", type=float, default=None)
-    p.add_argument("--no-progress", action="store_true")
+    """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
+    d = " (default: %(default)s)"
+    p.add_argument("--steps", type=int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--batch-size", type=int, default=12, help="global batch" + d)
+    p.add_argument("--lr", type=float, default=2e-3, help="peak Adam learning rate" + d)
+    p.add_argument("--seed", type=int, default=0, help="seed of every draw" + d)
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64], help="image sides" + d)
+    p.add_argument("--p-large", type=float, default=0.3,
+                   help="probability of the largest size" + d)
+    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5],
+                   help="sampling-rate range" + d)
+    p.add_argument("--orders", nargs="+", default=list(ORDERS), help="Hadamard orders" + d)
+    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS, help="unrolled steps K" + d)
+    p.add_argument("--width", type=int, default=16, help="channels of the prior" + d)
+    p.add_argument("--out", default="train_learned_out",
+                   help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
+    p.add_argument("--checkpoint-every", type=int, default=100,
+                   help="steps between checkpoints" + d)
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--log-every", type=int, default=10, help="steps between log records" + d)
+    p.add_argument("--max-minutes", type=float, default=None,
+                   help="stop and save after this wall time" + d)
+    p.add_argument("--no-progress", action="store_true", help="no tqdm progress bar")
     p.add_argument("--no-calibrate", action="store_true",
                    help="leave the final data-consistency step off (no calibrate_tau)")
     p.add_argument("--calibrate-only", action="store_true",
