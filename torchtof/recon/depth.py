@@ -52,7 +52,7 @@ from torch import nn
 from .._checks import check_finite, check_positive, check_shape, check_tensor, is_tracing
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from .tv import admm_tv, largest_eig_normal
+from .tv import BOUNDARIES, admm_tv, largest_eig_normal
 from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -219,6 +219,9 @@ def joint_tv(
     noise_sigma: float | torch.Tensor | None = None,
     adaptive: bool = True,
     return_result: bool = False,
+    *,
+    boundary: str = "periodic",
+    bounds: tuple[float | None, float | None] | None = None,
 ) -> torch.Tensor:
     """Reconstruct ``C`` images that share their edges: vectorial TV by ADMM.
 
@@ -269,6 +272,11 @@ def joint_tv(
         adaptive: early stop (``False``: exactly ``n_iter`` iterations, no Python branch
             on tensor values).
         return_result: return a :class:`JointTVResult` instead of the images.
+        boundary: ``"periodic"`` or ``"neumann"`` differences (:mod:`~torchtof.recon.tv`).
+        bounds: ``(lo, hi)`` box on the images, projected in every u-step (units of ``A⁺y``).
+            Physics: the four tap images are correlation values with the offset ``B`` of
+            Eq. 6 and cannot be negative (``(0, None)`` in ``mode="taps"``); the I/Q images are
+            signed (``Re P``, ``Im P``) and take no bound.
 
     Returns:
         ``(B, C, n, n)`` images in the units of ``A⁺y``.
@@ -290,6 +298,11 @@ def joint_tv(
     fn = "joint_tv"
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
+    box = (None, None) if bounds is None else tuple(bounds)
+    if len(box) != 2 or (None not in box and not float(box[0]) < float(box[1])):
+        raise ValueError(f"{fn}: expected bounds (lo, hi) with lo < hi, got {bounds!r}")
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
         x = y.new_zeros(*y.shape[:2], A.n, A.n)
         per = y.shape[:2]
@@ -321,7 +334,9 @@ def joint_tv(
     per = (y.shape[0], c)
     out = admm_tv(
         b, A, mu_b[:, None].expand(per), beta_b[:, None].expand(per),
-        constrained[:, None].expand(per), tv="isotropic", boundary="periodic", joint=joint,
+        constrained[:, None].expand(per), tv="isotropic", boundary=boundary, joint=joint,
+        bounds=tuple(None if v is None else float(v) * (gain / sq).reshape(-1, 1, 1, 1)
+                     for v in box),
         inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
         done=zero[:, None].expand(per), stop_over_channels=True,
     )
@@ -376,8 +391,8 @@ class JointTV(nn.Module):
     :class:`DepthResolved` does with the I/Q noise it measures); the per-call value wins.
 
     Args:
-        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive, noise_sigma: as
-            :func:`joint_tv`.
+        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive, noise_sigma,
+            boundary, bounds: as :func:`joint_tv`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -390,7 +405,8 @@ class JointTV(nn.Module):
 
     def __init__(self, A: LinearOperator, joint: bool = True, mu: float | str = "auto",
                  beta: float = 2.0**5, n_iter: int = 300, tol: float = 1e-6,
-                 adaptive: bool = True, noise_sigma: float | None = None) -> None:
+                 adaptive: bool = True, noise_sigma: float | None = None,
+                 boundary: str = "periodic", bounds: tuple | None = None) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
@@ -399,8 +415,10 @@ class JointTV(nn.Module):
             check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
         self.noise_sigma = noise_sigma
+        if boundary not in BOUNDARIES:
+            raise ValueError(f"JointTV: expected boundary in {BOUNDARIES}, got {boundary!r}")
         self.options = dict(joint=bool(joint), mu=mu, beta=beta, n_iter=n_iter, tol=tol,
-                            adaptive=adaptive)
+                            adaptive=adaptive, boundary=boundary, bounds=bounds)
 
     def solve(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
               ) -> JointTVResult:
