@@ -425,3 +425,15 @@ def test_joint_tv_bounds_and_boundary(boundary):
     assert box.min() >= 0 and box.max() <= 0.6 + 1e-12
     with pytest.raises(ValueError, match="joint_tv: expected boundary in"):
         joint_tv(A(x), A, boundary="zero")
+
+
+def test_depth_result_carries_the_reconstructors_solve_result():
+    A = Hadamard(8, sr=0.5)
+    g = torch.Generator().manual_seed(0)
+    y = A(torch.rand(2, 4, 8, 8, generator=g)) + 3.0 * A(torch.ones(2, 4, 8, 8))
+    res = depth_resolved(y, TVAL3(A, mu=2**8, max_iter=40))
+    assert res.x is res.depth
+    assert res.n_iter.shape == (2, 2) and res.converged.shape == (2, 2)
+    assert len(res.stop_reason) == 2 and len(res.stop_reason[0]) == 2
+    ref = TVAL3(A, mu=2**8, max_iter=40)(iq_buckets(y))
+    torch.testing.assert_close(res.images, ref)

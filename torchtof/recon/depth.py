@@ -87,6 +87,9 @@ class DepthResult(NamedTuple):
         mask: bool, ``True`` where the amplitude is above the mask threshold (module doc).
         images: the reconstructed I/Q ``(B, 2, n, n)`` or tap images ``(B, 4, n, n)``.
         threshold: the mask threshold per image ``(B,)``.
+        x: the depth again (the reconstructor contract's name for the output).
+        n_iter, residual, converged, stop_reason: the reconstructor's ``solve`` result per
+            image channel ``(B, C)`` (``None``/``()`` for a reconstructor without ``solve``).
     """
 
     depth: torch.Tensor
@@ -95,6 +98,11 @@ class DepthResult(NamedTuple):
     mask: torch.Tensor
     images: torch.Tensor
     threshold: torch.Tensor
+    x: torch.Tensor | None = None
+    n_iter: torch.Tensor | None = None
+    residual: torch.Tensor | None = None
+    converged: torch.Tensor | None = None
+    stop_reason: tuple = ()
 
 
 def _check_buckets(y: object, func: str, channels: tuple[int, ...] = (2, 4)) -> torch.Tensor:
@@ -535,10 +543,10 @@ def depth_resolved(
     else:
         sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", func, False))
     meas = iq_buckets(y) if (mode == "iq" and taps_in) else y
-    if getattr(reconstructor, "accepts_noise_sigma", False):
-        images = reconstructor(meas, noise_sigma=sigma)
-    else:
-        images = reconstructor(meas)
+    kw = {"noise_sigma": sigma} if getattr(reconstructor, "accepts_noise_sigma", False) else {}
+    solve = getattr(reconstructor, "solve", None)
+    sol = solve(meas, **kw) if callable(solve) else None
+    images = reconstructor(meas, **kw) if sol is None else sol.x
     ok = isinstance(images, torch.Tensor) and images.ndim == 4
     if not ok or images.shape[:2] != meas.shape[:2]:
         got = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
@@ -558,7 +566,10 @@ def depth_resolved(
     peak = amplitude.flatten(1).amax(dim=1)
     threshold = torch.maximum(k * noise_amp, r * peak)
     mask = amplitude > threshold.reshape(-1, 1, 1, 1)
-    return DepthResult(depth, amplitude, phase, mask, images, threshold)
+    if sol is None:
+        return DepthResult(depth, amplitude, phase, mask, images, threshold, depth)
+    return DepthResult(depth, amplitude, phase, mask, images, threshold, depth, sol.n_iter,
+                       sol.residual, sol.converged, getattr(sol, "stop_reason", ()))
 
 
 class DepthResolved(nn.Module):
