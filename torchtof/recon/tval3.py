@@ -235,16 +235,18 @@ def auto_weights(
 
 
 class MaskedRows(LinearOperator):
-    """``A`` with a 0/1 row mask per channel: ``forward(u) = m ⊙ A u``, ``adjoint(r) = Aᵀ(m ⊙ r)``.
+    """An operator with a 0/1 row mask per channel (a measurement operator for hold-out
+    validation, not a reconstructor): ``forward(u) = m ⊙ inner(u)``,
+    ``adjoint(r) = innerᵀ(m ⊙ r)``, ``mask (C, M)``.
 
-    ``normal`` is ``A``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``A``'s largest eigenvalue.
+    ``normal`` is ``inner``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
+    uses ``inner``'s largest eigenvalue.
     """
 
-    def __init__(self, A: LinearOperator, mask: torch.Tensor) -> None:
-        super().__init__(A.n, A.m)
-        self.inner = A
-        self.orthonormal_rows = A.orthonormal_rows
+    def __init__(self, inner: LinearOperator, mask: torch.Tensor) -> None:
+        super().__init__(inner.n, inner.m)
+        self.inner = inner
+        self.orthonormal_rows = inner.orthonormal_rows
         self.register_buffer("mask", mask)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
