@@ -25,7 +25,6 @@ relative change drops below ``tol_inner``, then updating the multipliers
 from __future__ import annotations
 
 import math
-from statistics import NormalDist
 from typing import NamedTuple
 
 import torch
@@ -41,6 +40,7 @@ from .._checks import (
     unchecked,
 )
 from ..operators.base import LinearOperator
+from .noise import abs_quantile_sigma
 from .tv import (
     BOUNDARIES,
     exact_factors,
@@ -182,14 +182,10 @@ def bucket_noise_sigma(
 
 def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.Tensor:
     """:func:`bucket_noise_sigma` with the number of measurements ``m`` as a Python int (all
-    indices static, so tracing records no Python values)."""
+    indices static, so tracing records no Python values); the quantile rule is
+    :func:`~torchtof.recon.noise.abs_quantile_sigma`."""
     k = min(m, max(8, int(math.ceil(tail * m))))
-    t = torch.sort(y[..., m - k :].abs(), dim=-1).values
-    pos = quantile * (k - 1)  # linear interpolation between order statistics (static indices)
-    lo, frac = int(math.floor(pos)), pos - math.floor(pos)
-    hi = min(lo + 1, k - 1)
-    q = t[..., lo] * (1 - frac) + t[..., hi] * frac
-    return q / NormalDist().inv_cdf((1.0 + quantile) / 2)  # q-quantile of |z|, z ~ N(0, 1)
+    return abs_quantile_sigma(y[..., m - k :], quantile)
 
 
 # -- the solver --------------------------------------------------------------------------------
