@@ -29,8 +29,7 @@ FAST = {
     "joint_tv": {"n_iter": 30},
 }
 #: what a reconstructor still lacks (owned elsewhere; xfail(strict=False) until it lands)
-PENDING_SOLVE = {"joint_tv": "JointTV has no solve() yet",
-                 "bp": "BPResult has no stop_reason yet"}
+PENDING_SOLVE = {}
 SPECS = recon.names()
 
 
@@ -130,8 +129,6 @@ def test_state_dict_round_trip(name, device):
 
 @pytest.mark.parametrize("name", SPECS)
 def test_empty_batch(name, device, request):
-    if name == "joint_tv":
-        request.applymarker(pytest.mark.xfail(reason="JointTV: B=0 pending", strict=False))
     spec, A, y = _setup(name, device, b=1)
     rec = _build(spec, A)
     with torch.enable_grad() if spec.per_sample else torch.no_grad():

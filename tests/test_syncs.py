@@ -141,7 +141,6 @@ def test_direct_methods_sync_only_at_entry(name):
 # -- solvers owned by the TV core: fixed-iteration paths (adaptive=False) ---------------------
 
 
-@pytest.mark.xfail(reason="tval3 still checks inputs inside its loop", strict=False)
 def test_tval3_fixed_iterations_no_sync_per_iteration():
     from torchtof.recon import tval3
 
@@ -153,7 +152,6 @@ def test_tval3_fixed_iterations_no_sync_per_iteration():
     assert _per_extra_iterations(make, 5) == 0
 
 
-@pytest.mark.xfail(reason="basis_pursuit still syncs inside its loop", strict=False)
 def test_bp_fixed_iterations_no_sync_per_iteration():
     from torchtof.recon import basis_pursuit
 
@@ -165,7 +163,6 @@ def test_bp_fixed_iterations_no_sync_per_iteration():
     assert _per_extra_iterations(make, 5) == 0
 
 
-@pytest.mark.xfail(reason="joint_tv still syncs inside its loop", strict=False)
 def test_joint_tv_fixed_iterations_no_sync_per_iteration():
     from torchtof.recon import joint_tv
 

@@ -327,7 +327,7 @@ def depth_rmse(
     # RMSE = 2·s·sqrt(mean((h/s)²)) with h = (ẑ − z)/2, s = max|h| per image: no square or
     # difference overflows (a 1e30 m error is 1e30, not inf, in float32)
     h = depth_hat / 2 - depth / 2
-    s = h.abs().flatten(1).amax(1) if h[0].numel() else h.new_zeros(h.shape[0])
+    s = h.abs().flatten(1).amax(1) if math.prod(h.shape[1:]) else h.new_zeros(h.shape[0])
     s = torch.where(s > 0, s, torch.ones_like(s))
     err = (h / s.view(-1, *([1] * (h.ndim - 1)))).pow(2)
     if mask is None:
@@ -531,7 +531,8 @@ def affine_fit(x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
     # fit on x̂/s, s = max|x̂| per image (the same affine map, without squares of 1e30 values)
-    scale = x_hat.abs().flatten(1).amax(1) if x_hat[0].numel() else x_hat.new_ones(x_hat.shape[0])
+    scale = (x_hat.abs().flatten(1).amax(1) if math.prod(x_hat.shape[1:])
+             else x_hat.new_ones(x_hat.shape[0]))
     scale = torch.where(scale > 0, scale, torch.ones_like(scale)).view(-1, 1, 1, 1)
     x_hat = x_hat / scale
     u, v = x_hat.flatten(1), x.flatten(1)

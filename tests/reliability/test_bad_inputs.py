@@ -12,8 +12,6 @@ from .specs import OUTSIDE, SPECS
 #: Failing cases in modules outside this suite's scope, as (spec name, case kind): they are
 #: expected to fail (strict, so they flip when fixed). Listed in docs/reliability.md.
 KNOWN_OUTSIDE = {
-    ("recon: CGI.forward", "complex"): "complex buckets accepted: CGI returns a complex image",
-    ("recon: DGI.forward", "complex"): "complex buckets accepted: DGI returns a complex image",
 }
 
 _CASES = cases(SPECS)

@@ -1,7 +1,7 @@
 """Basis pursuit reconstruction in an orthonormal sparsity basis (DCT-II or Haar).
 
 Basis pursuit (Chen, Donoho & Saunders 1998), the "BP" of ghost-imaging papers
-(domain-notes §2): with ``Ψ`` an orthonormal basis (:mod:`.dct`) and ``z = Ψᵀx``,
+(l1-MAGIC, Candès & Romberg): with ``Ψ`` an orthonormal basis (:mod:`.dct`) and ``z = Ψᵀx``,
 
 .. math:: \\min_x \\|\\Psi^\\top x\\|_1 \\quad \\text{s.t.}\\quad A x = y,
 
@@ -70,6 +70,8 @@ from .._checks import (
     check_positive,
     check_power_of_two,
     check_shape,
+    is_tracing,
+    unchecked,
 )
 from ..operators.base import LinearOperator
 from .dct import dct2, dct_matrix, haar2, idct2, ihaar2
@@ -93,12 +95,14 @@ class BPResult(NamedTuple):
         residual: ``‖Ax − y‖₂`` per sample ``(B, C)``, in the units of ``y``.
         converged: ``(B, C)`` bool, stopping test met (at the last iteration when
             ``adaptive=False``).
+        stop_reason: per sample ``"tol"`` (converged) or ``"max_iter"``, ``[b][c]``.
     """
 
     x: torch.Tensor
     n_iter: torch.Tensor
     residual: torch.Tensor
     converged: torch.Tensor
+    stop_reason: tuple = ()
 
 
 def gram_factor(A: LinearOperator, device=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -351,16 +355,25 @@ def basis_pursuit(
         eps_n = (e / s).clamp_min(torch.finfo(y.dtype).eps)
     project = _projector(A, yn, gram, eps_n)
 
-    x0 = project(y.new_zeros(*y.shape[:-1], n, n))  # A⁺ y (or its ε-projection)
-    if lam is None:
-        x, iters, done = _admm(x0, project, fwd, inv, n_iter, rho, alpha, tol, adaptive)
-    else:
-        big_l = 1.0 if gram is None else gram[1].amax()
-        thresh = lam / (s[..., None] * big_l)
-        x, iters, done = _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
+    with unchecked():  # y was validated above: operator calls in the loop skip check_finite
+        x0 = project(y.new_zeros(*y.shape[:-1], n, n))  # A⁺ y (or its ε-projection)
+        if lam is None:
+            x, iters, done = _admm(x0, project, fwd, inv, n_iter, rho, alpha, tol, adaptive)
+        else:
+            big_l = 1.0 if gram is None else gram[1].amax()
+            thresh = lam / (s[..., None] * big_l)
+            x, iters, done = _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
     x = x * s[..., None]
     residual = torch.linalg.vector_norm(A(x) - y, dim=-1)
-    return BPResult(x, iters, residual, done)
+    return BPResult(x, iters, residual, done, _stop_names(done))
+
+
+def _stop_names(done: torch.Tensor) -> tuple:
+    """Per-sample ``"tol"`` / ``"max_iter"`` names ``[b][c]`` (one host read after the solve;
+    empty while tracing)."""
+    if is_tracing() or done.device.type == "meta":
+        return ()
+    return tuple(tuple("tol" if d else "max_iter" for d in row) for row in done.tolist())
 
 
 class BasisPursuit(nn.Module):

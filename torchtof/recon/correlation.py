@@ -53,6 +53,8 @@ def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def _check(y: torch.Tensor, A: LinearOperator, func: str) -> None:
     if not isinstance(A, LinearOperator):
         raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
+    if isinstance(y, torch.Tensor) and (y.is_complex() or not y.is_floating_point()):
+        raise TypeError(f"{func}: expected y to be a real floating tensor (buckets), got {y.dtype}")
     A._check_y(y, func)
 
 

@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import torch
 
+from .._checks import unchecked
 from ..operators.base import LinearOperator
 from .dct import dct_matrix
 
@@ -381,6 +382,15 @@ def admm_tv(
     n_iter = torch.zeros(mu.shape, dtype=torch.int64, device=b.device)
     tiny = torch.finfo(b.dtype).tiny
     atb = adj(b)
+    with unchecked():  # inputs validated at the public entry: no check_finite per call
+        return _admm_loop(b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt, done,
+                          n_iter, tiny, atb, lo, hi, beta, mu, tv, boundary, joint, inv_s2,
+                          max_iter, tol, adaptive, check_every, stop_over_channels)
+
+
+def _admm_loop(b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt, done, n_iter, tiny,
+               atb, lo, hi, beta, mu, tv, boundary, joint, inv_s2, max_iter, tol, adaptive,
+               check_every, stop_over_channels) -> AdmmOut:
     for k in range(max_iter):
         w = group_shrink(du - sig * ib, 1.0 / beta, tv, joint)
         rhs = grad2_adjoint(w + sig * ib, boundary) + rho[..., None, None] * (

@@ -25,7 +25,6 @@ relative change drops below ``tol_inner``, then updating the multipliers
 from __future__ import annotations
 
 import math
-from statistics import NormalDist
 from typing import NamedTuple
 
 import torch
@@ -38,8 +37,10 @@ from .._checks import (
     check_shape,
     check_tensor,
     is_tracing,
+    unchecked,
 )
 from ..operators.base import LinearOperator
+from .noise import abs_quantile_sigma
 from .tv import (
     BOUNDARIES,
     exact_factors,
@@ -71,6 +72,8 @@ AUTO_TVL2_BETA = 4.0
 #: ``mu="auto"``: the constrained model is kept when its hold-out error is within this relative
 #: slack of the TV-L2 model's (fewer training rows bias hold-out towards smoothing).
 AUTO_CV_SLACK = 0.1
+#: ``mu="auto"``: iteration cap of the hold-out solves (bounds the check's cost).
+AUTO_CV_MAX_ITER = 300
 #: :func:`bucket_noise_sigma`: fraction of the measurements (from the end) and the quantile used.
 NOISE_TAIL = 0.25
 NOISE_QUANTILE = 0.2
@@ -144,7 +147,7 @@ def bucket_noise_sigma(
     """Noise std of the buckets from a low quantile of the high-order tail of ``y``.
 
     For Hadamard orders that put low sequencies first (cake-cutting, sequency, Russian-doll;
-    DESIGN.md §2) the last measurements carry the least signal. With ``t = |y|`` over the last
+    Yu 2019, Sun 2017) the last measurements carry the least signal. With ``t = |y|`` over the last
     ``tail`` fraction of the measurements (at least 8), the estimate is
 
     .. math::
@@ -179,14 +182,10 @@ def bucket_noise_sigma(
 
 def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.Tensor:
     """:func:`bucket_noise_sigma` with the number of measurements ``m`` as a Python int (all
-    indices static, so tracing records no Python values)."""
+    indices static, so tracing records no Python values); the quantile rule is
+    :func:`~torchtof.recon.noise.abs_quantile_sigma`."""
     k = min(m, max(8, int(math.ceil(tail * m))))
-    t = torch.sort(y[..., m - k :].abs(), dim=-1).values
-    pos = quantile * (k - 1)  # linear interpolation between order statistics (static indices)
-    lo, frac = int(math.floor(pos)), pos - math.floor(pos)
-    hi = min(lo + 1, k - 1)
-    q = t[..., lo] * (1 - frac) + t[..., hi] * frac
-    return q / NormalDist().inv_cdf((1.0 + quantile) / 2)  # q-quantile of |z|, z ~ N(0, 1)
+    return abs_quantile_sigma(y[..., m - k :], quantile)
 
 
 # -- the solver --------------------------------------------------------------------------------
@@ -232,16 +231,18 @@ def auto_weights(
 
 
 class MaskedRows(LinearOperator):
-    """``A`` with a 0/1 row mask per channel: ``forward(u) = m ⊙ A u``, ``adjoint(r) = Aᵀ(m ⊙ r)``.
+    """An operator with a 0/1 row mask per channel (a measurement operator for hold-out
+    validation, not a reconstructor): ``forward(u) = m ⊙ inner(u)``,
+    ``adjoint(r) = innerᵀ(m ⊙ r)``, ``mask (C, M)``.
 
-    ``normal`` is ``A``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``A``'s largest eigenvalue.
+    ``normal`` is ``inner``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
+    uses ``inner``'s largest eigenvalue.
     """
 
-    def __init__(self, A: LinearOperator, mask: torch.Tensor) -> None:
-        super().__init__(A.n, A.m)
-        self.inner = A
-        self.orthonormal_rows = A.orthonormal_rows
+    def __init__(self, inner: LinearOperator, mask: torch.Tensor) -> None:
+        super().__init__(inner.n, inner.m)
+        self.inner = inner
+        self.orthonormal_rows = inner.orthonormal_rows
         self.register_buffer("mask", mask)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -518,8 +519,9 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
-               boundary=boundary, disc_bound=bound)
+    with unchecked():  # y was validated above: operator calls in the loop skip check_finite
+        u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+                   boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
     ax = A(x)
     ynorm = y.norm(dim=-1)
@@ -546,10 +548,12 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     Hold-out folds of :func:`holdout_split` with ``k = 3`` (for low-to-high Hadamard orders
     the last quarter of the rows predicted from the rows before it, and the quarter before
     that from the first half; else three random folds), both
-    models fitted with the same options and budget as the final solve, batched as two
-    channels of one call. A tail noise estimate reads signal as noise where the high-order
-    rows still carry signal (low SR, smooth or textured scenes); this check keeps the
-    published model there (``docs/auto.md``: the loss on noise-free buckets).
+    models fitted with the same options as the final solve and at most
+    :data:`AUTO_CV_MAX_ITER` iterations, batched as four channels of one call (cost: at
+    most 4 × 300 batched iterations, run only when the estimate chose TV-L2). A tail noise
+    estimate reads signal as noise where the high-order rows still carry signal (low SR,
+    smooth or textured scenes); this check keeps the published model there
+    (``docs/auto.md``: the loss on noise-free buckets).
     """
     b, c, m = y.shape
     held, train = holdout_split(A, 3, y, 0, default_split(A))  # (F, M), F = 2 or 3
@@ -559,7 +563,8 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     yt = ys * train.repeat_interleave(2, dim=0).to(y.dtype)
     mus = torch.stack((torch.full_like(mu_f, AUTO_MU_MAX), mu_f), dim=-1).reshape(b * c, 2)
     tl = torch.tensor([False, True], device=y.device).repeat(nf)
-    r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=max_iter, tv=tv,
+    budget = min(max_iter, AUTO_CV_MAX_ITER)
+    r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=budget, tv=tv,
               nonneg=nonneg, bounds=bounds, boundary=boundary)
     hm = held.repeat_interleave(2, dim=0).to(y.dtype)
     err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, 2).sum(1)  # (BC, 2)
