@@ -1,9 +1,11 @@
-"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``acquire``,
-``reconstruct``.
+"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``train``,
+``acquire``, ``reconstruct``.
 
-One error path: option values are checked by argparse before any work is done; a mistake
-prints one line naming the option and exits with status 2 (``--debug`` shows the
-traceback instead). Every command prints a one-line summary with where it wrote its files.
+One error path: option values are checked by argparse types (and cross-option checks) before
+any work is done; a mistake prints one line naming the option and exits with status 2
+(``--debug`` prints the usage above it; for an error inside a command it shows the traceback).
+Options are never abbreviated. Every command prints a one-line summary naming the files it
+wrote.
 """
 
 from __future__ import annotations
@@ -207,13 +209,14 @@ def build_parser() -> argparse.ArgumentParser:
         description="Depth imaging with a ToF camera as the bucket detector of computational "
         "ghost imaging: simulate the paper's experiment, reconstruct, benchmark, export to "
         "ONNX, acquire from the hardware. A mistake in an option prints one line and exits "
-        "with status 2; --debug shows the traceback.")
+        "with status 2; --debug adds the usage (or the traceback of an error inside a command).")
     p.add_argument("--threads", type=positive_int, default=1,
                    help="torch intra-op threads for this run (the library itself keeps torch's "
                         "default; one thread is fastest for these problem sizes and does not "
                         "collapse on a busy machine, see README 'Threads')")
     p.add_argument("--debug", action="store_true",
-                   help="show the Python traceback of an error instead of one line")
+                   help="an option mistake: print the usage above its line; an error inside a "
+                        "command: show the Python traceback instead of one line")
     sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND", parser_class=_Parser,
                            help="run `torchtof COMMAND --help` for its options")
 

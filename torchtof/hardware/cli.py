@@ -266,7 +266,7 @@ def add_parsers(sub) -> None:
     r = sub.add_parser("reconstruct", help="reconstruct an image from a recorded zarr store",
                        description="Reconstruct one image from a store written by `torchtof "
                        "acquire`; writes METHOD_KIND[_gate].pt (the tensor) and .png to OUT.")
-    r.add_argument("store", help="zarr store written by `torchtof acquire`")
+    r.add_argument("store", metavar="STORE", help="zarr store written by `torchtof acquire`")
     r.add_argument("--method", type=_method, default="tval3",
                    help="reconstruction method (case-insensitive): CGI, TGI, DGI, PINV, BP, "
                    "TVAL3, Auto, Unrolled, Learned, DIP, JointTV")
