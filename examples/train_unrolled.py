@@ -29,6 +29,13 @@ import time
 
 import torch
 
+from torchtof.apps.args import (
+    OneLineParser,
+    positive_float,
+    positive_int,
+    power_of_two,
+    sampling_rate,
+)
 from torchtof.recon.train import PAPER_SRS, train_unrolled
 from torchtof.recon.unrolled import DEFAULT_N_ITER, WEIGHTS_DIR, sr_code
 
@@ -37,14 +44,17 @@ ALL_STEPS = {32: 400, 64: 600}
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--n", "--size", dest="n", type=int, default=32, help="image side (power of 2)")
-    p.add_argument("--sr", type=float, default=0.25, help="sampling rate M/n²")
-    p.add_argument("--n-iter", type=int, default=DEFAULT_N_ITER, help="unrolled iterations K")
+    p = OneLineParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter,
+                                allow_abbrev=False)
+    p.add_argument("--n", "--size", dest="n", type=power_of_two, default=32,
+                   help="image side (a power of two in [4, 256])")
+    p.add_argument("--sr", type=sampling_rate, default=0.25, help="sampling rate M/n² in (0, 1]")
+    p.add_argument("--n-iter", type=positive_int, default=DEFAULT_N_ITER,
+                   help="unrolled iterations K")
     p.add_argument("--order", default="cake_cutting", help="Hadamard order")
-    p.add_argument("--steps", type=int, default=300, help="optimiser steps")
-    p.add_argument("--batch", type=int, default=16, help="global batch (scenes per step)")
-    p.add_argument("--lr", type=float, default=0.05, help="peak Adam learning rate")
+    p.add_argument("--steps", type=positive_int, default=300, help="optimiser steps")
+    p.add_argument("--batch", type=positive_int, default=16, help="global batch (scenes per step)")
+    p.add_argument("--lr", type=positive_float, default=0.05, help="peak Adam learning rate")
     p.add_argument(
         "--noise",
         type=float,
@@ -54,14 +64,15 @@ def main(argv: list[str] | None = None) -> None:
         help="range of the per-scene noise level (fraction of the bucket spread)",
     )
     p.add_argument("--seed", type=int, default=0, help="base seed of the scene stream")
-    p.add_argument("--threads", type=int, default=1, help="torch threads per process")
+    p.add_argument("--threads", type=positive_int, default=1, help="torch threads per process")
     p.add_argument("--out", default=None, help="weight file to write (rank 0)")
     p.add_argument(
         "--all",
         action="store_true",
         help="regenerate every shipped file in torchtof/weights/ (ignores --n/--sr/--out)",
     )
-    p.add_argument("--log-every", type=int, default=50, help="print the loss every N steps")
+    p.add_argument("--log-every", type=positive_int, default=50,
+                   help="print the loss every N steps")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
 

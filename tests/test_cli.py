@@ -71,7 +71,9 @@ BAD = [
     (["demo", "--sr", "2"], "--sr"),
     (["demo", "--sr", "abc"], "--sr"),
     (["demo", "--n", "0"], "--n"),
-    (["demo", "--n", "48"], "power of two"),
+    (["demo", "--n", "48"], "argument --n: expected a power of two in [8, 256], got '48'"),
+    (["demo", "--n", "4"], "argument --n: expected a power of two in [8, 256]"),
+    (["demo", "--depth", "nosuch"], "--depth"),
     (["demo", "--scene", "nonexistent"], "--scene"),
     (["demo", "--methods", "FOO"], "--methods"),
     (["demo", "--realisations", "0"], "--realisations"),
@@ -83,6 +85,27 @@ BAD = [
     (["export", "hadamard", "--opset", "13"], "--opset"),
     (["acquire", "--simulated", "--sim-faults", "{bad", "-o", "x.zarr"], "--sim-faults"),
     (["acquire", "--simulated", "--sim-faults", "[1]", "-o", "x.zarr"], "--sim-faults"),
+    (["export", "tval3", "--n", "48"], "argument --n: expected a power of two"),
+    (["bench", "operators", "--n", "48"], "argument --n: expected a power of two"),
+    (["acquire", "--simulated", "--sr", "0", "-o", "x.zarr"], "argument --sr:"),
+    (["acquire", "--simulated", "--n", "48", "-o", "x.zarr"], "argument --n:"),
+    (["acquire", "--simulated", "--n", "4", "-o", "x.zarr"], "argument --n:"),
+    (["acquire", "--simulated", "--scene", "nosuch", "-o", "x.zarr"], "argument --scene:"),
+    (["acquire", "--simulated", "--roi-px", "8", "-o", "x.zarr"], "argument --roi-px:"),
+    (["acquire", "--simulated", "--block", "0", "-o", "x.zarr"], "argument --block:"),
+    (["acquire", "--simulated", "--order", "nosuch", "-o", "x.zarr"], "argument --order:"),
+    (["acquire", "--simulated"], "-o/--output"),
+    (["reconstruct", "no_such_run.zarr", "--method", "FOO"], "argument --method:"),
+    (["reconstruct", "no_such_run.zarr"], "no such store: no_such_run.zarr"),
+    (["train", "--n", "48"], "unrecognized arguments: --n 48"),
+    (["train", "--sr", "0"], "did you mean --sr-range?"),
+    (["train", "--sr-range", "0", "1"], "argument --sr-range:"),
+    (["train", "--sr-range", "0.5", "0.25"], "argument --sr-range: expected LO <= HI"),
+    (["train", "--sizes", "48"], "argument --sizes:"),
+    (["train", "--steps", "0"], "argument --steps:"),
+    (["train", "--orders", "nosuch"], "argument --orders:"),
+    (["demo", "--sr", "0.5", "--nosuch"], "unrecognized arguments: --nosuch"),
+    (["nosuch"], "argument COMMAND"),
 ]
 
 
@@ -97,20 +120,111 @@ def test_mistakes_exit_2_with_one_line_before_any_work(argv, names, capsys, monk
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    # exactly one line, no usage block, from the subcommand that was given
+    cmd = "torchtof" if argv[0].startswith("-") or argv[0] == "nosuch" else f"torchtof {argv[0]}"
+    assert len(lines) == 1 and lines[0].startswith(f"{cmd}: error: "), err
+    assert names in lines[0], err
+    assert "usage:" not in err and "Traceback" not in err and "Config" not in err
+    assert out == ""  # nothing started (no progress bar, no banner)
+
+
+def test_scene_error_lists_the_valid_names(capsys):
+    with pytest.raises(SystemExit):
+        main(["demo", "--scene", "nosuch"])
     err = capsys.readouterr().err
-    errors = [line for line in err.splitlines() if "error:" in line]
-    assert len(errors) == 1 and names in errors[0], err
-    assert "Traceback" not in err
+    assert "SKIMAGE_NAMES" not in err
+    for name in ("sky", "steps", "motorcycle", "slanted", "steps_far", "skimage:<image>",
+                 "camera", "horse"):
+        assert name in err, name
+    with pytest.raises(SystemExit):
+        main(["demo", "--scene", "binary:nosuch"])
+    err = capsys.readouterr().err
+    assert "unknown image 'nosuch'" in err and "astronaut" in err and "SKIMAGE" not in err
 
 
-def test_error_inside_a_command_is_one_line_and_debug_shows_it(tmp_path, capsys):
+def test_debug_and_help_still_give_the_full_usage(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--debug", "demo", "--n", "48"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: torchtof demo") and "argument --n:" in err
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "-h"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    assert "--sr-range LO HI" in text and "--n-layers" in text
+
+
+def test_reconstruct_refuses_a_folder_that_is_not_a_store(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["reconstruct", str(tmp_path)])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert "is not a torchtof store (no zarr group): " in lines[0] and str(tmp_path) in lines[0]
+
+
+def test_bench_summary_names_every_file_it_wrote(tmp_path, capsys, monkeypatch):
+    import torchtof.cli
+
+    png = tmp_path / "tradeoff.png"
+    res = {"rows": [{}], "plot": str(png), "json": str(tmp_path / "tradeoff.json")}
+    monkeypatch.setattr(torchtof.cli, "_bench_result", lambda args: (res, lambda r: None))
+    assert main(["bench", "tradeoff", "--quick", "--out", str(tmp_path)]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("torchtof bench tradeoff: 1 rows in ")
+    for name in ("bench_tradeoff.json", "tradeoff.png", "tradeoff.json"):
+        assert str(tmp_path / name) in last, last
+
+
+def test_bench_onnx_progress_line_has_three_significant_digits():
+    from torchtof.apps.bench.onnx import progress_line
+
+    row = {"model": "pinv", "batch": 4, "eager_s": 0.0009510731546395187, "ort_s": 1.23456,
+           "compile_s": 0.000123456}
+    assert progress_line(row) == ("pinv batch 4: eager 0.000951 s, onnxruntime 1.23 s, "
+                                  "compile 0.000123 s")
+
+
+@pytest.mark.parametrize(("script", "argv", "expect"), [
+    ("benchmarks/time_dip.py", ["--help"], "usage: time_dip.py"),
+    ("benchmarks/time_dip.py", ["--iters", "0"], "time_dip.py: error: argument --iters:"),
+    ("examples/train_unrolled.py", ["--n", "48"],
+     "train_unrolled.py: error: argument --n/--size: expected a power of two"),
+])
+def test_scripts_parse_their_options_first(script, argv, expect):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(repo / script), *argv], capture_output=True,
+                          text=True, timeout=120, env={**__import__("os").environ,
+                                                       "PYTHONPATH": str(repo)})
+    text = proc.stdout + proc.stderr
+    assert expect in text, text
+    if argv != ["--help"]:
+        assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, text
+    else:
+        assert proc.returncode == 0 and "--iters" in proc.stdout
+
+
+def test_error_inside_a_command_is_one_line_and_debug_shows_it(tmp_path, capsys, monkeypatch):
     pytest.importorskip("onnx")
-    argv = ["export", "hadamard", "--n", "48", "--out", str(tmp_path)]
+    import torchtof.apps.onnx_models
+
+    def fails(*a, **k):
+        raise ValueError("export_model: expected something else")
+
+    monkeypatch.setattr(torchtof.apps.onnx_models, "export_model", fails)
+    argv = ["export", "hadamard", "--out", str(tmp_path)]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("torchtof export: error: Hadamard:"), err
+    assert len(err) == 1 and err[0].startswith("torchtof export: error: export_model:"), err
     assert "--debug" in err[0]
-    with pytest.raises(ValueError, match="Hadamard"):
+    with pytest.raises(ValueError, match="export_model"):
         main(["--debug", *argv])
 
 
@@ -119,13 +233,6 @@ def test_reproduce_refuses_zero_realisations(tmp_path):
 
     with pytest.raises(ValueError, match="realisations"):
         reproduce(tmp_path, realisations=0)
-
-
-#: Subcommands whose options, added by other modules, still lack help text.
-HARDWARE_PENDING = {
-    "acquire": "hardware CLI options without help (hardware owner)",
-    "reconstruct": "hardware CLI options without help (hardware owner)",
-}
 
 
 def _all_parsers():
@@ -138,9 +245,8 @@ def _all_parsers():
 
 @pytest.mark.parametrize(("name", "parser"), _all_parsers(), ids=lambda v: v
                          if isinstance(v, str) else "")
-def test_every_option_has_help_and_shows_its_default(name, parser, request):
-    if name in HARDWARE_PENDING:
-        request.applymarker(pytest.mark.xfail(reason=HARDWARE_PENDING[name]))
+def test_every_option_has_help_and_shows_its_default(name, parser):
+    assert not parser.allow_abbrev, name  # --n must not silently mean --n-layers
     missing = [a.dest for a in parser._actions if not a.help and a.dest != "help"]
     assert not missing, f"{name}: options without help: {missing}"
     text = " ".join(parser.format_help().split())
@@ -155,3 +261,4 @@ def test_bench_writes_json_under_out_and_a_summary(tmp_path, capsys):
     path = tmp_path / "bench_operators.json"
     assert json.loads(path.read_text())["rows"][0]["n"] == 8
     assert out[-1].startswith("torchtof bench operators: 1 rows in ") and str(path) in out[-1]
+    assert any(", 1 thread, torch" in line for line in out), out  # not "1 threads"

@@ -1,9 +1,11 @@
-"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``acquire``,
-``reconstruct``.
+"""``torchtof`` command line: ``demo``, ``bench``, ``reproduce``, ``export``, ``train``,
+``acquire``, ``reconstruct``.
 
-One error path: option values are checked by argparse before any work is done; a mistake
-prints one line naming the option and exits with status 2 (``--debug`` shows the
-traceback instead). Every command prints a one-line summary with where it wrote its files.
+One error path: option values are checked by argparse types (and cross-option checks) before
+any work is done; a mistake prints one line naming the option and exits with status 2
+(``--debug`` prints the usage above it; for an error inside a command it shows the traceback).
+Options are never abbreviated. Every command prints a one-line summary naming the files it
+wrote.
 """
 
 from __future__ import annotations
@@ -17,7 +19,16 @@ from pathlib import Path
 
 import torch
 
-from .apps.args import csv_list, positive_float, positive_int, sampling_rate
+from .apps.args import (
+    OneLineParser,
+    csv_list,
+    positive_float,
+    positive_int,
+    power_of_two,
+    sampling_rate,
+    scene_side,
+)
+from .apps.args import scene as _scene
 
 __all__ = ["main", "build_parser"]
 
@@ -34,31 +45,48 @@ class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+class _Parser(OneLineParser):
+    """The parser of ``torchtof`` and of every subcommand: an option mistake is one line
+    (``torchtof demo: error: argument --n: …``) and exit status 2; ``--debug`` adds the usage.
+    Options are never abbreviated (``--n`` must not silently mean ``--n-layers``)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
+
+    def parse_args(self, args=None, namespace=None):
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:  # reported by the subcommand that got them, with the option it resembles
+            target = getattr(ns, "parser", None) or self
+            word = extras[0].split("=")[0]
+            longer = [o for a in target._actions for o in a.option_strings
+                      if word.startswith("--") and o.startswith(word)]
+            longer = [o for o in longer if o.startswith(word + "-")] or longer
+            hint = (f" (options are not abbreviated: did you mean {' or '.join(longer)}?)"
+                    if longer else "")
+            target.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+        return ns
+
+
 def _methods() -> list[str]:
     from .methods import METHODS
 
     return list(METHODS)
 
 
-def _scene(text: str) -> str:
-    """A scene name of :func:`torchtof.scenes.get_scene`, checked by building it (n = 8)."""
-    from .scenes import get_scene
-
-    try:
-        get_scene(text, 8)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc).removeprefix("get_scene: ")) from None
-    return text
-
-
 def _check_experiment(args: argparse.Namespace) -> None:
-    """The experiment of ``demo`` checked before it is simulated (n a power of two, SR
-    giving at least one pattern)."""
-    from .experiment import ExperimentConfig
+    """``--sr`` and ``--n`` of ``demo`` together give at least one pattern (each alone is
+    checked by its type)."""
+    _check_patterns(args.n, args.sr)
+
+
+def _check_patterns(n: int, sr: float) -> None:
     from .operators import Hadamard
 
-    ExperimentConfig(n=args.n, scene=args.scene, roi_px=2 * args.n, srs=(args.sr,)).validate()
-    Hadamard(args.n, sr=args.sr)  # n a power of two in the supported range
+    try:
+        Hadamard(n, sr=sr)
+    except ValueError as exc:
+        raise ValueError(f"argument --sr: with --n {n}: {str(exc).split(': ', 1)[-1]}") from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -129,8 +157,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     path.write_text(json.dumps(res, indent=2, default=str))
     rows = res.get("rows") if isinstance(res, dict) else None
     count = f"{len(rows)} rows" if isinstance(rows, list) else "done"
+    files = [str(path)] + [str(res[k]) for k in ("plot",) if isinstance(res, dict) and res.get(k)]
+    if isinstance(res, dict) and res.get("json") and res["json"] != str(path):
+        files.append(str(res["json"]))
     print(f"\ntorchtof bench {args.which}: {count} in {time.perf_counter() - t0:.1f} s; "
-          f"wrote {path}")
+          f"wrote {', '.join(files)}")
     return 0
 
 
@@ -173,19 +204,20 @@ def _export_models() -> list[str] | None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``torchtof`` parser with every subcommand (the hardware ones included)."""
-    p = argparse.ArgumentParser(
-        prog="torchtof", formatter_class=_Formatter,
+    p = _Parser(
+        prog="torchtof",
         description="Depth imaging with a ToF camera as the bucket detector of computational "
         "ghost imaging: simulate the paper's experiment, reconstruct, benchmark, export to "
         "ONNX, acquire from the hardware. A mistake in an option prints one line and exits "
-        "with status 2; --debug shows the traceback.")
+        "with status 2; --debug adds the usage (or the traceback of an error inside a command).")
     p.add_argument("--threads", type=positive_int, default=1,
                    help="torch intra-op threads for this run (the library itself keeps torch's "
                         "default; one thread is fastest for these problem sizes and does not "
                         "collapse on a busy machine, see README 'Threads')")
     p.add_argument("--debug", action="store_true",
-                   help="show the Python traceback of an error instead of one line")
-    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND",
+                   help="an option mistake: print the usage above its line; an error inside a "
+                        "command: show the Python traceback instead of one line")
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND", parser_class=_Parser,
                            help="run `torchtof COMMAND --help` for its options")
 
     d = sub.add_parser("demo", help="reconstruct the paper's experiment (SR 12.5 %%) and plot it",
@@ -194,10 +226,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--sr", type=sampling_rate, default=0.125,
                    help="sampling rate M/n² of the Hadamard patterns, in (0, 1]")
     d.add_argument("--scene", type=_scene, default="sky",
-                   help="scene: sky, steps, motorcycle, slanted, steps_far, skimage:<name>, "
-                        "binary:<name>")
-    d.add_argument("--n", type=positive_int, default=32,
-                   help="DMD side in pixels (a power of two)")
+                   help="scene: sky, steps, motorcycle, slanted, steps_far, skimage:<image>, "
+                        "binary:<image>")
+    d.add_argument("--n", type=scene_side, default=32,
+                   help="DMD side in pixels (a power of two in [8, 256])")
     d.add_argument("--scattering", action="store_true",
                    help="image through the scattering sheet (paper Fig. 6)")
     d.add_argument("--realisations", type=positive_int, default=1,
@@ -216,8 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: " + ", ".join(BENCHES),
                        description="Run one benchmark, print its table and write its JSON.")
     b.add_argument("which", choices=BENCHES, help="the benchmark")
-    b.add_argument("--n", type=positive_int, nargs="*", default=None,
-                   help="operators: DMD sides (default 32 64 128 256)")
+    b.add_argument("--n", type=power_of_two, nargs="*", default=None,
+                   help="operators: DMD sides, powers of two in [4, 256] (default 32 64 128 256)")
     b.add_argument("--batch", type=positive_int, default=16, help="operators: batch size")
     b.add_argument("--sr", type=sampling_rate, default=0.25, help="operators: sampling rate")
     b.add_argument("--quick", action="store_true",
@@ -255,30 +287,46 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("model", choices=models, metavar="MODEL",
                    help="one of " + ", ".join(models) if models else "a model name (needs the "
                    "onnx extra: pip install 'torchtof[onnx]')")
-    e.add_argument("--n", type=positive_int, default=32, help="DMD side (a power of two)")
+    e.add_argument("--n", type=power_of_two, default=32,
+                   help="DMD side (a power of two in [4, 256])")
     e.add_argument("--sr", type=sampling_rate, default=0.25, help="sampling rate M/n²")
     e.add_argument("--opset", type=int, choices=[17, 18], default=18, help="ONNX opset")
     e.add_argument("--out", default="export_out", help="folder of the .onnx file")
     e.add_argument("-o", "--output", default=None,
                    help="the .onnx file (default OUT/MODEL_nN_srSR.onnx)")
-    e.set_defaults(func=cmd_export)
+    e.set_defaults(func=cmd_export, check=_check_export, parser=e)
 
-    t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)")
+    t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)",
+                       description="Train torchtof.recon.Learned on synthetic scenes; writes "
+                       "OUT/checkpoint.pt, log.json, learned.pt and recipe.json.")
     t.add_argument("--model", choices=["learned"], default="learned", help="the model to train")
     from .recon.learned_train import add_arguments as add_train_arguments
 
     add_train_arguments(t)
-    t.set_defaults(func=cmd_train)
+    t.set_defaults(func=cmd_train, check=_check_train, parser=t)
 
     from .hardware.cli import add_parsers as add_hardware_parsers  # acquire, reconstruct
 
     add_hardware_parsers(sub)
     for sp in sub.choices.values():
-        sp.formatter_class = _Formatter
+        sp.set_defaults(parser=sp)  # the subcommand that reports its own mistakes
     return p
 
 
+def _check_train(args: argparse.Namespace) -> None:
+    lo, hi = args.sr_range
+    if lo > hi:
+        raise ValueError(f"argument --sr-range: expected LO <= HI, got {lo:g} {hi:g}")
+
+
+def _check_export(args: argparse.Namespace) -> None:
+    _check_patterns(args.n, args.sr)
+
+
 def _check_bench(args: argparse.Namespace) -> None:
+    if args.which == "operators":
+        for n in args.n or (32,):
+            _check_patterns(n, args.sr)
     if args.which == "adaptive" and args.seeds is not None:
         from .apps.bench.adaptive import parse_seeds
 
@@ -296,6 +344,7 @@ def _one_line(exc: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run ``torchtof ARGV``; returns the exit status (2 for a usage mistake)."""
     parser = build_parser()
+    OneLineParser.debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work

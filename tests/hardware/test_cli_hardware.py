@@ -46,6 +46,8 @@ def test_acquire_then_reconstruct_equals_pure_simulation(uninterrupted, tmp_path
     assert main(["reconstruct", str(uninterrupted), "--method", "tval3", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "TVAL3 from 16 pattern pairs (SR 25.00%)" in text and "PSNR" in text
+    # the summary names every file written
+    assert str(out / "TVAL3_depth.pt") in text and str(out / "TVAL3_depth.png") in text
     img = torch.load(out / "TVAL3_depth.pt")
     ref = PaperExperiment(sr=0.25, n=8, roi_px=16, srs=(0.25,), shot=None, read_noise_e=0.0,
                           chunk_frames=1).run(seed=0)
@@ -60,8 +62,12 @@ def test_acquire_then_reconstruct_equals_pure_simulation(uninterrupted, tmp_path
 def test_acquire_refuses_existing_store_and_unknown_method(uninterrupted, capsys):
     assert main([*ARGS, "-o", str(uninterrupted)]) == 1
     assert "exists; pass resume=True (--resume)" in capsys.readouterr().err
-    with pytest.raises(SystemExit, match="unknown method 'nope'"):
+    with pytest.raises(SystemExit) as exc:
         main(["reconstruct", str(uninterrupted), "--method", "nope"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --method: unknown method 'nope'" in err[0], err
+    assert "TVAL3" in err[0] and "CGI" in err[0]  # the valid names
 
 
 @pytest.mark.slow  # kill and resume in the default run: test_reliability.py (inside a write)
@@ -194,7 +200,10 @@ def test_missing_or_old_zarr_names_the_requirement(fake, monkeypatch, tmp_path, 
     with pytest.raises(ImportError, match=rf"{first}.*zarr>=3.1.6, which needs Python>=3.11"):
         require_zarr3()
     assert main([*ARGS, "-o", str(tmp_path / "z.zarr")]) == 1
-    assert main(["reconstruct", str(tmp_path / "z.zarr"), "--method", "cgi"]) == 1
+    store = tmp_path / "r.zarr"  # a zarr group (checked before zarr is needed)
+    store.mkdir()
+    (store / "zarr.json").write_text("{}")
+    assert main(["reconstruct", str(store), "--method", "cgi"]) == 1
     err = capsys.readouterr().err
     assert f"torchtof acquire: {first}" in err and f"torchtof reconstruct: {first}" in err
     assert "pip install 'zarr>=3.1.6'" in err and not (tmp_path / "z.zarr").exists()

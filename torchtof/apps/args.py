@@ -6,9 +6,28 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
-__all__ = ["positive_int", "nonneg_int", "sampling_rate", "positive_float", "json_object",
-           "csv_list"]
+__all__ = ["OneLineParser", "positive_int", "nonneg_int", "power_of_two", "scene_side",
+           "sampling_rate", "positive_float", "json_object", "csv_list", "scene"]
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose mistakes are one line (``PROG: error: argument --n: …``,
+    exit status 2; the usage is printed too when :attr:`debug` is set) and whose options are
+    never abbreviated (``--n`` must not silently mean ``--n-layers``)."""
+
+    #: Print the usage block before the error line (``torchtof --debug``).
+    debug = False
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str):
+        if OneLineParser.debug:
+            self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message} (`{self.prog} -h` lists the options)\n")
 
 
 def _int(text: str) -> int:
@@ -37,6 +56,51 @@ def nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return v
+
+
+def power_of_two(text: str, lo: int | None = None) -> int:
+    """A DMD side: a power of two in ``[4, 256]`` (the range of
+    :class:`torchtof.operators.Hadamard`).
+
+    Example:
+        >>> power_of_two("64")
+        64
+    """
+    from ..operators.patterns import N_MAX, N_MIN
+
+    lo = N_MIN if lo is None else lo
+    v = _int(text)
+    if v < lo or v > N_MAX or v & (v - 1):
+        raise argparse.ArgumentTypeError(
+            f"expected a power of two in [{lo}, {N_MAX}], got {text!r}")
+    return v
+
+
+def scene_side(text: str) -> int:
+    """The side of a simulated scene: a power of two in ``[8, 256]`` (the scenes of
+    :func:`torchtof.scenes.get_scene` need ``n >= 8``)."""
+    return power_of_two(text, lo=8)
+
+
+def scene(text: str) -> str:
+    """A scene name of :func:`torchtof.scenes.get_scene`: one of ``SCENES`` or
+    ``skimage:<image>`` / ``binary:<image>``; a wrong name is answered with the valid ones.
+
+    Example:
+        >>> scene("skimage:camera")
+        'skimage:camera'
+    """
+    from ..scenes import SCENES, SKIMAGE_NAMES
+
+    prefix, _, image = text.partition(":")
+    if text in SCENES or (prefix in ("skimage", "binary") and image in SKIMAGE_NAMES):
+        return text
+    if prefix in ("skimage", "binary") and _:
+        raise argparse.ArgumentTypeError(
+            f"unknown image {image!r} after '{prefix}:'; choose from {', '.join(SKIMAGE_NAMES)}")
+    raise argparse.ArgumentTypeError(
+        f"unknown scene {text!r}; choose from {', '.join(SCENES)}, skimage:<image>, "
+        f"binary:<image> (<image>: {', '.join(SKIMAGE_NAMES)})")
 
 
 def positive_float(text: str) -> float:

@@ -76,11 +76,6 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
     if not _zarr_ok("acquire"):
         return 1
-    if args.block is not None and args.block < 1:
-        print(f"torchtof acquire: --block must be a positive number of pattern pairs, got "
-              f"{args.block}", file=sys.stderr)
-        return 2
-
     metadata: dict = {}
     lcr = cam = video = None
     try:
@@ -133,16 +128,6 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     return 0
 
 
-def _method_name(name: str) -> str:
-    from ..recon import registry
-
-    try:
-        return registry.get(name).label
-    except ValueError:
-        raise SystemExit(f"torchtof reconstruct: unknown method {name!r}; choose from "
-                         f"{sorted(s.label for s in registry.specs())}") from None
-
-
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from ..methods import build_method, score_image
     from ..report import save_grid
@@ -155,7 +140,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     except (StoreDamagedError, FileNotFoundError) as exc:
         print(f"torchtof reconstruct: {exc}", file=sys.stderr)
         return 2
-    name = _method_name(args.method)
+    name = args.method  # a label: checked by _method
     sr = data.config.srs[0]
     method = build_method(name, data, sr, args.gate, args.kind)
     with torch.enable_grad() if name == "DIP" else torch.no_grad():
@@ -163,9 +148,10 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     tag = f"{name}_{args.kind}{'_gate' if args.gate else ''}"
-    torch.save(img, out / f"{tag}.pt")
+    pt = out / f"{tag}.pt"
+    torch.save(img, pt)
     png = save_grid(out / f"{tag}.png", [(name, img)], title=f"{args.store}: {name}, SR {sr:.2%}")
-    line = f"{name} from {data.hadamard.m} pattern pairs (SR {sr:.2%}): wrote {png}"
+    line = f"{name} from {data.hadamard.m} pattern pairs (SR {sr:.2%}): wrote {pt} and {png}"
     if data.x.abs().sum() > 0:  # simulated run: the object is known
         s = score_image(img, data, data.polarity(args.gate, args.kind))
         line += f"; PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f} vs the simulated object"
@@ -173,57 +159,119 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
+def _method(text: str) -> str:
+    """``reconstruct --method``: a name of :mod:`torchtof.recon.registry` (case-insensitive),
+    returned as its label."""
+    from ..recon import registry
+
+    try:
+        return registry.get(text).label
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"unknown method {text!r}; choose from "
+            f"{', '.join(s.label for s in registry.specs())}") from None
+
+
+def _check_reconstruct(args: argparse.Namespace) -> None:
+    """``reconstruct STORE``: a directory holding a zarr group, checked after the options'
+    types (a wrong ``--method`` is named first) and before the store is opened."""
+    path = Path(args.store)
+    if not path.exists():
+        raise ValueError(f"argument STORE: no such store: {args.store}")
+    if not ((path / "zarr.json").is_file() or (path / ".zgroup").is_file()):
+        raise ValueError(f"argument STORE: {args.store} is not a torchtof store (no zarr "
+                         f"group): {path.resolve()}")
+
+
+def _check_acquire(args: argparse.Namespace) -> None:
+    """Cross-option checks of ``acquire`` (each option alone is checked by its type)."""
+    if args.simulated and args.n < 8:
+        raise ValueError(f"argument --n: the simulated scenes need n >= 8, got {args.n}")
+    if args.roi_px is not None and args.roi_px < args.n:
+        raise ValueError(f"argument --roi-px: expected >= --n ({args.n}), got {args.roi_px}")
+    from ..cli import _check_patterns
+
+    _check_patterns(args.n, args.sr)
+
+
 def add_parsers(sub) -> None:
     """Add ``acquire`` and ``reconstruct`` to the CLI's subparsers."""
-    from ..apps.args import json_object
+    from ..apps.args import (
+        json_object,
+        nonneg_int,
+        positive_float,
+        positive_int,
+        power_of_two,
+        sampling_rate,
+        scene,
+    )
+    from ..operators.patterns import ORDERS
 
     a = sub.add_parser("acquire", help="acquire buckets from a LightCrafter 4500 + OPT8241 "
-                       "(or --simulated) into a zarr store")
+                       "(or --simulated) into a zarr store",
+                       description="Project Hadamard pattern pairs with a LightCrafter 4500 and "
+                       "record the OPT8241's frames into a zarr store (or simulate both with "
+                       "--simulated).")
     a.add_argument("--simulated", action="store_true",
                    help="simulated devices (no USB); without it the real bench is opened")
-    a.add_argument("--scene", default="sky", help="simulated scene (torchtof.scenes)")
-    a.add_argument("--sr", type=float, default=0.25)
-    a.add_argument("--n", type=int, default=32)
-    a.add_argument("--roi-px", type=int, default=None, help="simulated camera ROI (default 2n)")
-    a.add_argument("--order", default="cake_cutting")
-    a.add_argument("--scattering", action="store_true")
+    a.add_argument("--scene", type=scene, default="sky",
+                   help="simulated scene: sky, steps, motorcycle, slanted, steps_far, "
+                   "skimage:<image>, binary:<image>")
+    a.add_argument("--sr", type=sampling_rate, default=0.25,
+                   help="sampling rate M/n² of the Hadamard patterns, in (0, 1]")
+    a.add_argument("--n", type=power_of_two, default=32,
+                   help="DMD side in pixels (a power of two in [4, 256])")
+    a.add_argument("--roi-px", type=positive_int, default=None,
+                   help="simulated camera ROI side in pixels, >= n (default 2n)")
+    a.add_argument("--order", default="cake_cutting", choices=list(ORDERS),
+                   help="order of the Hadamard patterns")
+    a.add_argument("--scattering", action="store_true",
+                   help="simulated: image through the scattering sheet")
     a.add_argument("--noise-free", action="store_true", help="simulation without shot/read noise")
-    a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--exposure-us", type=int, default=10_000)
-    a.add_argument("--period-us", type=int, default=None,
-                   help="pattern period (default: the exposure)")
+    a.add_argument("--seed", type=int, default=0, help="simulated: random seed of the noise")
+    a.add_argument("--exposure-us", type=positive_int, default=10_000,
+                   help="exposure per pattern in microseconds")
+    a.add_argument("--period-us", type=positive_int, default=None,
+                   help="pattern period in microseconds (default: the exposure)")
     a.add_argument("--trigger", default="vsync", choices=["vsync", "internal"],
                    help="vsync: each pattern starts at a VSYNC of the video input, exposures "
                    "within one video frame (TI's video-mode examples); internal: the DMD paces")
-    a.add_argument("--video-hz", type=float, default=60.0, help="video input frame rate")
-    a.add_argument("--display", type=int, default=1,
+    a.add_argument("--video-hz", type=positive_float, default=60.0,
+                   help="video input frame rate in Hz")
+    a.add_argument("--display", type=nonneg_int, default=1,
                    help="display index of the LightCrafter's HDMI input (real bench)")
     a.add_argument("--camera-mode", default="quad", choices=["quad", "iq", "depth", "depth8",
                                                              "depth2"],
                    help="OPT8241 output: quad (raw samples, per-tap buckets), iq, depth")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
                    help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
-    a.add_argument("--block", type=int, default=None,
+    a.add_argument("--block", type=positive_int, default=None,
                    help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
     a.add_argument("--auto", action="store_true",
                    help="stop acquiring when new blocks of patterns no longer change the image "
                    "beyond the noise (torchtof.adaptive.ProgressiveStop on the gated buckets)")
-    a.add_argument("--retries", type=int, default=3)
+    a.add_argument("--retries", type=nonneg_int, default=3,
+                   help="retries of a sequence whose frames failed the checks")
     a.add_argument("--resume", action="store_true", help="continue an interrupted store")
     a.add_argument("--frame-ids", default="device", choices=["device", "count"],
                    help="device: OPT9221 frame numbers, each frame checked and recorded as it "
                    "arrives (a kill loses at most the frame in flight); count: host numbering, "
                    "frames recorded per checked sequence (a kill loses up to 24 frames)")
-    a.add_argument("--no-progress", action="store_true")
+    a.add_argument("--no-progress", action="store_true", help="no progress bar")
     a.add_argument("--sim-faults", default=None, type=json_object,
                    help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults)")
-    a.add_argument("-o", "--output", required=True, help="zarr store (directory)")
-    a.set_defaults(func=cmd_acquire)
+    a.add_argument("-o", "--output", required=True, help="zarr store (directory) to write")
+    a.set_defaults(func=cmd_acquire, check=_check_acquire, parser=a)
 
-    r = sub.add_parser("reconstruct", help="reconstruct an image from a recorded zarr store")
-    r.add_argument("store")
-    r.add_argument("--method", default="tval3", help="CGI, DGI, PINV, BP, TVAL3, Unrolled, DIP")
-    r.add_argument("--kind", default="depth", choices=["depth", "intensity"])
+    r = sub.add_parser("reconstruct", help="reconstruct an image from a recorded zarr store",
+                       description="Reconstruct one image from a store written by `torchtof "
+                       "acquire`; writes METHOD_KIND[_gate].pt (the tensor) and .png to OUT.")
+    r.add_argument("store", metavar="STORE", help="zarr store written by `torchtof acquire`")
+    r.add_argument("--method", type=_method, default="tval3",
+                   help="reconstruction method (case-insensitive): CGI, TGI, DGI, PINV, BP, "
+                   "TVAL3, Auto, Unrolled, Learned, DIP, JointTV")
+    r.add_argument("--kind", default="depth", choices=["depth", "intensity"],
+                   help="buckets to reconstruct from")
     r.add_argument("--gate", action="store_true", help="use the depth-gated buckets")
-    r.add_argument("--out", default="reconstruct_out")
-    r.set_defaults(func=cmd_reconstruct)
+    r.add_argument("--out", default="reconstruct_out", help="folder of the .pt and .png")
+    r.set_defaults(func=cmd_reconstruct, check=_check_reconstruct, parser=r)

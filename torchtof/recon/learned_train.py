@@ -370,33 +370,51 @@ def train_learned(
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
+    from ..apps.args import nonneg_int, positive_float, positive_int, power_of_two, sampling_rate
+
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=int, default=1300, help="optimiser steps" + d)
-    p.add_argument("--batch-size", type=int, default=12, help="global batch" + d)
-    p.add_argument("--lr", type=float, default=2e-3, help="peak Adam learning rate" + d)
-    p.add_argument("--seed", type=int, default=0, help="seed of every draw" + d)
-    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64], help="image sides" + d)
-    p.add_argument("--p-large", type=float, default=0.3,
-                   help="probability of the largest size" + d)
-    p.add_argument("--sr-range", type=float, nargs=2, default=[0.0625, 0.5],
-                   help="sampling-rate range" + d)
-    p.add_argument("--orders", nargs="+", default=list(ORDERS), help="Hadamard orders" + d)
-    p.add_argument("--n-layers", type=int, default=DEFAULT_N_LAYERS, help="unrolled steps K" + d)
-    p.add_argument("--width", type=int, default=16, help="channels of the prior" + d)
+    p.add_argument("--steps", type=positive_int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
+    p.add_argument("--lr", type=positive_float, default=2e-3,
+                   help="peak Adam learning rate" + d)
+    p.add_argument("--seed", type=nonneg_int, default=0, help="seed of every draw" + d)
+    p.add_argument("--sizes", type=power_of_two, nargs="+", default=[32, 64],
+                   help="image sides, powers of two in [4, 256]" + d)
+    p.add_argument("--p-large", type=_probability, default=0.3,
+                   help="probability of the largest size, in [0, 1]" + d)
+    p.add_argument("--sr-range", type=sampling_rate, nargs=2, default=[0.0625, 0.5],
+                   metavar=("LO", "HI"), help="range of the sampling rate, in (0, 1]" + d)
+    p.add_argument("--orders", nargs="+", default=list(ORDERS), choices=list(ORDERS),
+                   metavar="ORDER", help=f"Hadamard orders, from {', '.join(ORDERS)}" + d)
+    p.add_argument("--n-layers", type=positive_int, default=DEFAULT_N_LAYERS,
+                   help="unrolled steps K" + d)
+    p.add_argument("--width", type=positive_int, default=16, help="channels of the prior" + d)
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
-    p.add_argument("--checkpoint-every", type=int, default=100,
+    p.add_argument("--checkpoint-every", type=positive_int, default=100,
                    help="steps between checkpoints" + d)
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    p.add_argument("--log-every", type=int, default=10, help="steps between log records" + d)
-    p.add_argument("--max-minutes", type=float, default=None,
-                   help="stop and save after this wall time" + d)
+    p.add_argument("--log-every", type=positive_int, default=10,
+                   help="steps between log records" + d)
+    p.add_argument("--max-minutes", type=positive_float, default=None,
+                   help="stop and save after this wall time (default: no limit)")
     p.add_argument("--no-progress", action="store_true", help="no tqdm progress bar")
     p.add_argument("--no-calibrate", action="store_true",
                    help="leave the final data-consistency step off (no calibrate_tau)")
     p.add_argument("--calibrate-only", action="store_true",
                    help="load OUT/checkpoint.pt, run calibrate_tau, rewrite OUT/learned.pt and "
                         "add the calibration to OUT/recipe.json")
+
+
+def _probability(text: str) -> float:
+    """A number in ``[0, 1]`` (an argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return v
 
 
 def main(args: argparse.Namespace) -> int:

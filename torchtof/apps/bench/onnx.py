@@ -131,10 +131,7 @@ def bench_onnx(
                         row["compile_speedup"] = row["eager_s"] / row["compile_s"]
                 rows.append(row)
                 if progress:
-                    bar.write(
-                        f"{name} batch {batch}: eager {row['eager_s']:.3g} s, onnxruntime "
-                        f"{row['ort_s']:.3g} s, compile {row['compile_s']} s",
-                    )
+                    bar.write(progress_line(row))
     return {
         "benchmark": "onnx",
         "n": n,
@@ -144,6 +141,22 @@ def bench_onnx(
         "onnxruntime": __import__("onnxruntime").__version__,
         "rows": rows,
     }
+
+
+def _seconds(v) -> str:
+    return f"{v:.3g} s" if isinstance(v, (int, float)) else "-"
+
+
+def progress_line(row: dict) -> str:
+    """One model's times as printed while the benchmark runs (3 significant digits).
+
+    Example:
+        >>> progress_line({"model": "pinv", "batch": 1, "eager_s": 0.0009510731546395187,
+        ...                "ort_s": 0.00042, "compile_s": None})
+        'pinv batch 1: eager 0.000951 s, onnxruntime 0.00042 s, compile -'
+    """
+    return (f"{row['model']} batch {row['batch']}: eager {_seconds(row.get('eager_s'))}, "
+            f"onnxruntime {_seconds(row.get('ort_s'))}, compile {_seconds(row.get('compile_s'))}")
 
 
 def print_onnx(result: dict) -> None:
@@ -161,7 +174,8 @@ def print_onnx(result: dict) -> None:
         "compile_first_call_s",
     ]
     print(
-        f"n={result['n']}, SR {result['sr']:.0%}, {result['threads']} threads, torch "
+        f"n={result['n']}, SR {result['sr']:.0%}, {result['threads']} "
+        f"thread{'s' * (result['threads'] != 1)}, torch "
         f"{result['torch']}, onnxruntime {result['onnxruntime']}"
     )
     print_table(result["rows"], cols)

@@ -79,7 +79,7 @@ def print_operators(result: dict) -> None:
         "kron_growth", "fwht_growth", "NlogN_growth",
     ]
     print(f"forward+adjoint, batch {result['batch']}, SR {result['sr']:.0%}, "
-          f"{result['threads']} threads, torch {result['torch']}")
+          f"{result['threads']} thread{'s' * (result['threads'] != 1)}, torch {result['torch']}")
     print_table(result["rows"], cols)
     for r in result["rows"]:
         if r.get("dense_skipped"):

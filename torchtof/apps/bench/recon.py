@@ -202,7 +202,8 @@ def bench_recon(quick: bool = False, plot: bool = False, out: str | Path = "benc
 
 def print_recon(res: dict) -> None:
     print(f"{res['benchmark']}: scenes {res['scenes']}, noise {res['noise']:.0%} of the "
-          f"measurement spread, {res['threads']} threads; scene-averaged; * = Pareto front")
+          f"measurement spread, {res['threads']} thread{'s' * (res['threads'] != 1)}; "
+          "scene-averaged; * = Pareto front")
     table = [{**p, "front": "*" if p["pareto"] else "", "sr": f"{p['sr']:.2%}"}
              for p in res["points"]]
     print_table(table, ["n", "sr", "label", "time_s", "psnr", "ssim", "depth_rmse_m", "front"])
