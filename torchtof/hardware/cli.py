@@ -130,7 +130,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from ..methods import build_method, score_image
-    from ..report import save_grid
+    from ..report import save_image
     from .acquisition import StoreDamagedError, load_run
 
     if not _zarr_ok("reconstruct"):
@@ -150,10 +150,14 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     tag = f"{name}_{args.kind}{'_gate' if args.gate else ''}"
     pt = out / f"{tag}.pt"
     torch.save(img, pt)
-    png = save_grid(out / f"{tag}.png", [(name, img)], title=f"{args.store}: {name}, SR {sr:.2%}")
+    polarity = data.polarity(args.gate, args.kind)
+    s = score_image(img, data, polarity) if data.x.abs().sum() > 0 else None  # simulated run
+    kind = f"{args.kind} buckets" + (", 3 m gate" if args.gate else "")
+    png = save_image(out / f"{tag}.png", img,
+                     f"{name}, {kind}, SR {sr:.2%} ({data.hadamard.m} pattern pairs) from "
+                     f"{Path(args.store).name}", polarity=polarity, score=s)
     line = f"{name} from {data.hadamard.m} pattern pairs (SR {sr:.2%}): wrote {pt} and {png}"
-    if data.x.abs().sum() > 0:  # simulated run: the object is known
-        s = score_image(img, data, data.polarity(args.gate, args.kind))
+    if s is not None:
         line += f"; PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f} vs the simulated object"
     print(line)
     return 0
