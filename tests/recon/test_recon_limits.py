@@ -8,13 +8,18 @@ import torch
 
 import torchtof
 from torchtof.hardware import opt8241
-from torchtof.operators import Hadamard
+from torchtof.operators import Hadamard, PatternOperator, random_binary_patterns
 from torchtof.recon import (
+    TVAL3,
     DualFrequencyDepth,
+    JointTV,
     PseudoInverse,
     common_range,
     dual_frequency_depth,
     hypothesis_spacing,
+    joint_tv,
+    tv,
+    tval3,
 )
 from torchtof.sensor import SPEED_OF_LIGHT
 
@@ -102,3 +107,60 @@ def test_hypotheses_over_the_memory_limit_are_refused(memory_limit):
         dual_frequency_depth(p, p, 30e6, 20e6)
     memory_limit(None)
     assert dual_frequency_depth(p, p, 30e6, 20e6).shape == p.shape
+
+
+# -- the exact u-step's factorisation ----------------------------------------------------------
+
+
+def test_exact_u_step_over_the_memory_limit_is_refused_at_the_entry(memory_limit):
+    """n = 256 at SR 25 %: m = 16384 rows, the m x m eigendecomposition in float64 with its
+    LAPACK syevd workspace (4 m² doubles, 8 GiB) and the float32 eigenvectors (1 GiB): refused
+    when built, before anything is allocated."""
+    A = Hadamard(256, sr=0.25)
+    assert A.m == 16384
+    memory_limit("8G")
+    with pytest.raises(ValueError, match=r"TVAL3: the exact u-step's 16384x16384 "
+                                         r"eigendecomposition \(n=256\) needs about 9\.05 GiB.*"
+                                         r"u_step='bb'"):
+        TVAL3(A, u_step="exact")
+    with pytest.raises(ValueError, match=r"JointTV: the exact u-step's 16384x16384 .*"
+                                         r"JointTV always factors it"):
+        JointTV(A)
+    y = torch.zeros(1, 2, A.m)
+    with pytest.raises(ValueError, match="tval3: the exact u-step's 16384x16384"):
+        tval3(y, A, u_step="exact")
+    with pytest.raises(ValueError, match="joint_tv: the exact u-step's 16384x16384"):
+        joint_tv(y, A)
+    TVAL3(A)  # the default BB u-step needs no factorisation
+
+
+def test_exact_u_step_within_the_limit_still_solves(memory_limit):
+    A = Hadamard(16, sr=0.5)
+    x = torch.zeros(1, 1, 16, 16, dtype=torch.float64)
+    x[..., 4:12, 4:12] = 1.0
+    memory_limit("1M")  # m = 128: 4·128² doubles alone are 0.5 MiB, the images 1.5 MiB more
+    with pytest.raises(ValueError, match="TVAL3: the exact u-step's 128x128"):
+        TVAL3(A, u_step="exact", mu=2**8)
+    memory_limit("64M")
+    res = TVAL3(A, u_step="exact", mu=2**8).solve(A(x))
+    assert float((res.x - x).abs().max()) < 1e-2
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "neumann"])
+def test_factors_built_in_blocks_solve_the_dense_system(boundary, monkeypatch):
+    """S = A K⁻¹ Aᵀ built 5 rows at a time (the last block 1 row): the exact u-step still
+    solves (DᵀD + ρAᵀA) u = r, checked against the dense matrices."""
+    n = 8
+    monkeypatch.setattr(tv, "_BLOCK_VALUES", 5 * n * n)
+    g = torch.Generator().manual_seed(1)
+    A = PatternOperator(random_binary_patterns(26, n, generator=g, dtype=torch.float64))
+    eye = torch.eye(n * n, dtype=torch.float64).reshape(n * n, n, n)
+    d = tv.grad2(eye, boundary).reshape(n * n, -1).T  # D column by column
+    am = A.matrix().double()
+    rho = torch.tensor([[0.5, 3.0]], dtype=torch.float64)
+    r = torch.randn(1, 2, n, n, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    u, au = tv.exact_solve(r, rho, A.forward, A.adjoint, tv.exact_factors(A, r, boundary))
+    for c in range(2):
+        ref = torch.linalg.lstsq(d.T @ d + rho[0, c] * am.T @ am, r[0, c].flatten()).solution
+        assert torch.allclose(u[0, c].flatten(), ref, atol=1e-8)
+        assert torch.allclose(au[0, c], am @ ref, atol=1e-8)

@@ -54,7 +54,7 @@ from .._checks import check_finite, check_positive, check_shape, check_tensor, i
 from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from .tv import admm_tv, largest_eig_normal
+from .tv import admm_tv, check_exact_memory, largest_eig_normal
 from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -212,6 +212,11 @@ def iq_phase_amplitude(iq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 # -- joint (vectorial) TV ----------------------------------------------------------------------
 
 
+#: What to change when the exact u-step's factorisation does not fit (JointTV has no other).
+_JTV_MEMORY_HINT = ("JointTV always factors it: use a smaller n or sampling rate, or TVAL3 "
+                    "with u_step='bb' per channel")
+
+
 def joint_tv(
     y: torch.Tensor,
     A: LinearOperator,
@@ -294,6 +299,7 @@ def joint_tv(
     fn = "joint_tv"
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
+    check_exact_memory(A, y, "periodic", fn, _JTV_MEMORY_HINT)
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
         x = y.new_zeros(*y.shape[:2], A.n, A.n)
         per = y.shape[:2]
@@ -399,6 +405,7 @@ class JointTV(nn.Module):
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
         _check_jtv_options("JointTV", mu, beta, n_iter, tol)
+        check_exact_memory(A, torch.empty(0), "periodic", "JointTV", _JTV_MEMORY_HINT)
         if noise_sigma is not None:
             check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
