@@ -1,4 +1,4 @@
-"""TVAL3 benchmark (issue 3): horse 64x64, Hadamard SR 25 %, Gaussian noise at 1 % of the
+"""TVAL3 benchmark: horse 64x64, Hadamard SR 25 %, Gaussian noise at 1 % of the
 measurement spread; TVAL3 on its defaults against a plain ADMM-TV baseline (benchmarks/baseline.py,
 same periodic isotropic TV) run to convergence with its weight tuned per noise draw on an oracle
 grid (lam = 2^(k/8) sigma, true sigma; the grid is wide enough that its best point is interior).

@@ -1,4 +1,4 @@
-"""Depth-resolved CGI (DESIGN.md §5): a real depth map of a 3-D scene at DMD resolution.
+"""Depth-resolved CGI (beyond the paper): a real depth map of a 3-D scene at DMD resolution.
 
 The four correlation taps are linear in the light, so the per-tap buckets
 C_{k,i} = Σ_p c_{k,i}(p) obey y_k = A x_k. ``torchtof.recon.DepthResolved`` turns them into

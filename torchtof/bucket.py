@@ -15,7 +15,7 @@ on a frame axis: depth and amplitude frames are ``(B, M, H, W)``, tap frames are
   so ``D_i`` grows with the lit area and far multipath returns are removed.
 - :func:`intensity_bucket` — ``S_i = Σ_{p∈ROI} a_i(p)`` (the ``S_i`` of Eq. 9).
 - :func:`tap_buckets` — ``C_{k,i} = Σ_{p∈ROI} c_{k,i}(p)`` per correlation tap,
-  linear in the light, so CGI on each tap gives four tap images (DESIGN §5).
+  linear in the light, so CGI on each tap gives four tap images (:mod:`torchtof.recon.depth`).
 
 ROI (:func:`roi_mask`): ``None`` (whole frame), a box ``(top, left, height, width)``
 in pixels that must lie inside the frame, or a bool mask ``(H, W)``.
@@ -337,7 +337,7 @@ class IntensityBucket(_RoiModule):
 
 
 def tap_buckets(taps: torch.Tensor, roi: object = None) -> torch.Tensor:
-    r"""Per-tap buckets ``C_{k,i} = Σ_{p∈ROI} c_{k,i}(p)`` (DESIGN §2, depth-resolved CGI).
+    r"""Per-tap buckets ``C_{k,i} = Σ_{p∈ROI} c_{k,i}(p)`` (Eq. 6 taps, depth-resolved CGI).
 
     .. math::
         C_{k,i} = \sum_{p \in \mathrm{ROI}} c_{k,i}(p), \quad k = 1, \dots, 4

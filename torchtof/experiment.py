@@ -1,4 +1,4 @@
-"""The paper's experiment as one configurable object (DESIGN.md §3).
+"""The paper's experiment as one configurable object (paper §3).
 
 A binary object (the character 天, 32×32) at 2 m is imaged onto a DMD that shows Hadamard
 patterns as complementary 0/1 pairs (``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2``); a CW-ToF camera
@@ -6,7 +6,7 @@ patterns as complementary 0/1 pairs (``φ⁺ = (1+h)/2``, ``φ⁻ = (1−h)/2``)
 at the DMD, optionally through a dusty scattering sheet; each depth map is summed over the
 ROI into one bucket (Eq. 10), with and without the 3 m depth gate (§3.1).
 
-Per frame ``i`` and sensor pixel ``p`` the light is a sum of phasors (DESIGN.md §2):
+Per frame ``i`` and sensor pixel ``p`` the light is a sum of phasors:
 
 1. object light through the DMD, ``s · O(u) φ_i(u) e^{j4πf z(u)/c}`` on the DMD grid,
    imaged onto the ROI by area overlap (:func:`~torchtof.sensor.dmd_to_sensor`) and an
@@ -72,7 +72,7 @@ __all__ = [
 ]
 
 
-#: PSNR (dB) the paper reports (DESIGN.md §3): (case, SR) -> {method: dB}.
+#: PSNR (dB) the paper reports (§3, Figs. 7, 9, 11, 13): (case, SR) -> {method: dB}.
 PAPER_PSNR: dict[tuple[str, float], dict[str, float]] = {
     ("air", 0.125): {"CGI": 8.23, "BP": 7.64, "TVAL3": 8.52, "raw ToF": 5.70},
     ("air", 0.25): {"CGI": 9.44, "BP": 9.76, "TVAL3": 9.82, "raw ToF": 5.70},
@@ -89,7 +89,7 @@ PAPER_PSNR: dict[tuple[str, float], dict[str, float]] = {
 class ExperimentConfig:
     """Physical parameters of the simulated set-up (units in the names; e⁻ = photo-electrons).
 
-    The defaults are the paper's set-up (DESIGN.md §3); ``ambient_e`` is the calibrated
+    The defaults are the paper's set-up (§3); ``ambient_e`` is the calibrated
     value that gives the raw ToF depth image a PSNR near 5.7 dB.
     """
 

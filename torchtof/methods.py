@@ -1,6 +1,6 @@
 """Reconstruction methods of the paper's comparison, built for an experiment run, and scoring.
 
-Which buckets each method sees (DESIGN.md §2):
+Which buckets each method sees:
 
 - **CGI** (g2, paper Eq. 10) and **DGI** correlate the raw interleaved DMD buckets
   ``D_i`` with the 0/1 patterns the DMD showed (:class:`~torchtof.operators.DMDSplit`),

@@ -1,5 +1,6 @@
 """DLPC350 codec and driver: byte-exact encoders (hand-written from the TI command tables in
-domain-notes §7), reply/NACK/multi-report decoding, LUT packing, show_sequence on the fake."""
+the DLPC350 programmer's guide DLPU010), reply/NACK/multi-report decoding, LUT packing,
+show_sequence on the fake."""
 
 import time
 

@@ -1,4 +1,4 @@
-"""Tests of two-path multipath interference (phasor sum, domain-notes §5.2)."""
+"""Tests of two-path multipath interference (the returns add as phasors)."""
 
 import math
 

@@ -60,7 +60,7 @@ def test_text_order_sensor_degenerates():
 
 
 def test_shot_noise_depth_std_matches_theory():
-    # σ_θ = sqrt(2B)/a for 4 taps with Poisson variance B (domain-notes §5.1)
+    # σ_θ = sqrt(2B)/a for 4 taps with Poisson variance B (Lange & Seitz 2001)
     a, ambient, d0 = 200.0, 200.0, R / 2
     p = phasor_from_depth(a, torch.full((1, 1, 64, 64), d0, dtype=torch.float64), F)
     frame = cw_tof_sensor(

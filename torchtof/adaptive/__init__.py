@@ -1,4 +1,4 @@
-"""Skip what a scene doesn't need: scene-adaptive acquisition and reconstruction (issue 7)."""
+"""Skip what a scene doesn't need: scene-adaptive acquisition and reconstruction."""
 
 from .budget import DEFAULT_TABLE, MethodChoice, choose_method, load_table, save_table
 from .detect import (

@@ -1,6 +1,6 @@
 """The adaptive pipeline against the fixed one, on a recorded or simulated run.
 
-**Fixed pipeline** (the paper's, DESIGN.md §3): every pattern up to the maximum SR, the 3 m
+**Fixed pipeline** (the paper's §3): every pattern up to the maximum SR, the 3 m
 depth gate (§3.1), the veil compensation of Eq. 15 (``y/α̂``; ``Dˢ`` cancels in ``y⁺ − y⁻``),
 and the reconstructor run to its own convergence.
 

@@ -1,6 +1,6 @@
 r"""Progressive acquisition: measure patterns in blocks and stop when the image is done.
 
-Patterns are shown in a low-to-high order (cake-cutting by default, DESIGN.md §2), so every
+Patterns are shown in a low-to-high order (cake-cutting by default, Yu 2019), so every
 prefix of ``m`` patterns is a good low-resolution basis and the smaller sampling rates are
 prefixes of the larger ones. After each block of ``block`` patterns a cheap reconstruction
 (the pseudo-inverse ``x̂_m = A_mᵀ y_{1..m}``, which equals g2/DGI up to an affine map for DMD

@@ -1,6 +1,6 @@
 """Hadamard measurement operator with orthonormal rows, by a fast transform.
 
-``A = P H_N / √N`` (DESIGN.md §2): ``H_N = H_n ⊗ H_n`` the 2-D Sylvester basis,
+``A = P H_N / √N``: ``H_N = H_n ⊗ H_n`` the 2-D Sylvester basis,
 ``P`` selects the first ``M`` rows of an order (:mod:`.patterns`). Then
 ``A Aᵀ = I`` and ``A⁺ = Aᵀ``. Three exact implementations of ``H_N`` on an
 ``n × n`` image, never an ``N × N`` matrix:

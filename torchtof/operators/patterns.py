@@ -6,7 +6,7 @@ the natural index ``k = i·n + j`` matches row ``k`` of ``H_N = H_n ⊗ H_n``
 (``scipy.linalg.hadamard(N)``). An *order* is a permutation of ``0 … N−1``; the
 first ``M`` entries choose the patterns at sampling rate ``SR = M/N``.
 
-Orders (domain-notes §3.3):
+Orders:
 
 - ``natural``: Sylvester/Kronecker index.
 - ``sequency``: ascending total number of sign changes ``s_i + s_j`` (Walsh order in

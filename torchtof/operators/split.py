@@ -1,4 +1,4 @@
-"""DMD split of ±1 Hadamard rows into two 0/1 patterns (DESIGN.md §2, domain-notes §3.2).
+"""DMD split of ±1 Hadamard rows into two 0/1 patterns.
 
 A DMD mirror is on or off, so a ±1 row ``h`` is shown as ``φ⁺ = (1 + h)/2`` and
 ``φ⁻ = (1 − h)/2``; the differential bucket ``y⁺ − y⁻ = ⟨h, x⟩`` recovers the ±1

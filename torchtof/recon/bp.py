@@ -1,7 +1,7 @@
 """Basis pursuit reconstruction in an orthonormal sparsity basis (DCT-II or Haar).
 
 Basis pursuit (Chen, Donoho & Saunders 1998), the "BP" of ghost-imaging papers
-(domain-notes §2): with ``Ψ`` an orthonormal basis (:mod:`.dct`) and ``z = Ψᵀx``,
+(l1-MAGIC, Candès & Romberg): with ``Ψ`` an orthonormal basis (:mod:`.dct`) and ``z = Ψᵀx``,
 
 .. math:: \\min_x \\|\\Psi^\\top x\\|_1 \\quad \\text{s.t.}\\quad A x = y,
 

@@ -2,7 +2,7 @@
 
 Both act on the last two axes of ``(…, n, n)`` tensors and are orthonormal, so the
 inverse is the transpose (adjoint) and ``‖dct2(x)‖ = ‖x‖``. They are the ``Ψ`` of basis
-pursuit, ``min ‖Ψᵀx‖₁ s.t. Ax = y`` (Candès & Romberg 2005; domain-notes §2):
+pursuit, ``min ‖Ψᵀx‖₁ s.t. Ax = y`` (Candès & Romberg 2005):
 
 - DCT-II with orthonormal scaling (Ahmed, Natarajan & Rao 1974; the ``norm="ortho"``
   convention of ``scipy.fft.dctn``): ``C = D X Dᵀ`` with the ``n × n`` matrix

@@ -1,4 +1,4 @@
-"""Depth-resolved ghost imaging: a per-pixel depth map from per-tap buckets (DESIGN.md §5).
+"""Depth-resolved ghost imaging: a per-pixel depth map from per-tap buckets.
 
 The four correlation taps of a CW-ToF pixel are linear in the light that reaches it
 (paper Eq. 6: ``c_k = B + ½ Re(P e^{jτ_k})``), so the per-tap buckets

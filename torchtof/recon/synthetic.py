@@ -12,7 +12,7 @@ images (§3.1: a binary character, depth steps):
   shapes at random levels (the ``depth_steps`` scenes with continuous levels).
 
 A binary scene is inverted (``1 − x``) with probability 0.3: without the depth gate the
-depth bucket gives a negative image (DESIGN.md §2, paper §3.1).
+depth bucket gives a negative image (paper §3.1).
 
 Every scene comes from its own ``torch.Generator`` seeded by :func:`scene_seed` from
 ``(seed, step, index)``, so a global batch is the same whether one process draws it or
@@ -24,8 +24,8 @@ Measurement noise (:func:`measurement_noise`) is a documented Gaussian approxima
 the ToF noise on a differential (±1 Hadamard) bucket: ``y = y⁺ − y⁻`` where the two DMD
 halves together always light the whole scene, so the shot-noise variance
 ``var(y⁺) + var(y⁻) ∝ y⁺ + y⁻`` is the same for every pattern, and read noise adds a
-constant too (domain-notes §5.1). Its standard deviation is a fraction ``level`` of the
-measurement spread ``max(y) − min(y)`` (the issue's "~1 % of the measurement spread").
+constant too (Lange & Seitz 2001). Its standard deviation is a fraction ``level`` of the
+measurement spread ``max(y) − min(y)`` (``level = 0.01``: 1 % of the spread).
 """
 
 from __future__ import annotations

@@ -148,7 +148,7 @@ def bucket_noise_sigma(
     """Noise std of the buckets from a low quantile of the high-order tail of ``y``.
 
     For Hadamard orders that put low sequencies first (cake-cutting, sequency, Russian-doll;
-    DESIGN.md §2) the last measurements carry the least signal. With ``t = |y|`` over the last
+    Yu 2019, Sun 2017) the last measurements carry the least signal. With ``t = |y|`` over the last
     ``tail`` fraction of the measurements (at least 8), the estimate is
 
     .. math::

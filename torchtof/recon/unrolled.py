@@ -1,6 +1,6 @@
 """Unrolled (deep-unfolded) TVAL3: K fixed iterations with learned per-iteration scalars.
 
-TVAL3 (Li, Yin, Jiang, Zhang, Comput. Optim. Appl. 56, 2013; domain-notes §1) solves
+TVAL3 (Li, Yin, Jiang, Zhang, Comput. Optim. Appl. 56, 2013) solves
 ``min_u Σ_i ‖D_i u‖ s.t. A u = b`` by the augmented Lagrangian of the split ``w_i = D_i u``
 
 .. math::
@@ -12,10 +12,10 @@ network runs exactly ``K`` iterations of that splitting, each with its own learn
 ``μ_k, β_k`` (penalties), ``α_k, c_k`` (step factor and preconditioner weight) and ``t_k``
 (shrinkage threshold), and no data-dependent control flow (it exports to ONNX). Deep
 unfolding after ISTA-Net (Zhang & Ghanem, CVPR 2018) and ADMM-CSNet (Yang et al., TPAMI
-2019); domain-notes §1.6.
+2019).
 
 Iteration ``k`` (from ``u_0 = Aᵀb``, ``σ_0 = 0``, ``δ_0 = 0``; as in TVAL3 the u-gradient
-is divided by ``β``, domain-notes §1.2; ``ρ_k = μ_k/β_k``):
+is divided by ``β``; ``ρ_k = μ_k/β_k``):
 
 .. math::
     w &= \\operatorname{shrink}(Du - σ/β_k,\\ t_k)\\\\

@@ -1,6 +1,6 @@
 """CW-ToF sensor model: correlation taps, noise, camera rules, mixing, multipath, scattering.
 
-See ``DESIGN.md`` §2 ("Sensor", "Scattering") and the paper's Eqs. 1–8 and 15.
+See the paper's §2.1–2.2 (Eqs. 1–8) and Eq. 15 (scattering).
 """
 
 from .functional import (

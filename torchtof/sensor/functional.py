@@ -17,8 +17,8 @@ its output rules (paper §2.2).
 put the control signals at ``C₁ = 0, C₂ = π, C₃ = π/2, C₄ = 3π/2``; the text after Eq. 6 names
 ``τ₁…τ₄ = 0, π/2, π, 3π/2``. Eq. 7 recovers ``θ`` only for the Fig. 1 order; with the text
 order ``c₄ − c₃ = c₁ − c₂`` for every ``θ`` and Eq. 7 degenerates (the ratio is always 1).
-This module uses the Fig. 1 order (``order="fig1"``, the default, as ``DESIGN.md`` §2
-decides) and keeps ``order="text"`` only to demonstrate the degeneracy.
+This module uses the Fig. 1 order (``order="fig1"``, the default) and keeps ``order="text"``
+only to demonstrate the degeneracy.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """DMD → ToF sensor imaging: area-overlap resampling of phasors (mixed/flying pixels).
 
 The DMD plane (``H × W`` mirrors, the paper's 32×32) is imaged onto a ``P₁ × P₂`` region of
-the ToF sensor (DESIGN.md §2: ``a_p e^{jθ_p} = Σ_u K_{pu} O(u) φ_i(u) ρ e^{j4πf z(u)/c}``).
+the ToF sensor (pixel ``p``: ``a_p e^{jθ_p} = Σ_u K_{pu} O(u) φ_i(u) ρ e^{j4πf z(u)/c}``).
 Each sensor pixel integrates the light of the DMD area it sees, so ``K`` is the area
 overlap of the two pixel grids, normalised per sensor pixel (rows sum to 1: each sensor
 pixel reports the area-weighted average). The map is separable,
@@ -15,7 +15,7 @@ and ``K_c`` likewise for the columns. When ``P/n`` is an integer every DMD mirro
 onto an exact block of sensor pixels (block replication). Otherwise sensor pixels on
 block borders straddle two mirrors and mix their phasors — at a depth edge that is a
 flying (mixed) pixel, whose phase is ``arg`` of the area-weighted phasor sum
-(domain-notes §5.2). Applied to phasors (complex) the map is linear in the light; it also
+(neither depth, in general). Applied to phasors (complex) the map is linear in the light; it also
 accepts real images (intensities). Because rows sum to 1 a uniform field keeps its value
 per pixel; the total over the region scales by ``P₁P₂/(HW)`` (multiply by ``HW/(P₁P₂)``
 where photo-electron counts must be conserved).
@@ -201,8 +201,8 @@ def blur_phasor(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """Gaussian blur of a phasor (or real) image, applied to real and imaginary parts.
 
     The blur is linear, so blurring ``Re P`` and ``Im P`` separately blurs the phasor:
-    neighbouring returns add as phasors (forward scatter, spread multipath; domain-notes
-    §5.2/§6). Uses ``kornia.filters.gaussian_blur2d`` with reflect borders and a kernel of
+    neighbouring returns add as phasors (forward scatter of a sheet, spread multipath
+    returns). Uses ``kornia.filters.gaussian_blur2d`` with reflect borders and a kernel of
     radius ``⌈3σ⌉`` (clipped to the image so the reflection is defined); the kernel sums to 1.
 
     Args:

@@ -1,7 +1,7 @@
 """Multipath interference: a delayed, attenuated second return added as a phasor.
 
 A pixel that also receives light over a longer, indirect path (inter-reflection, the prism
-and DMD optics) sees the phasor sum (domain-notes §5.2)
+and DMD optics) sees the phasor sum (each return's phase: paper Eq. 1)
 
 .. math::
 
@@ -47,7 +47,7 @@ def add_multipath(
 
         P' = P + s\\, e^{j 4π f Δ / c}\\, (G_σ * P)
 
-    (phase of a return at distance ``Δ``: paper Eq. 1; phasor sum: domain-notes §5.2).
+    (phase of a return at distance ``Δ``: paper Eq. 1; the returns add as phasors).
 
     Args:
         phasor: complex ``(B, 1, H, W)`` direct phasor.

@@ -1,8 +1,7 @@
 """Noise of a CW-ToF pixel: shot noise per tap, read noise, full well and the ADC.
 
 The taps of :func:`~torchtof.sensor.functional.correlation_taps` are expected in
-photo-electrons (e⁻). The chain (Lange & Seitz, IEEE J. Quantum Electron. 37(3), 2001;
-domain-notes §5.1) is
+photo-electrons (e⁻). The chain (Lange & Seitz, IEEE J. Quantum Electron. 37(3), 2001) is
 
 .. math::
 

@@ -10,7 +10,7 @@ becomes
 ``α`` the transmittance ratio and ``Dˢ`` the scattered-light term (a number, a given map, or a
 smooth dust map, see :func:`dust_map`).
 
-**Phasor domain** (domain-notes §6; Muraji et al., Opt. Express 27(13), 2019): the sheet
+**Phasor domain** (Muraji et al., Opt. Express 27(13), 2019): the sheet
 attenuates and blurs the direct light (forward scatter) and adds a backscatter phasor from
 the sheet's own distance ``d_s``,
 
@@ -150,7 +150,7 @@ def scatter_phasor(
     sheet_m: float = 0.5,
     freq_hz: float = 30e6,
 ) -> torch.Tensor:
-    """Phasor-domain scattering: ``P' = α·(G_σ * P) + b·e^{j4πf d_s/c}`` (domain-notes §6).
+    """Phasor-domain scattering: ``P' = α·(G_σ * P) + b·e^{j4πf d_s/c}`` (Muraji et al. 2019).
 
     Args:
         phasor: complex ``(B, 1, H, W)`` phasor reaching the sheet.

@@ -1,7 +1,7 @@
 """The CW-ToF camera: phasors in, the four taps, amplitude, phase and depth out.
 
 One call runs the whole pixel model of the paper's §2.1–2.2: correlation taps (Eq. 6, Fig. 1
-tap order), shot/read noise, full well and ADC (domain-notes §5.1), phase (Eq. 7),
+tap order), shot/read noise, full well and ADC (Lange & Seitz 2001), phase (Eq. 7),
 amplitude (Eq. 8), depth (Eq. 1) and the camera's output rules (§2.2).
 
 **Frames.** A sequence of ``M`` frames (one per DMD pattern) is passed as the batch

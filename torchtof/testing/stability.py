@@ -55,7 +55,7 @@ Rows cover the operators (Hadamard matmul/FWHT, DMD split, dense patterns: forwa
 pseudo-inverse), the sensor (phasor → taps → phase/amplitude/depth, camera rules, noise and
 ADC, scattering in depth and phasor form with α ∈ {1e-3, 0.5, 1}, multipath, DMD → sensor
 mixing), the buckets, the metrics and every reconstructor (CGI, TGI, DGI, pseudo-inverse,
-TVAL3, basis pursuit, unrolled TVAL3, DIP) on the edge cases of the stress issue: zero and
+TVAL3, basis pursuit, unrolled TVAL3, DIP) on these edge cases: zero and
 constant buckets, buckets at 1e-30 and 1e30, all pixels "no photon" (depth 5 m), saturated
 taps, phase exactly at the wrap-around, n = 4 and n = 256 (operators), SR = 1/n² and 100 %,
 SNR < 0 dB, ill-conditioned random patterns, NaN inputs. ``tests/stress`` runs every row and
