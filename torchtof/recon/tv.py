@@ -215,6 +215,16 @@ _S2_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
 
 
+def _per_op(cache: weakref.WeakKeyDictionary, A: LinearOperator) -> dict:
+    """``A``'s entries in ``cache`` for its current values: a new ``state_version`` (patterns
+    loaded from a ``state_dict``) drops the entries derived from the old ones."""
+    version = A.state_version
+    entry = cache.get(A)
+    if entry is None or entry[0] != version:
+        entry = cache[A] = (version, {})
+    return entry[1]
+
+
 class ExactFactors(NamedTuple):
     """Cached factors of :func:`exact_solve` (see :func:`exact_factors`)."""
 
@@ -249,7 +259,7 @@ def check_exact_memory(A: LinearOperator, like: torch.Tensor, boundary: str, fun
                        hint: str = "") -> None:
     """``ValueError`` (via :func:`torchtof.set_memory_limit`'s check) naming ``func`` if the
     factors of :func:`exact_factors` are not cached yet and would exceed the memory limit."""
-    if (like.dtype, like.device, boundary) in _EXACT_CACHE.get(A, {}):
+    if (like.dtype, like.device, boundary) in _per_op(_EXACT_CACHE, A):
         return
     check_memory(exact_factors_bytes(A, like.dtype),
                  f"the exact u-step's {A.m}x{A.m} eigendecomposition (n={A.n})", func,
@@ -268,7 +278,7 @@ def exact_factors(A: LinearOperator, like: torch.Tensor, boundary: str = "period
     """
     _check_boundary(boundary, "exact_factors")
     check_exact_memory(A, like, boundary, func)
-    per_op = _EXACT_CACHE.setdefault(A, {})
+    per_op = _per_op(_EXACT_CACHE, A)
     key = (like.dtype, like.device, boundary)
     if key not in per_op:
         n, m = A.n, A.m
@@ -340,8 +350,9 @@ def exact_solve(
 def largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
     """Largest eigenvalue ``s₂`` of ``AᵀA`` by 30 power iterations from a fixed start (TVAL3's
     ``ScaleA`` calls ``eigs``), cached per operator object (one host read at the end)."""
-    if A in _S2_CACHE:
-        return _S2_CACHE[A]
+    per_op = _per_op(_S2_CACHE, A)
+    if "s2" in per_op:
+        return per_op["s2"]
     n = A.n
     with torch.no_grad():
         k = torch.arange(n * n, dtype=torch.float64, device=like.device)
@@ -352,8 +363,8 @@ def largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
             z = A.normal(x)
             s = (z * x).sum()
             x = z
-    _S2_CACHE[A] = float(s)
-    return _S2_CACHE[A]
+    per_op["s2"] = float(s)
+    return per_op["s2"]
 
 
 # -- one ADMM TV core ------------------------------------------------------------------------
