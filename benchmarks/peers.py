@@ -524,7 +524,8 @@ def markdown(data: dict) -> str:
             f"{h['best_ours'].replace('torchtof ', '')} | {r[h['best_ours']]['psnr']:.2f} | "
             f"{bp}{' (edge)' if bp and _edge(r[bp]) else ''} | "
             f"{h['best_peer_psnr']:.2f} | {h['gap_db']:+.2f} | "
-            f"{r[h['default']]['time_s']:.3f} | {r[bp]['time_s']:.3f} |"
+            f"{r[h['default']]['time_s']:.3f}{'*' if r[h['default']].get('other_process') else ''}"
+            f" | {r[bp]['time_s']:.3f} |"
         )
     return "\n".join(lines)
 
@@ -534,12 +535,19 @@ def method_means(data: dict) -> str:
     for c in data["cells"]:
         for k, v in c["results"].items():
             names.setdefault(k, []).append(v["psnr"])
+    gaps: dict[str, list[float]] = {}
     wins: dict[str, int] = {}
     for c in data["cells"]:
-        wins[c["headline"]["best_peer"]] = wins.get(c["headline"]["best_peer"], 0) + 1
-    lines = ["| method | cells | mean PSNR dB | best peer in cells |", "|---|---|---|---|"]
-    for k, v in sorted(names.items(), key=lambda kv: -statistics.mean(kv[1])):
-        lines.append(f"| {k} | {len(v)} | {statistics.mean(v):.2f} | {wins.get(k, 0)} |")
+        h = c["headline"]
+        wins[h["best_peer"]] = wins.get(h["best_peer"], 0) + 1
+        for k, v in c["results"].items():
+            gaps.setdefault(k, []).append(v["psnr"] - h["best_peer_psnr"])
+    lines = ["| method | cells | mean PSNR dB | mean − best tuned peer of the same cell, dB "
+             "(min … max) | best peer in cells |", "|---|---|---|---|---|"]
+    for k, v in sorted(names.items(), key=lambda kv: -statistics.mean(gaps[kv[0]])):
+        g = gaps[k]
+        lines.append(f"| {k} | {len(v)} | {statistics.mean(v):.2f} | {statistics.mean(g):+.2f} "
+                     f"({min(g):+.2f} … {max(g):+.2f}) | {wins.get(k, 0)} |")
     return "\n".join(lines)
 
 
@@ -623,7 +631,7 @@ def plot(data: dict, path: Path) -> None:
     ax[0].set_title("per cell (blue n=32, orange 64, green 128)")
     ax[1].bar(range(len(cells)), np.array(d) - np.array(b), color="C3", label="default − best peer")
     ax[1].plot(range(len(cells)), np.array(o) - np.array(b), "k.", ms=4,
-               label="best torchtof default − best peer")
+               label="best torchtof call (any above) − best peer")
     ax[1].axhline(0, color="k", lw=0.8)
     ax[1].set_xlabel("cell (sorted by n, noise, order, scene, SR)")
     ax[1].set_ylabel("dB")
@@ -661,6 +669,7 @@ def main(argv=None) -> int:
     a = parse(argv)
     if a.report is not None:
         data = merge([json.loads(p.read_text()) for p in a.report])
+        data["cells"] = [c for c in data["cells"] if c["headline"]["best_peer"]]  # comparable
         print(markdown(data))
         print()
         print(method_means(data))

@@ -147,8 +147,8 @@ def test_report_tables():
     md = pb.markdown({"cells": cells})
     assert "| -2.50 |" in md and "| +1.00 |" in md and "(edge)" in md
     means = pb.method_means({"cells": cells})
-    assert "| torchtof tval3 | 2 | 25.00 | 0 |" in means
-    assert "| pylops SB-TV | 2 | 25.75 | 2 |" in means
+    assert "| torchtof tval3 | 2 | 25.00 | -0.75 (-2.50 … +1.00) | 0 |" in means
+    assert "| pylops SB-TV | 2 | 25.75 | +0.00 (+0.00 … +0.00) | 2 |" in means
     grid = pb.winners({"cells": cells})
     assert "| sky | -2.50 (pylops SB-TV) | +1.00 (pylops SB-TV) |" in grid
 

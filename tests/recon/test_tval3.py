@@ -635,3 +635,19 @@ def test_auto_mu_keeps_the_published_model_on_noise_free_smooth_buckets():
     auto_ = tval3(y, A)
     pub = tval3(y, A, mu=2**8)
     assert abs(_psnr(auto_.x, x) - _psnr(pub.x, x)) < 0.5
+
+
+def test_adaptive_mode_reads_the_host_once_per_iteration():
+    # the adaptive loop's only data-dependent read is "all samples done?" before each step
+    from tests.test_syncs import count_syncs
+
+    A = Hadamard(16, sr=0.5)
+    y = A(_rects(16, torch.float64)).expand(2, 1, -1).contiguous()
+
+    def syncs(k):
+        with count_syncs() as n:
+            tval3(y, A, mu=2**8, max_iter=k, tol=1e-300, tol_inner=1e-300)
+        return n[0]
+
+    syncs(5)  # warm caches
+    assert syncs(20) - syncs(10) == 10

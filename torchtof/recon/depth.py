@@ -54,7 +54,7 @@ from .._checks import check_finite, check_positive, check_shape, check_tensor, i
 from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from .tv import admm_tv, check_exact_memory, largest_eig_normal
+from .tv import BOUNDARIES, admm_tv, check_exact_memory, largest_eig_normal
 from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -91,6 +91,9 @@ class DepthResult(NamedTuple):
         mask: bool, ``True`` where the amplitude is above the mask threshold (module doc).
         images: the reconstructed I/Q ``(B, 2, n, n)`` or tap images ``(B, 4, n, n)``.
         threshold: the mask threshold per image ``(B,)``.
+        x: the depth again (the reconstructor contract's name for the output).
+        n_iter, residual, converged, stop_reason: the reconstructor's ``solve`` result per
+            image channel ``(B, C)`` (``None``/``()`` for a reconstructor without ``solve``).
     """
 
     depth: torch.Tensor
@@ -99,6 +102,11 @@ class DepthResult(NamedTuple):
     mask: torch.Tensor
     images: torch.Tensor
     threshold: torch.Tensor
+    x: torch.Tensor | None = None
+    n_iter: torch.Tensor | None = None
+    residual: torch.Tensor | None = None
+    converged: torch.Tensor | None = None
+    stop_reason: tuple = ()
 
 
 def _check_buckets(y: object, func: str, channels: tuple[int, ...] = (2, 4)) -> torch.Tensor:
@@ -228,6 +236,9 @@ def joint_tv(
     noise_sigma: float | torch.Tensor | None = None,
     adaptive: bool = True,
     return_result: bool = False,
+    *,
+    boundary: str = "periodic",
+    bounds: tuple[float | None, float | None] | None = None,
 ) -> torch.Tensor:
     """Reconstruct ``C`` images that share their edges: vectorial TV by ADMM.
 
@@ -278,6 +289,11 @@ def joint_tv(
         adaptive: early stop (``False``: exactly ``n_iter`` iterations, no Python branch
             on tensor values).
         return_result: return a :class:`JointTVResult` instead of the images.
+        boundary: ``"periodic"`` or ``"neumann"`` differences (:mod:`~torchtof.recon.tv`).
+        bounds: ``(lo, hi)`` box on the images, projected in every u-step (units of ``A⁺y``).
+            Physics: the four tap images are correlation values with the offset ``B`` of
+            Eq. 6 and cannot be negative (``(0, None)`` in ``mode="taps"``); the I/Q images are
+            signed (``Re P``, ``Im P``) and take no bound.
 
     Returns:
         ``(B, C, n, n)`` images in the units of ``A⁺y``.
@@ -299,7 +315,12 @@ def joint_tv(
     fn = "joint_tv"
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol)
-    check_exact_memory(A, y, "periodic", fn, _JTV_MEMORY_HINT)
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
+    box = (None, None) if bounds is None else tuple(bounds)
+    if len(box) != 2 or (None not in box and not float(box[0]) < float(box[1])):
+        raise ValueError(f"{fn}: expected bounds (lo, hi) with lo < hi, got {bounds!r}")
+    check_exact_memory(A, y, boundary, fn, _JTV_MEMORY_HINT)
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
         x = y.new_zeros(*y.shape[:2], A.n, A.n)
         per = y.shape[:2]
@@ -331,7 +352,9 @@ def joint_tv(
     per = (y.shape[0], c)
     out = admm_tv(
         b, A, mu_b[:, None].expand(per), beta_b[:, None].expand(per),
-        constrained[:, None].expand(per), tv="isotropic", boundary="periodic", joint=joint,
+        constrained[:, None].expand(per), tv="isotropic", boundary=boundary, joint=joint,
+        bounds=tuple(None if v is None else float(v) * (gain / sq).reshape(-1, 1, 1, 1)
+                     for v in box),
         inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
         done=zero[:, None].expand(per), stop_over_channels=True,
     )
@@ -386,8 +409,8 @@ class JointTV(nn.Module):
     :class:`DepthResolved` does with the I/Q noise it measures); the per-call value wins.
 
     Args:
-        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive, noise_sigma: as
-            :func:`joint_tv`.
+        A: the operator (a submodule). joint, mu, beta, n_iter, tol, adaptive, noise_sigma,
+            boundary, bounds: as :func:`joint_tv`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -400,18 +423,21 @@ class JointTV(nn.Module):
 
     def __init__(self, A: LinearOperator, joint: bool = True, mu: float | str = "auto",
                  beta: float = 2.0**5, n_iter: int = 300, tol: float = 1e-6,
-                 adaptive: bool = True, noise_sigma: float | None = None) -> None:
+                 adaptive: bool = True, noise_sigma: float | None = None,
+                 boundary: str = "periodic", bounds: tuple | None = None) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
         _check_jtv_options("JointTV", mu, beta, n_iter, tol)
-        check_exact_memory(A, torch.empty(0), "periodic", "JointTV", _JTV_MEMORY_HINT)
+        check_exact_memory(A, torch.empty(0), boundary, "JointTV", _JTV_MEMORY_HINT)
         if noise_sigma is not None:
             check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
         self.noise_sigma = noise_sigma
+        if boundary not in BOUNDARIES:
+            raise ValueError(f"JointTV: expected boundary in {BOUNDARIES}, got {boundary!r}")
         self.options = dict(joint=bool(joint), mu=mu, beta=beta, n_iter=n_iter, tol=tol,
-                            adaptive=adaptive)
+                            adaptive=adaptive, boundary=boundary, bounds=bounds)
 
     def solve(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
               ) -> JointTVResult:
@@ -528,10 +554,10 @@ def depth_resolved(
     else:
         sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", func, False))
     meas = iq_buckets(y) if (mode == "iq" and taps_in) else y
-    if getattr(reconstructor, "accepts_noise_sigma", False):
-        images = reconstructor(meas, noise_sigma=sigma)
-    else:
-        images = reconstructor(meas)
+    kw = {"noise_sigma": sigma} if getattr(reconstructor, "accepts_noise_sigma", False) else {}
+    solve = getattr(reconstructor, "solve", None)
+    sol = solve(meas, **kw) if callable(solve) else None
+    images = reconstructor(meas, **kw) if sol is None else sol.x
     ok = isinstance(images, torch.Tensor) and images.ndim == 4
     if not ok or images.shape[:2] != meas.shape[:2]:
         got = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
@@ -551,7 +577,10 @@ def depth_resolved(
     peak = amplitude.flatten(1).amax(dim=1)
     threshold = torch.maximum(k * noise_amp, r * peak)
     mask = amplitude > threshold.reshape(-1, 1, 1, 1)
-    return DepthResult(depth, amplitude, phase, mask, images, threshold)
+    if sol is None:
+        return DepthResult(depth, amplitude, phase, mask, images, threshold, depth)
+    return DepthResult(depth, amplitude, phase, mask, images, threshold, depth, sol.n_iter,
+                       sol.residual, sol.converged, getattr(sol, "stop_reason", ()))
 
 
 class DepthResolved(nn.Module):

@@ -25,7 +25,6 @@ relative change drops below ``tol_inner``, then updating the multipliers
 from __future__ import annotations
 
 import math
-from statistics import NormalDist
 from typing import NamedTuple
 
 import torch
@@ -41,6 +40,7 @@ from .._checks import (
     unchecked,
 )
 from ..operators.base import LinearOperator
+from .noise import abs_quantile_sigma
 from .tv import (
     BOUNDARIES,
     check_exact_memory,
@@ -183,14 +183,10 @@ def bucket_noise_sigma(
 
 def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.Tensor:
     """:func:`bucket_noise_sigma` with the number of measurements ``m`` as a Python int (all
-    indices static, so tracing records no Python values)."""
+    indices static, so tracing records no Python values); the quantile rule is
+    :func:`~torchtof.recon.noise.abs_quantile_sigma`."""
     k = min(m, max(8, int(math.ceil(tail * m))))
-    t = torch.sort(y[..., m - k :].abs(), dim=-1).values
-    pos = quantile * (k - 1)  # linear interpolation between order statistics (static indices)
-    lo, frac = int(math.floor(pos)), pos - math.floor(pos)
-    hi = min(lo + 1, k - 1)
-    q = t[..., lo] * (1 - frac) + t[..., hi] * frac
-    return q / NormalDist().inv_cdf((1.0 + quantile) / 2)  # q-quantile of |z|, z ~ N(0, 1)
+    return abs_quantile_sigma(y[..., m - k :], quantile)
 
 
 # -- the solver --------------------------------------------------------------------------------
@@ -236,16 +232,18 @@ def auto_weights(
 
 
 class MaskedRows(LinearOperator):
-    """``A`` with a 0/1 row mask per channel: ``forward(u) = m ⊙ A u``, ``adjoint(r) = Aᵀ(m ⊙ r)``.
+    """An operator with a 0/1 row mask per channel (a measurement operator for hold-out
+    validation, not a reconstructor): ``forward(u) = m ⊙ inner(u)``,
+    ``adjoint(r) = innerᵀ(m ⊙ r)``, ``mask (C, M)``.
 
-    ``normal`` is ``A``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``A``'s largest eigenvalue.
+    ``normal`` is ``inner``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
+    uses ``inner``'s largest eigenvalue.
     """
 
-    def __init__(self, A: LinearOperator, mask: torch.Tensor) -> None:
-        super().__init__(A.n, A.m)
-        self.inner = A
-        self.orthonormal_rows = A.orthonormal_rows
+    def __init__(self, inner: LinearOperator, mask: torch.Tensor) -> None:
+        super().__init__(inner.n, inner.m)
+        self.inner = inner
+        self.orthonormal_rows = inner.orthonormal_rows
         self.register_buffer("mask", mask)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
