@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 import warnings
@@ -214,8 +213,8 @@ def paper(realisations: int = 3) -> list[dict]:
             x = data.x.to(y.dtype).expand(y.shape[0], -1, -1, -1)
             pol = data.polarity(gate)
             row = {"sr": sr, "gate": gate}
-            for name, fn in (("learned", lambda v: Learned(A)(v)),
-                             ("tval3", lambda v: tval3(v, A).x)):
+            for name, fn in (("learned", lambda v, A=A: Learned(A)(v)),
+                             ("tval3", lambda v, A=A: tval3(v, A).x)):
                 with torch.no_grad():
                     s = compare(fn(y), x, pol)
                 row[name] = (float(s["psnr"].mean()), float(s["ssim"].mean()))

@@ -63,7 +63,7 @@ HELD_OUT_IMAGES: tuple[str, ...] = ("camera", "astronaut", "horse", "shepp_logan
 EVAL_SEED_BASE = 1_000_000
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _grey_np(name: str) -> np.ndarray:
     import skimage.color
     import skimage.data

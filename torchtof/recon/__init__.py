@@ -3,6 +3,7 @@
 :func:`get` and :func:`names` read the one table of reconstructors (:mod:`.registry`).
 """
 
+from .auto import Auto, AutoResult, auto  # noqa: E402,I001
 from .base import ReconResult
 from .bp import BasisPursuit, BPResult, basis_pursuit
 from .correlation import CGI, DGI, TGI, cgi, dgi, g2, tgi
@@ -27,7 +28,6 @@ from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
 from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
-from .auto import Auto, AutoResult, auto  # noqa: E402,I001
 from .unet import UNet
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 

@@ -356,7 +356,8 @@ class Learned(nn.Module):
         func = "Learned"
         _check_operator(A, func)
         if isinstance(n_layers, bool) or not isinstance(n_layers, int):
-            raise TypeError(f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
+            raise TypeError(
+                f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
         if n_layers < 1:
             raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
         if isinstance(width, bool) or not isinstance(width, int) or width < 1:
