@@ -174,7 +174,6 @@ def test_registry_names_and_lookup():
             assert s.budget in inspect.signature(s.module.__init__).parameters or s.name == "dip"
 
 
-@pytest.mark.xfail(reason="PatternOperator.patterns are not in the state_dict yet", strict=False)
 @pytest.mark.parametrize("name", ["pinv", "tval3", "dip"])
 def test_state_dict_carries_random_patterns(name, device):
     # a model on random patterns is checkpointed with them: loading into a model built on other

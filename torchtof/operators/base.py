@@ -28,6 +28,7 @@ class LinearOperator(nn.Module):
     Attributes:
         n, m: sizes; ``shape_in == (n, n)``.
         orthonormal_rows: ``True`` when ``A Aᵀ = I`` (then ``pinv == adjoint``).
+        state_version: bumped when ``load_state_dict`` changes the operator.
 
     Shape:
         - forward: ``(B, C, n, n) -> (B, C, m)``
@@ -35,6 +36,9 @@ class LinearOperator(nn.Module):
     """
 
     orthonormal_rows: bool = False
+    #: Bumped when loaded values change the operator (``load_state_dict``): caches derived
+    #: from an operator (the exact u-step's factors, ``s₂``) key on it.
+    state_version: int = 0
 
     def __init__(self, n: int, m: int) -> None:
         super().__init__()

@@ -59,18 +59,34 @@ class PatternOperator(LinearOperator):
                      "use the fast Hadamard operator or fewer/smaller patterns")
         check_finite(patterns, "patterns", func)
         super().__init__(patterns.shape[1], patterns.shape[0])
-        self.register_buffer("patterns", patterns.detach().clone(), persistent=False)
-        g = patterns.reshape(self.m, -1).double()
+        # persistent: a model on random patterns is checkpointed with them (state_dict)
+        self.register_buffer("patterns", patterns.detach().clone())
+        self._derive()
+        self.register_load_state_dict_post_hook(PatternOperator._loaded)
+
+    def _derive(self) -> None:
+        """``orthonormal_rows`` and the pseudo-inverse from the current patterns."""
+        g = self.patterns.reshape(self.m, -1).double()
+        self.__dict__.pop("_pinv_cache", None)
         if g.is_meta:  # shape inference: no values to test or invert
             self.orthonormal_rows = False
             self.register_buffer("pinv_matrix", g.new_empty(g.shape[1], self.m), persistent=False)
             return
         self.orthonormal_rows = bool(
-            torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64), atol=1e-6)
+            torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64, device=g.device),
+                           atol=1e-6)
         )
-        if not self.orthonormal_rows:
-            # A⁺ (float64 SVD) computed once here, not lazily, so pinv traces/exports to ONNX
-            self.register_buffer("pinv_matrix", torch.linalg.pinv(g), persistent=False)
+        # A⁺ (float64 SVD) computed once here, not lazily, so pinv traces/exports to ONNX
+        pinv = None if self.orthonormal_rows else torch.linalg.pinv(g)
+        self.register_buffer("pinv_matrix", pinv, persistent=False)
+
+    @staticmethod
+    def _loaded(module: PatternOperator, incompatible_keys) -> None:
+        """After ``load_state_dict``: check the loaded patterns, derive again what depends
+        on them, and bump ``state_version`` (solvers' per-operator caches key on it)."""
+        check_finite(module.patterns, "patterns", "PatternOperator.load_state_dict")
+        module._derive()
+        module.state_version += 1
 
     def _cached_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
         return self.pinv_matrix.to(dtype=dtype, device=device)

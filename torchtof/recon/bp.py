@@ -417,9 +417,18 @@ class BasisPursuit(nn.Module):
         self.A = A
         self.basis, self.n_iter, self.rho, self.alpha, self.tol = basis, n_iter, rho, alpha, tol
         self.eps, self.lam, self.adaptive = eps, lam, adaptive
-        if not A.orthonormal_rows:
-            dev = next((b.device for b in A.buffers()), None)
-            for name, t in zip(_GRAM_NAMES, gram_factor(A, dev), strict=True):
+        self._set_gram()
+        # patterns loaded into A (PatternOperator state_dict): factor their Gram matrix again
+        self.register_load_state_dict_post_hook(BasisPursuit._loaded)
+
+    @staticmethod
+    def _loaded(module: BasisPursuit, incompatible_keys) -> None:
+        module._set_gram()
+
+    def _set_gram(self) -> None:
+        if not self.A.orthonormal_rows:
+            dev = next((b.device for b in self.A.buffers()), None)
+            for name, t in zip(_GRAM_NAMES, gram_factor(self.A, dev), strict=True):
                 self.register_buffer(name, t, persistent=False)
 
     def _gram(self):

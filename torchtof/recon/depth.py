@@ -44,15 +44,17 @@ conservative for them. The relative floor ``r`` removes dim returns that are not
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from typing import NamedTuple
 
 import torch
 from torch import nn
 
 from .._checks import check_finite, check_positive, check_shape, check_tensor, is_tracing
+from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from .tv import BOUNDARIES, admm_tv, largest_eig_normal
+from .tv import BOUNDARIES, admm_tv, check_exact_memory, largest_eig_normal
 from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -68,6 +70,8 @@ __all__ = [
     "DepthResolved",
     "dual_frequency_depth",
     "hypothesis_spacing",
+    "common_range",
+    "CommonRange",
     "DualFrequencyDepth",
 ]
 
@@ -216,6 +220,11 @@ def iq_phase_amplitude(iq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 # -- joint (vectorial) TV ----------------------------------------------------------------------
 
 
+#: What to change when the exact u-step's factorisation does not fit (JointTV has no other).
+_JTV_MEMORY_HINT = ("JointTV always factors it: use a smaller n or sampling rate, or TVAL3 "
+                    "with u_step='bb' per channel")
+
+
 def joint_tv(
     y: torch.Tensor,
     A: LinearOperator,
@@ -311,6 +320,7 @@ def joint_tv(
     box = (None, None) if bounds is None else tuple(bounds)
     if len(box) != 2 or (None not in box and not float(box[0]) < float(box[1])):
         raise ValueError(f"{fn}: expected bounds (lo, hi) with lo < hi, got {bounds!r}")
+    check_exact_memory(A, y, boundary, fn, _JTV_MEMORY_HINT)
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
         x = y.new_zeros(*y.shape[:2], A.n, A.n)
         per = y.shape[:2]
@@ -419,6 +429,7 @@ class JointTV(nn.Module):
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
         _check_jtv_options("JointTV", mu, beta, n_iter, tol)
+        check_exact_memory(A, torch.empty(0), boundary, "JointTV", _JTV_MEMORY_HINT)
         if noise_sigma is not None:
             check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
@@ -631,6 +642,93 @@ def _unambiguous(freq_hz: float) -> float:
     return SPEED_OF_LIGHT / (2.0 * freq_hz)
 
 
+#: :func:`dual_frequency_depth` takes ``f₁/f₂`` as the ratio ``p/q`` of two coprime integers
+#: when the two phases then realign at the common range to within this fraction of the
+#: hypothesis spacing (see :func:`common_range`).
+RATIO_TOL = 1e-3
+#: At most this many wrap-count pairs ``(n₁, n₂)`` per pixel in :func:`dual_frequency_depth`.
+MAX_HYPOTHESES = 1 << 16
+
+
+class CommonRange(NamedTuple):
+    """Output of :func:`common_range`."""
+
+    p: int  #: ``f₁ ≈ p·f_E``
+    q: int  #: ``f₂ ≈ q·f_E``
+    freq_hz: float  #: the common (beat) frequency ``f_E = (f₁ + f₂)/(p + q)``
+    range_m: float  #: the common unambiguous range ``c/(2f_E)``
+    spacing_m: float  #: the hypothesis spacing ``c/(2f_E·p·q)``
+
+
+def _pairs(p: int, q: int) -> int:
+    return (p + 2) * (q + 2)  # wrap counts -1 … p and -1 … q (dual_frequency_depth)
+
+
+def common_range(freq_1_hz: float, freq_2_hz: float) -> CommonRange:
+    """Common unambiguous range of two modulation frequencies.
+
+    With ``f₁ = p·f_E`` and ``f₂ = q·f_E`` for coprime integers ``p, q`` the two phases
+    repeat together every ``c/(2f_E)``: the dual-frequency range of Jongenelen, Bailey,
+    Payne, Dorrington & Carnegie, "Analysis of errors in ToF range imaging with
+    dual-frequency modulation", IEEE Trans. Instrum. Meas. 60(5), 2011 (``f_E`` the greatest
+    common divisor of the two frequencies); two wrap-count pairs then differ by a multiple of
+    the hypothesis spacing ``c/(2f_E·p·q)`` (``|n₁R₁ − n₂R₂| = (c/2f_E)|n₁q − n₂p|/(pq)``,
+    ``R_k = c/(2f_k)``).
+
+    Real frequencies are not exact multiples of a round one (the OPT8241's PLL makes
+    19 999 992.37 Hz for 20 MHz; the greatest common divisor of the rounded frequencies is
+    then 8 Hz, an 18 750 km range and 10¹³ hypotheses). ``p/q`` is therefore the first
+    continued-fraction convergent of ``f₁/f₂`` (the best rational approximations, Hardy &
+    Wright, *An Introduction to the Theory of Numbers*, Thm. 181) for which the two phases
+    realign at the common range to within :data:`RATIO_TOL` of the spacing:
+    ``(c/2)|p/f₁ − q/f₂| ≤ RATIO_TOL · c/(2f_E·p·q)``, with ``f_E = (f₁ + f₂)/(p + q)``
+    (exact when ``f₁/f₂ = p/q``). The mismatch moves an unwrapped depth by at most that
+    much: 2.5 mm for the PLL's 30 + 19.999 992 MHz, which give 3/2 like 30 + 20 MHz.
+
+    Raises:
+        ValueError: if a frequency is not ``> 0``, if the two are equal to within the
+            tolerance (``p = q = 1``: nothing to unwrap), or if no ratio with at most
+            :data:`MAX_HYPOTHESES` wrap-count pairs ``(p + 2)(q + 2)`` meets the tolerance.
+
+    Example:
+        >>> r = common_range(30e6, 19_999_992.37)
+        >>> (r.p, r.q), round(r.range_m, 3), round(r.spacing_m, 3)
+        ((3, 2), 14.99, 2.498)
+    """
+    return _common_range(freq_1_hz, freq_2_hz, "common_range")
+
+
+def _common_range(freq_1_hz: float, freq_2_hz: float, func: str) -> CommonRange:
+    f1 = check_positive(freq_1_hz, "freq_1_hz", func)
+    f2 = check_positive(freq_2_hz, "freq_2_hz", func)
+    x = Fraction(f1) / Fraction(f2)
+    p0, p = 0, 1  # convergent numerators h_{k-2}, h_{k-1}
+    q0, q = 1, 0  # denominators
+    while True:
+        a = math.floor(x)
+        p0, p = p, a * p + p0
+        q0, q = q, a * q + q0
+        if _pairs(p, q) > MAX_HYPOTHESES:
+            raise ValueError(
+                f"{func}: {f1:.10g} and {f2:.10g} Hz have no common range within "
+                f"{MAX_HYPOTHESES} wrap-count pairs per pixel: the ratio {p}/{q} needs "
+                f"{_pairs(p, q)} pairs, about {format_bytes(2 * 4 * _pairs(p, q))} per float32 "
+                f"pixel (choose frequencies with a small-integer ratio, such as 30 and 20 MHz)")
+        if p > 0:
+            fe = (f1 + f2) / (p + q)
+            if abs(p / f1 - q / f2) * fe * p * q <= RATIO_TOL:
+                break
+        if x == a:  # pragma: no cover - an exact ratio meets the tolerance above
+            break
+        x = 1 / (x - a)
+    if p == q:
+        raise ValueError(f"{func}: expected two different frequencies, got {f1:.10g} and "
+                         f"{f2:.10g} Hz (ratio 1/1 to within RATIO_TOL = {RATIO_TOL:g}, see "
+                         f"common_range)")
+    rng = _unambiguous(fe)
+    return CommonRange(p, q, fe, rng, rng / (p * q))
+
+
 def dual_frequency_depth(
     phase_1: torch.Tensor,
     phase_2: torch.Tensor,
@@ -647,9 +745,11 @@ def dual_frequency_depth(
     and the depth is their inverse-variance mean (equal phase noise: weights ``∝ f_k²``),
     wrapped into ``[0, max_m)`` (the hypothesis search of multi-frequency ToF unwrapping,
     e.g. Järemo Lawin, Forssén & Ovrén, ECCV 2016, without their spatial voting). The
-    default ``max_m`` is the common range ``c/(2·gcd(f₁, f₂))`` (frequencies rounded to
-    1 Hz): 15 m for 30 + 20 MHz. Vectorised over the hypotheses (no Python loop over
-    pixels) and free of data-dependent control flow.
+    default ``max_m`` is the common range of :func:`common_range` (``c/(2f_E)`` with
+    ``f₁ = p·f_E``, ``f₂ = q·f_E``, ``p/q`` the ratio of the frequencies to within a
+    tolerance): 15 m for 30 + 20 MHz. Vectorised over the hypotheses (no Python loop over
+    pixels) and free of data-dependent control flow; it holds ``2·(p + 2)(q + 2)`` values per
+    pixel (memory checked first, :func:`torchtof.set_memory_limit`).
 
     Args:
         phase_1, phase_2: phases in ``[0, 2π)`` at ``freq_1_hz``/``freq_2_hz``, same shape.
@@ -657,16 +757,18 @@ def dual_frequency_depth(
         max_m: the range to unwrap into, metres, ``≤`` the common range (default it).
         return_gap: also return the disagreement ``|d₁ − d₂|`` of the chosen pair (metres),
             a confidence: wrong pairs differ by a multiple of the hypothesis spacing
-            ``c·gcd(f₁, f₂)/(2f₁f₂)`` (2.5 m for 30 + 20 MHz), so a gap near half of it
-            flags a pixel whose two phases do not describe one depth (noise, mixed pixels).
+            ``c/(2f_E·p·q)`` (2.5 m for 30 + 20 MHz, :func:`hypothesis_spacing`), so a gap
+            near half of it flags a pixel whose two phases do not describe one depth (noise,
+            mixed pixels).
 
     Returns:
         Depth in metres, the shape of ``phase_1`` (and the gap, same shape).
 
     Raises:
         TypeError: if a phase is not a real floating tensor.
-        ValueError: on different shapes, equal or non-positive frequencies, or ``max_m``
-            outside ``(0, common range]``.
+        ValueError: on different shapes, equal or non-positive frequencies, frequencies
+            without a common range of at most :data:`MAX_HYPOTHESES` hypotheses, ``max_m``
+            outside ``(0, common range]``, or hypotheses that exceed the memory limit.
 
     Example:
         >>> d = torch.tensor([0.5, 4.0, 6.2, 11.0])
@@ -683,19 +785,23 @@ def dual_frequency_depth(
     if phase_1.shape != phase_2.shape:
         raise ValueError(f"{func}: expected phase_1 and phase_2 of the same shape, got "
                          f"{tuple(phase_1.shape)} and {tuple(phase_2.shape)}")
-    f1 = check_positive(freq_1_hz, "freq_1_hz", func)
-    f2 = check_positive(freq_2_hz, "freq_2_hz", func)
-    if round(f1) == round(f2):
-        raise ValueError(f"{func}: expected two different frequencies, got {f1:g} and {f2:g}")
-    common = _unambiguous(math.gcd(round(f1), round(f2)))
+    cr = _common_range(freq_1_hz, freq_2_hz, func)
+    f1, f2 = float(freq_1_hz), float(freq_2_hz)
+    common = cr.range_m
     top = common if max_m is None else check_positive(max_m, "max_m", func)
     if top > common * (1 + 1e-9):
         raise ValueError(f"{func}: expected max_m <= the common range {common:.4g} m of "
                          f"{f1:g} and {f2:g} Hz, got {max_m}")
     r1, r2 = _unambiguous(f1), _unambiguous(f2)
     # wrap counts from -1 (a phase just below 2π for a depth just above 0) to past max_m
-    n1 = torch.arange(-1, math.ceil(top / r1) + 1, dtype=phase_1.dtype, device=phase_1.device)
-    n2 = torch.arange(-1, math.ceil(top / r2) + 1, dtype=phase_1.dtype, device=phase_1.device)
+    # (the relative 1e-12: max_m = p·R₁ in floating point must give p, not p + 1)
+    k1 = math.ceil(top / r1 * (1 - 1e-12)) + 2
+    k2 = math.ceil(top / r2 * (1 - 1e-12)) + 2
+    check_memory(2 * phase_1.numel() * k1 * k2 * phase_1.element_size(),
+                 f"{k1}x{k2} wrap-count hypotheses for {phase_1.numel()} phases", func,
+                 "unwrap fewer pixels at a time or give a smaller max_m")
+    n1 = torch.arange(-1, k1 - 1, dtype=phase_1.dtype, device=phase_1.device)
+    n2 = torch.arange(-1, k2 - 1, dtype=phase_1.dtype, device=phase_1.device)
     two_pi = 2.0 * math.pi
     d1 = r1 * (phase_1.unsqueeze(-1) / two_pi + n1)  # (..., N1)
     d2 = r2 * (phase_2.unsqueeze(-1) / two_pi + n2)  # (..., N2)
@@ -711,9 +817,8 @@ def dual_frequency_depth(
 
 def hypothesis_spacing(freq_1_hz: float, freq_2_hz: float) -> float:
     """Smallest non-zero ``|n₁R₁ − n₂R₂|`` of :func:`dual_frequency_depth`'s hypotheses,
-    ``c·gcd(f₁, f₂)/(2f₁f₂)`` metres (2.5 m for 30 + 20 MHz, frequencies rounded to 1 Hz)."""
-    f1, f2 = round(freq_1_hz), round(freq_2_hz)
-    return SPEED_OF_LIGHT * math.gcd(f1, f2) / (2.0 * f1 * f2)
+    ``c/(2f_E·p·q)`` metres (:func:`common_range`; 2.5 m for 30 + 20 MHz)."""
+    return _common_range(freq_1_hz, freq_2_hz, "hypothesis_spacing").spacing_m
 
 
 class DualFrequencyDepth(nn.Module):

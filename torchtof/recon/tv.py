@@ -34,6 +34,7 @@ from typing import NamedTuple
 import torch
 
 from .._checks import unchecked
+from .._memory import check_memory
 from ..operators.base import LinearOperator
 from .dct import dct_matrix
 
@@ -50,6 +51,8 @@ __all__ = [
     "laplacian_inverse",
     "ExactFactors",
     "exact_factors",
+    "exact_factors_bytes",
+    "check_exact_memory",
     "exact_solve",
     "largest_eig_normal",
     "admm_tv",
@@ -212,6 +215,16 @@ _S2_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _POWER_STEPS = 30  # power iteration for ScaleA (TVAL3 asks eigs for 5 % accuracy)
 
 
+def _per_op(cache: weakref.WeakKeyDictionary, A: LinearOperator) -> dict:
+    """``A``'s entries in ``cache`` for its current values: a new ``state_version`` (patterns
+    loaded from a ``state_dict``) drops the entries derived from the old ones."""
+    version = A.state_version
+    entry = cache.get(A)
+    if entry is None or entry[0] != version:
+        entry = cache[A] = (version, {})
+    return entry[1]
+
+
 class ExactFactors(NamedTuple):
     """Cached factors of :func:`exact_solve` (see :func:`exact_factors`)."""
 
@@ -223,30 +236,72 @@ class ExactFactors(NamedTuple):
     has_dc: bool  # a ≠ 0: the constant image is not in the null space of A
 
 
-def exact_factors(A: LinearOperator, like: torch.Tensor, boundary: str = "periodic"
-                  ) -> ExactFactors:
+#: Images per block when :func:`exact_factors` builds ``S`` (``block · n²`` values at a time).
+_BLOCK_VALUES = 1 << 20
+
+
+def _block_rows(A: LinearOperator) -> int:
+    return max(1, min(A.m, _BLOCK_VALUES // (A.n * A.n)))
+
+
+def exact_factors_bytes(A: LinearOperator, dtype: torch.dtype = torch.float32) -> int:
+    """Peak memory in bytes of :func:`exact_factors` for ``A`` (the factors kept for a
+    solve in ``dtype`` included): ``S``, its symmetrised copy, the eigenvectors and the
+    ``2m²`` workspace of LAPACK's divide-and-conquer ``syevd`` (``1 + 6m + 2m²`` doubles)
+    in float64, the eigenvectors cast to ``dtype``, and six float64 ``(block, n, n)``
+    images while ``S`` is built block by block."""
+    m, big = A.m, A.n * A.n
+    item = torch.empty((), dtype=dtype).element_size()
+    return 8 * (4 * m * m + 6 * m + 6 * _block_rows(A) * big) + item * m * (m + 2)
+
+
+def check_exact_memory(A: LinearOperator, like: torch.Tensor, boundary: str, func: str,
+                       hint: str = "") -> None:
+    """``ValueError`` (via :func:`torchtof.set_memory_limit`'s check) naming ``func`` if the
+    factors of :func:`exact_factors` are not cached yet and would exceed the memory limit."""
+    if (like.dtype, like.device, boundary) in _per_op(_EXACT_CACHE, A):
+        return
+    check_memory(exact_factors_bytes(A, like.dtype),
+                 f"the exact u-step's {A.m}x{A.m} eigendecomposition (n={A.n})", func,
+                 hint or "use a smaller n or sampling rate")
+
+
+def exact_factors(A: LinearOperator, like: torch.Tensor, boundary: str = "periodic",
+                  func: str = "exact_factors") -> ExactFactors:
     """Factors of :func:`exact_solve`, computed once per (operator, dtype, device, boundary)
     in float64 and cached (weakly keyed by ``A``).
 
     ``K = DᵀD + P₀`` (Laplacian plus the projector on constants: diagonal in the DFT or DCT
     and SPD); ``S = A K⁻¹ Aᵀ = V diag(lam) Vᵀ`` (``m × m``, from ``m`` adjoints, diagonal
-    solves and forwards, then ``eigh``); ``a = A e₀``.
+    solves and forwards in blocks of rows, then ``eigh``); ``a = A e₀``. The memory
+    (:func:`exact_factors_bytes`) is checked first (``ValueError`` naming ``func``).
     """
     _check_boundary(boundary, "exact_factors")
-    per_op = _EXACT_CACHE.setdefault(A, {})
+    check_exact_memory(A, like, boundary, func)
+    per_op = _per_op(_EXACT_CACHE, A)
     key = (like.dtype, like.device, boundary)
     if key not in per_op:
         n, m = A.n, A.m
         with torch.no_grad():
             dt = torch.float64
             diag = _k_inverse(n, boundary, dt, like.device)
-            eye = torch.eye(m, dtype=dt, device=like.device).reshape(m, 1, m)
-            rows = A.adjoint(eye)  # row i of A as an image
-            cols = laplacian_inverse(rows, diag)
-            s = A(cols).reshape(m, m)
-            lam, v = torch.linalg.eigh((s + s.T) / 2)
+            s = torch.empty(m, m, dtype=dt, device=like.device)
+            peak = torch.zeros((), dtype=dt, device=like.device)
+            step = _block_rows(A)
+            with unchecked():  # no check_finite (host read) per block: the rows are finite
+                for i in range(0, m, step):  # rows i … j of S = A K⁻¹ Aᵀ (symmetric)
+                    j = min(m, i + step)
+                    eye = torch.zeros(j - i, 1, m, dtype=dt, device=like.device)
+                    eye[:, 0, i:j] = torch.eye(j - i, dtype=dt, device=like.device)
+                    rows = A.adjoint(eye)  # row k of A as an image
+                    peak = torch.maximum(peak, rows.abs().max())
+                    s[i:j] = A(laplacian_inverse(rows, diag)).reshape(j - i, m)
+                    del eye, rows
+            s = (s + s.T).mul_(0.5)
+            lam, v = torch.linalg.eigh(s)
+            del s
             a = A(torch.full((1, 1, n, n), 1.0 / n, dtype=dt, device=like.device)).reshape(m)
-            has_dc = bool(a.abs().max() > 1e-9 * rows.abs().max())
+            has_dc = bool(a.abs().max() > 1e-9 * peak)
             cast = [t.to(like.dtype) for t in (lam.clamp_min(0), v, a @ v, a)]
             kin = _Diag(*(None if t is None else t.to(like.dtype) for t in diag))
         per_op[key] = ExactFactors(kin, *cast, has_dc=has_dc)
@@ -295,8 +350,9 @@ def exact_solve(
 def largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
     """Largest eigenvalue ``s₂`` of ``AᵀA`` by 30 power iterations from a fixed start (TVAL3's
     ``ScaleA`` calls ``eigs``), cached per operator object (one host read at the end)."""
-    if A in _S2_CACHE:
-        return _S2_CACHE[A]
+    per_op = _per_op(_S2_CACHE, A)
+    if "s2" in per_op:
+        return per_op["s2"]
     n = A.n
     with torch.no_grad():
         k = torch.arange(n * n, dtype=torch.float64, device=like.device)
@@ -307,8 +363,8 @@ def largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
             z = A.normal(x)
             s = (z * x).sum()
             x = z
-    _S2_CACHE[A] = float(s)
-    return _S2_CACHE[A]
+    per_op["s2"] = float(s)
+    return per_op["s2"]
 
 
 # -- one ADMM TV core ------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from ..operators.base import LinearOperator
 from .noise import abs_quantile_sigma
 from .tv import (
     BOUNDARIES,
+    check_exact_memory,
     exact_factors,
     exact_solve,
     grad2,
@@ -300,6 +301,10 @@ def default_split(A: LinearOperator) -> str:
     return "tail" if getattr(A, "order", None) in _ORDERED else "random"
 
 
+#: What to change when the exact u-step's factorisation does not fit.
+_EXACT_MEMORY_HINT = "use u_step='bb' (no factorisation) or a smaller n or sampling rate"
+
+
 def tval3(
     y: torch.Tensor,
     A: LinearOperator,
@@ -463,6 +468,8 @@ def tval3(
     )
 
     _check_boundary(boundary, fn)
+    if opts["u_step"] == "exact":
+        check_exact_memory(A, y, boundary, fn, _EXACT_MEMORY_HINT)
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
@@ -977,6 +984,8 @@ class TVAL3(nn.Module):
             opts["u_step"],
         )
         _check_boundary(opts["boundary"], "TVAL3")
+        if opts["u_step"] == "exact":
+            check_exact_memory(A, torch.empty(0), opts["boundary"], "TVAL3", _EXACT_MEMORY_HINT)
         _box(nonneg, opts["bounds"], "TVAL3")
         self.A = A
         if not A.orthonormal_rows:  # ScaleA's s₂, cached now so that tracing never computes it
