@@ -21,6 +21,7 @@ import torch
 
 from .apps.args import (
     OneLineParser,
+    check_patterns,
     csv_list,
     positive_float,
     positive_int,
@@ -77,16 +78,7 @@ def _methods() -> list[str]:
 def _check_experiment(args: argparse.Namespace) -> None:
     """``--sr`` and ``--n`` of ``demo`` together give at least one pattern (each alone is
     checked by its type)."""
-    _check_patterns(args.n, args.sr)
-
-
-def _check_patterns(n: int, sr: float) -> None:
-    from .operators import Hadamard
-
-    try:
-        Hadamard(n, sr=sr)
-    except ValueError as exc:
-        raise ValueError(f"argument --sr: with --n {n}: {str(exc).split(': ', 1)[-1]}") from None
+    check_patterns(args.n, args.sr)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -184,7 +176,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .recon.learned_train import main as train_main  # options: learned_train.add_arguments
+    from .apps.train import main as train_main  # options: apps.train.add_arguments
 
     return train_main(args)
 
@@ -300,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Train torchtof.recon.Learned on synthetic scenes; writes "
                        "OUT/checkpoint.pt, log.json, learned.pt and recipe.json.")
     t.add_argument("--model", choices=["learned"], default="learned", help="the model to train")
-    from .recon.learned_train import add_arguments as add_train_arguments
+    from .apps.train import add_arguments as add_train_arguments
 
     add_train_arguments(t)
     t.set_defaults(func=cmd_train, check=_check_train, parser=t)
@@ -320,13 +312,13 @@ def _check_train(args: argparse.Namespace) -> None:
 
 
 def _check_export(args: argparse.Namespace) -> None:
-    _check_patterns(args.n, args.sr)
+    check_patterns(args.n, args.sr)
 
 
 def _check_bench(args: argparse.Namespace) -> None:
     if args.which == "operators":
         for n in args.n or (32,):
-            _check_patterns(n, args.sr)
+            check_patterns(n, args.sr)
     if args.which == "adaptive" and args.seeds is not None:
         from .apps.bench.adaptive import parse_seeds
 

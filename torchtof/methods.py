@@ -91,8 +91,8 @@ METHODS: dict[str, Callable[..., Method]] = {
     s.label: partial(_build, s) for s in registry.specs()
 }
 #: the demo's columns, in order.
-DEFAULT_METHODS: tuple[str, ...] = ("CGI", "DGI", "PINV", "BP", "TVAL3", "Auto", "Unrolled", "Learned",
-                                     "DIP")
+DEFAULT_METHODS: tuple[str, ...] = ("CGI", "DGI", "PINV", "BP", "TVAL3", "Auto", "Unrolled",
+                                     "Learned", "DIP")
 
 
 def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: str = "depth",

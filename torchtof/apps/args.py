@@ -8,8 +8,8 @@ import argparse
 import json
 import sys
 
-__all__ = ["OneLineParser", "positive_int", "nonneg_int", "power_of_two", "scene_side",
-           "sampling_rate", "positive_float", "json_object", "csv_list", "scene"]
+__all__ = ["OneLineParser", "check_patterns", "positive_int", "nonneg_int", "power_of_two",
+           "scene_side", "sampling_rate", "positive_float", "json_object", "csv_list", "scene"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -159,3 +159,14 @@ def csv_list(choices):
 
     parse.__name__ = "list"
     return parse
+
+
+def check_patterns(n: int, sr: float) -> None:
+    """Cross-option check of ``--n`` and ``--sr``: the Hadamard rows exist (one line naming
+    ``--sr`` otherwise)."""
+    from ..operators import Hadamard
+
+    try:
+        Hadamard(n, sr=sr)
+    except ValueError as exc:
+        raise ValueError(f"argument --sr: with --n {n}: {str(exc).split(': ', 1)[-1]}") from None

@@ -193,9 +193,9 @@ def _check_acquire(args: argparse.Namespace) -> None:
         raise ValueError(f"argument --n: the simulated scenes need n >= 8, got {args.n}")
     if args.roi_px is not None and args.roi_px < args.n:
         raise ValueError(f"argument --roi-px: expected >= --n ({args.n}), got {args.roi_px}")
-    from ..cli import _check_patterns
+    from ..apps.args import check_patterns
 
-    _check_patterns(args.n, args.sr)
+    check_patterns(args.n, args.sr)
 
 
 def add_parsers(sub) -> None:

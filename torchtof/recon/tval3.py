@@ -32,15 +32,15 @@ from torch import nn
 
 from .._checks import (
     check_finite,
-    check_in_range,
     check_positive,
     check_shape,
     check_tensor,
     is_tracing,
     unchecked,
 )
+from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from .noise import abs_quantile_sigma
+from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (
     BOUNDARIES,
     check_exact_memory,
@@ -81,7 +81,6 @@ NOISE_QUANTILE = 0.2
 #: ``TVAL3Result.stop_reason`` codes: index into this tuple (``discrepancy``: Morozov's rule).
 STOP_REASONS = ("tol", "max_outer", "discrepancy", "max_iter")
 #: Morozov's safety factor ``τ`` of the ``discrepancy`` stop: ``‖A x − y‖² ≤ τ M σ²``.
-DISCREPANCY_TAU = 1.0
 _N_BACKTRACK = 5  # ftvcs_alp gives up after 5 backtracks
 
 
@@ -145,40 +144,16 @@ def _tv_of_w(w: torch.Tensor, isotropic: bool) -> torch.Tensor:
 def bucket_noise_sigma(
     y: torch.Tensor, tail: float = NOISE_TAIL, quantile: float = NOISE_QUANTILE
 ) -> torch.Tensor:
-    """Noise std of the buckets from a low quantile of the high-order tail of ``y``.
-
-    For Hadamard orders that put low sequencies first (cake-cutting, sequency, Russian-doll;
-    Yu 2019, Sun 2017) the last measurements carry the least signal. With ``t = |y|`` over the last
-    ``tail`` fraction of the measurements (at least 8), the estimate is
-
-    .. math::
-
-        \\hat\\sigma = Q_q(t) / \\Phi^{-1}\\big(\\tfrac{1 + q}{2}\\big),
-
-    consistent for white Gaussian noise (``|z|`` is half-normal; ``q = 0.5`` is the MAD rule of
-    Donoho & Johnstone 1994). A low quantile (``q = 0.2``) lets the many small signal
-    coefficients of piecewise-constant scenes pull the estimate towards 0, so noise-free
-    buckets of such scenes read as noise-free; scenes with rich texture still leave signal in
-    the tail and read as slightly noisy (about 0.5 % of the spread at 64×64, 25 % SR). For
-    operators without a low-to-high order pass the noise level to :func:`tval3` instead.
-
-    Args:
-        y: buckets ``(B, C, M)``.
-        tail: fraction of the measurements used, from the end, in ``(0, 1]``.
-        quantile: ``q`` in ``(0, 1)``.
-
-    Returns:
-        ``(B, C)`` noise std in the units of ``y``.
+    """Noise std of the buckets from a low quantile of their high-order tail: TVAL3's
+    ``mu="auto"`` estimate, :func:`torchtof.recon.noise.tail_noise_sigma` with TVAL3's
+    ``tail`` and ``quantile`` (the one implementation; see it for the rule and its bias).
 
     Example:
         >>> y = 0.5 * torch.randn(1, 1, 65536, generator=torch.Generator().manual_seed(0))
         >>> round(float(bucket_noise_sigma(y)), 1)
         0.5
     """
-    check_tensor(y, "y", "bucket_noise_sigma")
-    check_in_range(tail, 0.0, 1.0, "tail", "bucket_noise_sigma", lo_open=True)
-    check_in_range(quantile, 0.0, 1.0, "quantile", "bucket_noise_sigma", True, True)
-    return _tail_sigma(y, y.shape[-1], tail, quantile)
+    return tail_noise_sigma(y, tail, quantile)
 
 
 def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.Tensor:

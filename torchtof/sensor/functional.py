@@ -41,7 +41,7 @@ __all__ = [
     "camera_rules",
 ]
 
-SPEED_OF_LIGHT = 299_792_458.0  # m/s, exact (SI)
+from ..constants import SPEED_OF_LIGHT  # noqa: E402  (m/s, exact SI; defined once)
 
 # Tap delays as exact (cos τ_k, sin τ_k) pairs: no rounding from cos(π/2) etc.
 TAP_ORDERS: dict[str, tuple[tuple[int, int], ...]] = {

@@ -1,0 +1,102 @@
+"""``torchtof train --model learned``: the command line of
+:func:`torchtof.recon.learned_train.train_learned` (options, calibration-only runs)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from ..operators.hadamard import Hadamard
+from ..operators.patterns import ORDERS
+from ..recon.learned import DEFAULT_N_LAYERS, Learned
+from ..recon.learned_train import calibrate_tau, train_learned
+from .args import nonneg_int, positive_float, positive_int, power_of_two, sampling_rate
+
+__all__ = ["add_arguments", "main"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
+    d = " (default: %(default)s)"
+    p.add_argument("--steps", type=positive_int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
+    p.add_argument("--lr", type=positive_float, default=2e-3,
+                   help="peak Adam learning rate" + d)
+    p.add_argument("--seed", type=nonneg_int, default=0, help="seed of every draw" + d)
+    p.add_argument("--sizes", type=power_of_two, nargs="+", default=[32, 64],
+                   help="image sides, powers of two in [4, 256]" + d)
+    p.add_argument("--p-large", type=_probability, default=0.3,
+                   help="probability of the largest size, in [0, 1]" + d)
+    p.add_argument("--sr-range", type=sampling_rate, nargs=2, default=[0.0625, 0.5],
+                   metavar=("LO", "HI"), help="range of the sampling rate, in (0, 1]" + d)
+    p.add_argument("--orders", nargs="+", default=list(ORDERS), choices=list(ORDERS),
+                   metavar="ORDER", help=f"Hadamard orders, from {', '.join(ORDERS)}" + d)
+    p.add_argument("--n-layers", type=positive_int, default=DEFAULT_N_LAYERS,
+                   help="unrolled steps K" + d)
+    p.add_argument("--width", type=positive_int, default=16, help="channels of the prior" + d)
+    p.add_argument("--out", default="train_learned_out",
+                   help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
+    p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
+                   help="steps between checkpoints, 0: none" + d)
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--log-every", type=positive_int, default=10,
+                   help="steps between log records" + d)
+    p.add_argument("--max-minutes", type=positive_float, default=None,
+                   help="stop and save after this wall time (default: no limit)")
+    p.add_argument("--no-progress", action="store_true", help="no tqdm progress bar")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="leave the final data-consistency step off (no calibrate_tau)")
+    p.add_argument("--calibrate-only", action="store_true",
+                   help="load OUT/checkpoint.pt, run calibrate_tau, rewrite OUT/learned.pt and "
+                        "add the calibration to OUT/recipe.json")
+
+
+def _probability(text: str) -> float:
+    """A number in ``[0, 1]`` (an argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return v
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run :func:`train_learned` from parsed :func:`add_arguments` options."""
+    command = shlex.join(["torchtof", *sys.argv[1:]]) if sys.argv else None
+    if args.calibrate_only:
+        out = Path(args.out)
+        state = torch.load(out / "checkpoint.pt", weights_only=False)
+        model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
+                        pretrained=False, width=args.width)
+        model.load_state_dict(state["model"], strict=False)
+        t0 = time.perf_counter()
+        calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
+                              sr_range=tuple(args.sr_range), orders=tuple(args.orders))
+        recipe_path = out / "recipe.json"
+        recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+        recipe.update(final_step_calibration=calib, calibration_command=command,
+                      calibration_wall_s=round(time.perf_counter() - t0, 1))
+        model.A = Hadamard(args.sizes[0], sr=0.25)
+        model.save_weights(out / "learned.pt", seed=args.seed, steps=state["step"],
+                           torch_version=str(torch.__version__))
+        recipe_path.write_text(json.dumps(recipe, indent=1))
+        print(f"tau = {calib['tau']}; wrote {out / 'learned.pt'}")
+        return 0
+    r = train_learned(
+        steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+        sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
+        orders=tuple(args.orders), n_layers=args.n_layers, width=args.width, out=args.out,
+        checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
+        progress=not args.no_progress, max_minutes=args.max_minutes,
+        command=command, calibrate=not args.no_calibrate,
+    )
+    print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
+    return 0
