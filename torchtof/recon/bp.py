@@ -75,13 +75,13 @@ from .._checks import (
 )
 from ..operators.base import LinearOperator
 from .dct import dct2, dct_matrix, haar2, idct2, ihaar2
+from .noise import abs_quantile_sigma
 
 __all__ = ["BASES", "BPResult", "gram_factor", "basis_pursuit", "BasisPursuit"]
 
 BASES = ("dct", "haar", "identity")
 _CHECK_EVERY = 10
 _NEWTON_STEPS = 20
-_MAD = 0.6744897501960817  # Φ⁻¹(3/4): median |N(0, 1)|
 _BALANCE_EVERY, _MU, _TAU = 10, 10.0, 2.0
 _GRAM_NAMES = ("gram_u", "gram_s2", "gram_s2inv")
 
@@ -240,9 +240,9 @@ def _fista(x, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive):
 def _auto_eps(y: torch.Tensor) -> torch.Tensor:
     """``√M · median|y_tail| / 0.6745`` over the last ``⌈M/4⌉`` measurements ``(B, C, 1)``."""
     m = int(y.shape[-1])
-    tail = y[..., m - (m + 3) // 4 :].abs().sort(dim=-1).values
-    sigma = tail[..., (tail.shape[-1] - 1) // 2 : (tail.shape[-1] - 1) // 2 + 1] / _MAD
-    return sigma * m**0.5
+    # the plain MAD rule over the last quarter: the package's one tail estimator
+    sigma = abs_quantile_sigma(y[..., m - (m + 3) // 4 :], 0.5, interpolation="lower")
+    return sigma[..., None] * m**0.5
 
 
 def _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A=None):
