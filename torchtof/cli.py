@@ -168,6 +168,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from .apps.onnx_models import export_model
 
     t0 = time.perf_counter()
+    print(f"torchtof export: tracing {args.model} (n={args.n}, SR {args.sr:.2%}); one call "
+          "without a progress bar, up to a minute or two for the iterative models", flush=True)
     path = args.output or Path(args.out) / f"{args.model}_n{args.n}_sr{args.sr:g}.onnx"
     path = export_model(args.model, n=args.n, sr=args.sr, path=path, opset=args.opset)
     print(f"torchtof export: {args.model} (n={args.n}, SR {args.sr:.2%}) in "

@@ -419,3 +419,20 @@ def test_errors():
         BasisPursuit("A")
     with pytest.raises(ValueError, match=r"basis_pursuit: expected y of shape"):
         BasisPursuit(A)(y[..., :3])
+
+
+def test_equality_constrained_bp_on_noisy_buckets_warns_with_the_fix():
+    import warnings
+
+    from torchtof.operators import Hadamard
+    from torchtof.recon import BasisPursuit
+
+    A = Hadamard(16, sr=0.25)
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(1, 1, 16, 16, generator=g)
+    y = A(x) + 0.05 * torch.randn(1, 1, A.m, generator=g)
+    with pytest.warns(UserWarning, match="eps='auto'"):
+        BasisPursuit(A, n_iter=20)(y)  # the budget runs out before the noise is fitted
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        BasisPursuit(A, n_iter=20, eps="auto")(y)

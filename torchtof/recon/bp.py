@@ -59,6 +59,7 @@ one CPU core); generic Gaussian rows with a non-sparse scene can need thousands.
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import torch
@@ -365,7 +366,15 @@ def basis_pursuit(
             x, iters, done = _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
     x = x * s[..., None]
     residual = torch.linalg.vector_norm(A(x) - y, dim=-1)
-    return BPResult(x, iters, residual, done, _stop_names(done))
+    names = _stop_names(done)
+    if eps is None and lam is None and adaptive and any(
+            r == "max_iter" for row in names for r in row):  # one check per call, after the loop
+        warnings.warn(
+            "basis_pursuit: the equality-constrained model (eps=None) ran out of iterations "
+            f"({n_iter}) without converging, which is what noisy buckets do (it fits the noise "
+            "exactly, slowly); pass eps='auto' (noise from the buckets' tail) or eps=<noise "
+            "radius>", UserWarning, stacklevel=2)
+    return BPResult(x, iters, residual, done, names)
 
 
 def _stop_names(done: torch.Tensor) -> tuple:
