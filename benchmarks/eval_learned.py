@@ -1,5 +1,6 @@
-"""Held-out evaluation of the learned reconstructor against TVAL3's defaults (and the unrolled
-TVAL3 where it ships weights).
+"""Held-out evaluation of the learned reconstructor against TVAL3's defaults, the automatic
+TV reconstructor (:func:`torchtof.recon.auto.auto`, its defaults) and the unrolled TVAL3 where
+it ships weights.
 
 Scenes that training never saw: three classes, each from generators seeded at
 ``torchtof.data.EVAL_SEED_BASE`` and up (checked disjoint from every scene seed of the shipped
@@ -14,10 +15,12 @@ Buckets: ``Hadamard(n, sr, order)`` with Gaussian noise of ``level × (max y −
 (the package's convention), one seeded draw per scene. Score: PSNR (paper Eqs. 13–14 with
 MAX = 1, no quantisation) and SSIM of the reconstruction clipped to [0, 1] against the scene.
 Time: wall time of one batched call over the class's scenes divided by their number, one
-thread, after a warm-up call, TVAL3 and the learned model interleaved (same machine load).
+thread, after a warm-up call, TVAL3 and the learned model interleaved (same machine load);
+``auto`` is scored, and timed without a warm-up (it is ~20 TVAL3 solves).
 
 usage: python benchmarks/eval_learned.py [--sizes 32 64 128] [--srs 0.0625 0.125 0.25 0.375]
-       [--levels 0 0.01 0.05] [--out docs/learned_eval.json] [--generalisation]
+       [--levels 0 0.01 0.05] [--out main.json] [--generalisation] [--methods ...]
+       python benchmarks/eval_learned.py --table main.json auto.json
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import torch.nn.functional as F
 from torchtof.data import EVAL_SEED_BASE, NoiseRecipe, draw_scene, grey_image, noisy_buckets
 from torchtof.metrics import psnr, ssim
 from torchtof.operators import Hadamard
+from torchtof.recon.auto import auto
 from torchtof.recon.learned import WEIGHTS_FILE, Learned
 from torchtof.recon.synthetic import scene_seed
 from torchtof.recon.tval3 import tval3
@@ -92,17 +96,29 @@ def score(x_hat: torch.Tensor, x: torch.Tensor) -> tuple[float, float]:
     return (float(psnr(xh, x.double(), bits=None).mean()), float(ssim(xh, x.double()).mean()))
 
 
-def run_cell(n, sr, order, level, cls, learned_net_cache, unrolled=True):
+METHODS = ("learned", "tval3", "auto", "unrolled")
+
+
+def run_cell(n, sr, order, level, cls, methods=METHODS):
+    """One (n, SR, order, noise, class) cell: PSNR/SSIM and time per image of each method."""
     A = Hadamard(n, sr=sr, order=order)
     x = scenes(cls, n)
     y = buckets(A, x, level, salt=n + int(sr * 1e4) + int(level * 1e4))
-    net = Learned(A)
     row = {"n": n, "sr": sr, "order": order, "level": level, "class": cls}
-    xl, tl = timed(net, y)
-    xt, tt = timed(lambda v: tval3(v, A).x, y)
-    row["learned"], row["tval3"] = score(xl, x), score(xt, x)
-    row["t_learned"], row["t_tval3"] = tl, tt
-    if unrolled and order == "cake_cutting" and weight_path(n, A.m, 12).is_file():
+    if "learned" in methods:
+        xl, row["t_learned"] = timed(Learned(A), y)
+        row["learned"] = score(xl, x)
+    if "tval3" in methods:
+        xt, row["t_tval3"] = timed(lambda v: tval3(v, A).x, y)
+        row["tval3"] = score(xt, x)
+    if "auto" in methods:
+        with torch.no_grad():
+            t = time.perf_counter()
+            xa = auto(y, A)
+            row["t_auto"] = (time.perf_counter() - t) / y.shape[0]
+        row["auto"] = score(xa, x)
+    if ("unrolled" in methods and order == "cake_cutting"
+            and weight_path(n, A.m, 12).is_file()):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             un = UnrolledTVAL3(A)
@@ -111,12 +127,26 @@ def run_cell(n, sr, order, level, cls, learned_net_cache, unrolled=True):
     return row
 
 
+def merge(files: list[str]) -> list[dict]:
+    """The rows of several ``--out`` files, the fields of one cell joined (later files add
+    the methods that earlier ones lack)."""
+    cells: dict = {}
+    for f in files:
+        for r in json.load(open(f))["rows"]:
+            key = (r["n"], r["sr"], r["order"], r["level"], r["class"], bool(r.get("generalisation")))
+            cells.setdefault(key, {}).update({k: v for k, v in r.items()
+                                              if k not in cells.get(key, {})})
+    return list(cells.values())
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: one line per (n, SR, noise), the PSNR difference learned − TVAL3 per class,
     the mean PSNRs and SSIMs, and the time ratio."""
     out = ["| n | SR % | noise % | " + " | ".join(f"Δ {c} dB" for c in CLASSES)
-           + " | learned dB / SSIM | TVAL3 dB / SSIM | unrolled dB | learned ms | TVAL3 ms |",
-           "|---" * (8 + len(CLASSES)) + "|"]
+           + " | learned dB / SSIM | TVAL3 dB / SSIM | auto dB / SSIM | unrolled dB "
+           "| learned ms | TVAL3 ms | auto ms |",
+           "|---" * (10 + len(CLASSES)) + "|"]
+    rows = [r for r in rows if "learned" in r and "tval3" in r]
     keys = sorted({(r["n"], r["sr"], r["level"]) for r in rows if not r.get("generalisation")})
     for n, sr, level in keys:
         cell = [r for r in rows if (r["n"], r["sr"], r["level"]) == (n, sr, level)
@@ -130,9 +160,42 @@ def table(rows: list[dict]) -> str:
         un = [r["unrolled"][0] for r in cell if "unrolled" in r]
         tl = np.mean([r["t_learned"] for r in cell]) * 1e3
         tt = np.mean([r["t_tval3"] for r in cell]) * 1e3
+        au = [r for r in cell if "auto" in r]
+        a_s = (f"{np.mean([r['auto'][0] for r in au]):.2f} / "
+               f"{np.mean([r['auto'][1] for r in au]):.3f}" if au else "-")
+        a_t = f"{np.mean([r['t_auto'] for r in au]) * 1e3:.0f}" if au else "-"
         out.append(f"| {n} | {sr * 100:g} | {level * 100:g} | " + " | ".join(d)
-                   + f" | {ml:.2f} / {sl:.3f} | {mt:.2f} / {st:.3f} | "
-                   + (f"{np.mean(un):.2f}" if un else "-") + f" | {tl:.1f} | {tt:.1f} |")
+                   + f" | {ml:.2f} / {sl:.3f} | {mt:.2f} / {st:.3f} | {a_s} | "
+                   + (f"{np.mean(un):.2f}" if un else "-") + f" | {tl:.1f} | {tt:.1f} | {a_t} |")
+    return "\n".join(out)
+
+
+def acceptance(rows: list[dict]) -> str:
+    """The acceptance numbers: mean Δ (learned − TVAL3, and learned − auto) over the (class, n,
+    SR) cells at SR <= 12.5 % and 1 % noise, the cells more than 0.5 dB below TVAL3 (and
+    below auto), and the median time ratio TVAL3 / learned per n."""
+    rows = [r for r in rows if not r.get("generalisation") and "learned" in r and "tval3" in r]
+    low = [r for r in rows if r["sr"] <= 0.125 + 1e-9 and abs(r["level"] - 0.01) < 1e-9]
+    out = []
+    for ref in ("tval3", "auto"):
+        if not all(ref in r for r in rows):
+            continue
+        d = [r["learned"][0] - r[ref][0] for r in low]
+        worse = sorted((r["learned"][0] - r[ref][0], r) for r in rows
+                       if r["learned"][0] - r[ref][0] < -0.5)
+        out.append(f"vs {ref}: mean Δ at SR <= 12.5 %, 1 % noise {np.mean(d):+.2f} dB "
+                   f"(min {min(d):+.2f}, {len(d)} cells); {len(worse)} of {len(rows)} cells "
+                   "worse by > 0.5 dB" + (":" if worse else ""))
+        out += [f"  n={r['n']} SR {r['sr'] * 100:g} % noise {r['level'] * 100:g} % "
+                f"{r['class']} {dd:+.2f}" for dd, r in worse]
+    for n in sorted({r["n"] for r in rows}):
+        ratio = [r["t_tval3"] / r["t_learned"] for r in rows if r["n"] == n]
+        extra = ""
+        if all("t_auto" in r for r in rows if r["n"] == n):
+            extra = (", auto / learned "
+                     f"{np.median([r['t_auto'] / r['t_learned'] for r in rows if r['n'] == n]):.0f}×")
+        out.append(f"n={n}: median time TVAL3 / learned {np.median(ratio):.1f}× "
+                   f"(min {min(ratio):.1f}×){extra}")
     return "\n".join(out)
 
 
@@ -231,14 +294,20 @@ def main() -> int:
     p.add_argument("--classes", nargs="+", default=list(CLASSES))
     p.add_argument("--generalisation", action="store_true",
                    help="also orders other than cake-cutting and SRs beyond training (n=64, 1 %%)")
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS),
+                   help="methods to run (default: all; auto is slow: it can run separately "
+                        "and be joined by --table)")
     p.add_argument("--onnx", action="store_true", help="only the onnxruntime timing/parity")
     p.add_argument("--paper", action="store_true", help="only the paper's experiment")
     p.add_argument("--out", default=None, help="JSON file of every row")
-    p.add_argument("--table", default=None, help="print the markdown tables of a JSON file and exit")
+    p.add_argument("--table", nargs="+", default=None,
+                   help="print the markdown tables of JSON files (joined cell by cell) and exit")
     args = p.parse_args()
     if args.table:
-        rows = json.load(open(args.table))["rows"]
+        rows = merge(args.table)
         print(table(rows))
+        print()
+        print(acceptance(rows))
         if any(r.get("generalisation") for r in rows):
             print()
             print(gen_table(rows))
@@ -250,29 +319,28 @@ def main() -> int:
             with open(args.out, "w") as f:
                 json.dump(rows, f, indent=0)
         return 0
-    if not WEIGHTS_FILE.is_file():
-        raise SystemExit(f"no shipped weights at {WEIGHTS_FILE}")
-    recipe = json.loads((WEIGHTS_FILE.parent / "recipe.json").read_text())
-    check_seeds_unseen(recipe)
+    recipe = None
+    if "learned" in args.methods:
+        if not WEIGHTS_FILE.is_file():
+            raise SystemExit(f"no shipped weights at {WEIGHTS_FILE}")
+        recipe = json.loads((WEIGHTS_FILE.parent / "recipe.json").read_text())
+        check_seeds_unseen(recipe)
     rows = []
     t0 = time.perf_counter()
     for n in args.sizes:
         for sr in args.srs:
             for level in args.levels:
                 for cls in args.classes:
-                    r = run_cell(n, sr, "cake_cutting", level, cls, None)
+                    r = run_cell(n, sr, "cake_cutting", level, cls, args.methods)
                     rows.append(r)
-                    d = r["learned"][0] - r["tval3"][0]
-                    print(f"n={n:3d} sr={sr:.4f} noise={level:.2f} {cls:10s} learned "
-                          f"{r['learned'][0]:6.2f} tval3 {r['tval3'][0]:6.2f} d={d:+5.2f} dB  "
-                          f"t {r['t_learned'] * 1e3:7.1f} / {r['t_tval3'] * 1e3:7.1f} ms"
-                          + (f"  unrolled {r['unrolled'][0]:6.2f}" if "unrolled" in r else ""),
-                          flush=True)
+                    print(f"n={n:3d} sr={sr:.4f} noise={level:.2f} {cls:10s} " + "  ".join(
+                        f"{k} {r[k][0]:6.2f} dB {r['t_' + k] * 1e3:7.1f} ms"
+                        for k in METHODS if k in r), flush=True)
     if args.generalisation:
         for order in ("cake_cutting", "sequency", "russian_doll", "natural"):
             for sr in (0.125, 0.25, 0.5, 0.75):
                 for cls in args.classes:
-                    r = run_cell(64, sr, order, 0.01, cls, None, unrolled=False)
+                    r = run_cell(64, sr, order, 0.01, cls, ("learned", "tval3"))
                     r["generalisation"] = True
                     rows.append(r)
                     print(f"gen order={order:12s} sr={sr:.3f} {cls:10s} learned "

@@ -25,7 +25,13 @@ from torchtof.data import (
 )
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
 from torchtof.recon.learned import WEIGHTS_FILE, Learned, LearnedResult, learned
-from torchtof.recon.learned_train import _batch, psnr_loss, step_config, train_learned
+from torchtof.recon.learned_train import (
+    _batch,
+    noise_levels,
+    psnr_loss,
+    step_config,
+    train_learned,
+)
 
 
 def _net(n=16, sr=0.25, K=3, width=4, seed=0, order="cake_cutting", noise_sigma="auto"):
@@ -167,6 +173,40 @@ def test_state_dict_round_trip_and_weights_file(tmp_path):
         Learned(a.A, n_layers=4, width=4, pretrained=path)
 
 
+@pytest.mark.parametrize("shuffle", [1, 2, 4])
+def test_pixel_unshuffle_prior_shape_and_pseudo_inverse(shuffle):
+    """Any pixel-unshuffle factor keeps the shapes, and with the prior off the output is still
+    ``Aᵀy`` (the fixed point of the data step, module docstring)."""
+    A = Hadamard(16, sr=0.25)
+    torch.manual_seed(0)
+    net = Learned(A, n_layers=2, width=4, shuffle=shuffle, pretrained=False, noise_sigma=0.0)
+    y = _y(A, b=2, c=2)
+    assert net.prior.inc.in_channels == shuffle**2 == net.prior.out.out_channels
+    assert net(y).shape == (2, 2, 16, 16)
+    torch.testing.assert_close(_prior_off(net)(y), A.adjoint(y), rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="shuffle"):
+        Learned(Hadamard(8, sr=0.5), width=4, shuffle=8, pretrained=False)
+    with pytest.raises(ValueError, match="shuffle"):
+        Learned(A, width=4, shuffle=0, pretrained=False)
+
+
+def test_weights_file_sets_the_architecture_and_old_files_load_as_shuffle_1(tmp_path):
+    A = Hadamard(16, sr=0.25)
+    torch.manual_seed(0)
+    a = Learned(A, n_layers=2, width=4, shuffle=1, pretrained=False)
+    path = tmp_path / "old.pt"
+    a.save_weights(path)
+    blob = torch.load(path, weights_only=True)
+    del blob["meta"]["shuffle"]  # a file written before the pixel-unshuffle option
+    torch.save(blob, path)
+    b = Learned(A, n_layers=2, pretrained=path)  # width and shuffle from the file
+    assert (b.prior.width, b.prior.shuffle) == (4, 1)
+    y = _y(A)
+    torch.testing.assert_close(b(y), a(y))
+    with pytest.raises(ValueError, match="shuffle"):
+        Learned(A, n_layers=2, width=4, shuffle=2, pretrained=path)
+
+
 # -- bad inputs ----------------------------------------------------------------------------
 
 
@@ -241,6 +281,22 @@ def test_noise_clean_gaussian_and_shot_variances():
         assert abs(float(e.mean())) < 4 * want / n  # stray light cancels in y⁺ − y⁻
 
 
+def test_noise_levels_give_every_size_the_top_image_noise_of_the_reference():
+    """A constant scene ``c`` has one non-zero Hadamard coefficient, ``y₀ = c·n`` (the
+    all-ones row over ``n``), so the spread of ``y`` is ``c·n`` and a level ``L`` puts a
+    per-pixel std ``L·c·n·√SR`` into ``Aᵀy``: the top of :func:`noise_levels` scaled by
+    ``128/n`` gives ``0.06·128·c·√SR`` at every ``n <= 128`` (1.92 for c = 0.5, SR = 25 %)."""
+    assert noise_levels(32, 128) == (0.002, 0.24)
+    assert noise_levels(256, 128) == (0.002, 0.06) == noise_levels(32, None)
+    for n in (32, 64, 128):
+        A = Hadamard(n, sr=0.25)
+        x = torch.full((1, 1, n, n), 0.5, dtype=torch.float64)
+        level = noise_levels(n, 128)[1]
+        e = noisy_buckets(A, x, [NoiseRecipe(level=level)], [torch.Generator().manual_seed(n)])
+        got = float(A.adjoint(e - A(x)).std())
+        assert abs(got / 1.92 - 1) < 0.05, (n, got)
+
+
 # -- training ---------------------------------------------------------------------------------
 
 
@@ -263,7 +319,7 @@ def test_short_training_run_lowers_the_loss():
             return tot / len(held)
 
     torch.manual_seed(5)
-    untrained = Learned(Hadamard(32, sr=0.25), pretrained=False, width=16)
+    untrained = Learned(Hadamard(32, sr=0.25), pretrained=False)  # train_learned's defaults
     untrained.final_dc = False  # as the prior trains
     before = loss(untrained)
     r = train_learned(steps=25, batch_size=2, lr=3e-3, progress=False, calibrate=False, **kw)

@@ -14,8 +14,8 @@ import torch
 
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
-from ..recon.learned import DEFAULT_N_LAYERS, Learned
-from ..recon.learned_train import calibrate_tau, train_learned
+from ..recon.learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
+from ..recon.learned_train import NOISE_REF, calibrate_tau, train_learned
 from .args import nonneg_int, positive_float, positive_int, power_of_two, sampling_rate
 
 __all__ = ["add_arguments", "main"]
@@ -24,7 +24,7 @@ __all__ = ["add_arguments", "main"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=positive_int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--steps", type=positive_int, default=1500, help="optimiser steps" + d)
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)
@@ -39,7 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    metavar="ORDER", help=f"Hadamard orders, from {', '.join(ORDERS)}" + d)
     p.add_argument("--n-layers", type=positive_int, default=DEFAULT_N_LAYERS,
                    help="unrolled steps K" + d)
-    p.add_argument("--width", type=positive_int, default=16, help="channels of the prior" + d)
+    p.add_argument("--width", type=positive_int, default=DEFAULT_WIDTH,
+                   help="channels of the prior" + d)
+    p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE,
+                   help="pixel-unshuffle factor of the prior" + d)
+    p.add_argument("--noise-ref", type=nonneg_int, default=NOISE_REF,
+                   help="scale the Gaussian noise levels to this size, 0: the same levels at "
+                        "every size" + d)
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
@@ -75,11 +81,12 @@ def main(args: argparse.Namespace) -> int:
         out = Path(args.out)
         state = torch.load(out / "checkpoint.pt", weights_only=False)
         model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
-                        pretrained=False, width=args.width)
+                        pretrained=False, width=args.width, shuffle=args.shuffle)
         model.load_state_dict(state["model"], strict=False)
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
-                              sr_range=tuple(args.sr_range), orders=tuple(args.orders))
+                              sr_range=tuple(args.sr_range), orders=tuple(args.orders),
+                              noise_ref=args.noise_ref or None)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
         recipe.update(final_step_calibration=calib, calibration_command=command,
@@ -93,7 +100,8 @@ def main(args: argparse.Namespace) -> int:
     r = train_learned(
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
-        orders=tuple(args.orders), n_layers=args.n_layers, width=args.width, out=args.out,
+        orders=tuple(args.orders), n_layers=args.n_layers, width=args.width,
+        shuffle=args.shuffle, noise_ref=args.noise_ref or None, out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
         command=command, calibrate=not args.no_calibrate,

@@ -64,6 +64,7 @@ from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
 from ..operators.split import DMDSplit, combine_split
 from .tval3 import bucket_noise_sigma
+from .unrolled import check_n_layers
 
 __all__ = [
     "Learned",
@@ -72,6 +73,8 @@ __all__ = [
     "learned",
     "WEIGHTS_FILE",
     "DEFAULT_N_LAYERS",
+    "DEFAULT_WIDTH",
+    "DEFAULT_SHUFFLE",
     "STOP_REASON",
 ]
 
@@ -79,6 +82,9 @@ __all__ = [
 WEIGHTS_FILE = Path(__file__).resolve().parent.parent / "weights" / "learned" / "learned.pt"
 #: Unrolled steps ``K`` of the shipped weights.
 DEFAULT_N_LAYERS = 6
+#: Prior channels and pixel-unshuffle factor without a weights file (:class:`LearnedPrior`).
+DEFAULT_WIDTH = 16
+DEFAULT_SHUFFLE = 1
 #: ``LearnedResult.stop_reason``: the fixed depth ran out (there is no convergence test).
 STOP_REASON = "n_layers"
 #: Floor of ``σ_n`` inside the log of the conditioning (noise-free buckets).
@@ -114,30 +120,36 @@ class LearnedPrior(nn.Module):
     """Residual two-scale CNN ``R_θ(z; c)`` with FiLM conditioning (module docstring).
 
     Args:
-        width: channels at full resolution (``2·width`` at half resolution).
+        width: channels at the first scale (``2·width`` at the second).
         cond_dim: size of the conditioning vector ``c``.
         hidden: hidden units of the FiLM MLP.
+        shuffle: ``r``: the image is first rearranged into ``r²`` channels at ``1/r`` of its
+            side (pixel unshuffle, Shi et al., CVPR 2016) and the output rearranged back, so
+            the two scales of the network are ``1/r`` and ``1/(2r)`` of the side (``r = 1``:
+            full and half resolution).
 
     Shape:
-        - z: ``(N, 1, H, W)`` with even ``H, W``; c: ``(N, cond_dim)``.
+        - z: ``(N, 1, H, W)`` with ``H, W`` divisible by ``2r``; c: ``(N, cond_dim)``.
         - Output: ``(N, 1, H, W)``, the correction added to ``z``.
 
     Parameters are stored in float32; :meth:`forward` casts them to the input's dtype (a no-op
     for float32), so float64 inputs are computed in float64.
     """
 
-    def __init__(self, width: int = 16, cond_dim: int = 3, hidden: int = 32) -> None:
+    def __init__(
+        self, width: int = 16, cond_dim: int = 3, hidden: int = 32, shuffle: int = 1
+    ) -> None:
         super().__init__()
-        w = int(width)
-        self.width = w
-        self.inc = nn.Conv2d(1, w, 3, padding=1)
+        w, r = int(width), int(shuffle)
+        self.width, self.shuffle = w, r
+        self.inc = nn.Conv2d(r * r, w, 3, padding=1)
         self.enc = nn.Conv2d(w, w, 3, padding=1)
         self.down = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
         self.mid1 = nn.Conv2d(2 * w, 2 * w, 3, padding=1)
         self.mid2 = nn.Conv2d(2 * w, 2 * w, 3, padding=1)
         self.up = nn.ConvTranspose2d(2 * w, w, 2, stride=2)
         self.dec = nn.Conv2d(2 * w, w, 3, padding=1)
-        self.out = nn.Conv2d(w, 1, 3, padding=1)
+        self.out = nn.Conv2d(w, r * r, 3, padding=1)
         # FiLM scale and shift for the six hidden activations (inc, enc, down, mid1, mid2, dec)
         self.film_sizes = (w, w, 2 * w, 2 * w, 2 * w, w)
         self.film = nn.Sequential(
@@ -168,6 +180,9 @@ class LearnedPrior(nn.Module):
         def act(x: torch.Tensor, i: int) -> torch.Tensor:
             return F.silu(x * (1 + sc[i][..., None, None]) + sh[i][..., None, None])
 
+        r = self.shuffle
+        if r > 1:
+            z = F.pixel_unshuffle(z, r)
         h0 = act(self._conv(self.inc, z), 0)
         h1 = act(self._conv(self.enc, h0), 1)
         d = act(self._conv(self.down, h1), 2)
@@ -175,7 +190,8 @@ class LearnedPrior(nn.Module):
         d = act(self._conv(self.mid2, d), 4)
         u = self._conv(self.up, d)
         u = act(self._conv(self.dec, torch.cat((u, h1), dim=1)), 5)
-        return self._conv(self.out, u)
+        out = self._conv(self.out, u)
+        return F.pixel_shuffle(out, r) if r > 1 else out
 
 
 # -- operator plumbing ------------------------------------------------------------------------
@@ -324,13 +340,16 @@ class Learned(nn.Module):
             for low-to-high orders such as cake-cutting).
         pretrained: ``True`` loads the shipped weights (:data:`WEIGHTS_FILE`), ``False``
             keeps the random initialisation, a path loads that file.
-        width: channels of the prior (must match the weights file).
+        width, shuffle: the prior's channels and pixel-unshuffle factor
+            (:class:`LearnedPrior`); ``None``: the weights file's (:data:`DEFAULT_WIDTH`,
+            :data:`DEFAULT_SHUFFLE` without one); given, they must match it.
 
     Raises:
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
             ``n_layers`` not an int.
         ValueError: if ``A`` has no orthonormal rows (and is not a DMD split), ``A.n`` is
-            odd, ``n_layers < 1``, or the weights file does not match.
+            not divisible by ``2·shuffle``, ``n_layers < 1``, or the weights file does not
+            match.
         FileNotFoundError: if ``pretrained=True`` and the shipped file is missing.
 
     Shape:
@@ -350,42 +369,53 @@ class Learned(nn.Module):
         n_layers: int = DEFAULT_N_LAYERS,
         noise_sigma: float | torch.Tensor | str = "auto",
         pretrained: bool | str | os.PathLike = True,
-        width: int = 16,
+        width: int | None = None,
+        shuffle: int | None = None,
     ) -> None:
         super().__init__()
         func = "Learned"
         _check_operator(A, func)
-        if isinstance(n_layers, bool) or not isinstance(n_layers, int):
-            raise TypeError(
-                f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
-        if n_layers < 1:
-            raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
-        if isinstance(width, bool) or not isinstance(width, int) or width < 1:
-            raise ValueError(f"{func}: expected width to be an int >= 1, got {width!r}")
+        check_n_layers(n_layers, func)
+        for name, v in (("width", width), ("shuffle", shuffle)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                raise ValueError(f"{func}: expected {name} to be an int >= 1, got {v!r}")
         if not isinstance(noise_sigma, torch.Tensor):
             _sigma_of(noise_sigma, torch.zeros(1, 1, 1), func)  # validate once here
-        self.A = A
-        self.n_layers = n_layers
-        self.noise_sigma = noise_sigma
-        self.prior = LearnedPrior(width=width)
-        self.step_raw = nn.Parameter(torch.zeros(n_layers))
-        self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
-        #: apply the final data-consistency step (training of the prior switches it off)
-        self.final_dc = True
-        self.weights_file: str | None = None
+        path = None
         if pretrained is True:
             if not WEIGHTS_FILE.is_file():
                 raise FileNotFoundError(
                     f"{func}: shipped weights {os.fspath(WEIGHTS_FILE)!r} are missing; "
                     "pass pretrained=False or train them with `torchtof train --model learned`"
                 )
-            self.load_weights(WEIGHTS_FILE)
+            path = WEIGHTS_FILE
         elif pretrained is not False:
-            self.load_weights(pretrained)
+            path = pretrained
+        # the architecture: the weights file's unless given (a mismatch raises in load_weights)
+        file_meta = _load_blob(os.fspath(Path(path).resolve())).get("meta", {}) if path else {}
+        if width is None:
+            width = int(file_meta.get("width", DEFAULT_WIDTH))
+        if shuffle is None:
+            shuffle = int(file_meta.get("shuffle", 1 if file_meta else DEFAULT_SHUFFLE))
+        if A.n % (2 * shuffle):
+            raise ValueError(
+                f"{func}: expected A.n divisible by 2·shuffle = {2 * shuffle}, got n={A.n}")
+        self.A = A
+        self.n_layers = n_layers
+        self.noise_sigma = noise_sigma
+        self.prior = LearnedPrior(width=width, shuffle=shuffle)
+        self.step_raw = nn.Parameter(torch.zeros(n_layers))
+        self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
+        #: apply the final data-consistency step (training of the prior switches it off)
+        self.final_dc = True
+        self.weights_file: str | None = None
+        if path is not None:
+            self.load_weights(path)
 
     def meta(self) -> dict:
-        """What a weights file must match: ``n_layers`` and ``width``."""
-        return {"model": "learned", "n_layers": self.n_layers, "width": self.prior.width}
+        """What a weights file must match: ``n_layers``, ``width`` and ``shuffle``."""
+        return {"model": "learned", "n_layers": self.n_layers, "width": self.prior.width,
+                "shuffle": self.prior.shuffle}
 
     def load_weights(self, path: str | os.PathLike) -> None:
         """Load a file written by :meth:`save_weights` (``torch.load(weights_only=True)``).
@@ -394,7 +424,7 @@ class Learned(nn.Module):
             ValueError: if its ``n_layers``/``width`` differ from this module's.
         """
         blob = _load_blob(os.fspath(Path(path).resolve()))
-        meta = blob.get("meta", {})
+        meta = {"shuffle": 1, **blob.get("meta", {})}  # files before ``shuffle``: r = 1
         want = self.meta()
         if any(meta.get(k) != v for k, v in want.items()):
             raise ValueError(
@@ -467,14 +497,15 @@ def learned(
     n_layers: int = DEFAULT_N_LAYERS,
     noise_sigma: float | torch.Tensor | str = "auto",
     pretrained: bool | str | os.PathLike = True,
-    width: int = 16,
+    width: int | None = None,
+    shuffle: int | None = None,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained, width: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width, shuffle: as in :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``.
@@ -485,5 +516,6 @@ def learned(
         >>> learned(A(torch.rand(1, 1, 32, 32)), A, pretrained=False).shape
         torch.Size([1, 1, 32, 32])
     """
-    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained, width=width)
+    net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
+                  width=width, shuffle=shuffle)
     return net.to(y.device)(y)

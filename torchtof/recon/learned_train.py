@@ -46,7 +46,7 @@ from torch import nn
 from ..data import FAMILIES, TRAIN_IMAGES, TRAIN_LEVELS, draw_scenes, noisy_buckets, training_noise
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
-from .learned import DEFAULT_N_LAYERS, Learned
+from .learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
 from .train import dist_setup
 
 __all__ = [
@@ -56,6 +56,8 @@ __all__ = [
     "psnr_loss",
     "calibrate_tau",
     "TAU_GRID",
+    "noise_levels",
+    "NOISE_REF",
 ]
 
 #: Grid of ``τ`` searched by :func:`calibrate_tau`.
@@ -114,11 +116,37 @@ def step_config(
     return n, m, orders[int(r.integers(0, len(orders)))]
 
 
-def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range):
+#: Default ``noise_ref`` of :func:`train_learned`: the Gaussian levels reach, at every size,
+#: the per-pixel noise of ``Aᵀy`` that the top level gives at this size.
+NOISE_REF = 128
+
+
+def noise_levels(n: int, noise_ref: int | None = NOISE_REF) -> tuple[float, float]:
+    """The Gaussian levels drawn at size ``n``: :data:`~torchtof.data.TRAIN_LEVELS` with the
+    upper end multiplied by ``max(1, noise_ref / n)``.
+
+    The level is a fraction of the spread of ``y``, which grows like ``n·mean(x)`` (the first
+    Hadamard row is the sum of the scene over ``n``), while the per-pixel noise of ``Aᵀy`` is
+    ``σ·√SR``: the same level is ``n/n'`` times more noise in the image at size ``n`` than at
+    ``n'``. ``noise_ref = None``: the same levels at every size.
+
+    Example:
+        >>> noise_levels(32, 128)
+        (0.002, 0.24)
+    """
+    lo, hi = TRAIN_LEVELS
+    if noise_ref is None:
+        return lo, hi
+    return lo, hi * max(1.0, noise_ref / n)
+
+
+def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
+           noise_ref: int | None = NOISE_REF):
     x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
     gens = [torch.Generator().manual_seed(int(_seq(seed, step, i, 1).integers(0, 2**62)))
             for i in indices]
-    recipes = [training_noise(g) for g in gens]
+    levels = noise_levels(n, noise_ref)
+    recipes = [training_noise(g, levels=levels) for g in gens]
     A = Hadamard(n, m=m, order=order)
     with torch.no_grad():
         y = noisy_buckets(A, x, recipes, gens)
@@ -135,6 +163,7 @@ def calibrate_tau(
     sr_range: tuple[float, float] = (0.0625, 0.5),
     orders: tuple[str, ...] = ORDERS,
     grid: tuple[float, ...] = TAU_GRID,
+    noise_ref: int | None = NOISE_REF,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -150,7 +179,7 @@ def calibrate_tau(
         for k in range(batches):
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, range(batch_size))
+            A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref)
             model.A = A
             outs.append((A, x, y, model(y)))
     model.final_dc = True
@@ -170,7 +199,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 1300,
+    steps: int = 1500,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -179,7 +208,9 @@ def train_learned(
     sr_range: tuple[float, float] = (0.0625, 0.5),
     orders: tuple[str, ...] = ORDERS,
     n_layers: int = DEFAULT_N_LAYERS,
-    width: int = 16,
+    width: int = DEFAULT_WIDTH,
+    shuffle: int = DEFAULT_SHUFFLE,
+    noise_ref: int | None = NOISE_REF,
     out: str | os.PathLike | None = None,
     checkpoint_every: int = 100,
     resume: bool = False,
@@ -201,7 +232,9 @@ def train_learned(
         p_large: probability of the largest size.
         sr_range: ``(lo, hi)`` sampling rates, ``0 < lo <= hi <= 1``.
         orders: Hadamard orders drawn.
-        n_layers, width: the network (:class:`Learned`).
+        n_layers, width, shuffle: the network (:class:`Learned`).
+        noise_ref: Gaussian noise levels scaled to this size (:func:`noise_levels`;
+            ``None``: the same at every size).
         out: folder of the checkpoint, log and final weights (``None``: nothing written).
         checkpoint_every: steps between checkpoints (0: none).
         resume: continue from ``out/checkpoint.pt`` if it exists.
@@ -224,6 +257,9 @@ def train_learned(
                            ("checkpoint_every", checkpoint_every, 0), ("log_every", log_every, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < least:
             raise ValueError(f"{func}: expected {name} to be an int >= {least}, got {v!r}")
+    if noise_ref is not None and (isinstance(noise_ref, bool) or not isinstance(noise_ref, int)
+                                  or noise_ref < 1):
+        raise ValueError(f"{func}: expected noise_ref to be None or an int >= 1, got {noise_ref!r}")
     if not (lr > 0 and math.isfinite(lr)):
         raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
     lo, hi = sr_range
@@ -237,7 +273,8 @@ def train_learned(
     sizes = tuple(sorted(sizes))
 
     torch.manual_seed(seed)
-    model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False, width=width)
+    model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
+                    width=width, shuffle=shuffle)
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
     model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
@@ -291,7 +328,7 @@ def train_learned(
         step = start
         for step in range(start, steps):
             n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, indices)
+            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref)
             model.A = A
             loss = psnr_loss(net(y), x)
             opt.zero_grad(set_to_none=True)
@@ -325,7 +362,7 @@ def train_learned(
         wall = wall0 + time.perf_counter() - t0
         model.log_tau.requires_grad_(True)
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
-                              orders=orders) if calibrate else None
+                              orders=orders, noise_ref=noise_ref) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -341,10 +378,12 @@ def train_learned(
                 "orders": list(orders),
                 "n_layers": n_layers,
                 "width": width,
+                "shuffle": shuffle,
                 "data": {
                     "families": FAMILIES,
                     "train_images": list(TRAIN_IMAGES),
                     "noise": {"p_clean": 0.2, "gaussian_levels": list(TRAIN_LEVELS),
+                              "levels_scaled_to_n": noise_ref,
                               "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
                 },
                 "final_step_calibration": calib,

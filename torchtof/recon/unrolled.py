@@ -78,6 +78,7 @@ __all__ = [
     "DEFAULT_N_LAYERS",
     "DEFAULT_N_ITER",
     "weight_path",
+    "check_n_layers",
     "available_weights",
     "sr_code",
     "PARAM_NAMES",
@@ -223,6 +224,16 @@ def sr_code(sr: float) -> str:
     return f"{round(sr * 10000):04d}"
 
 
+def check_n_layers(n_layers: object, func: str) -> None:
+    """``TypeError`` unless ``n_layers`` is an int (not a bool), ``ValueError`` if ``< 1`` (the
+    unrolled networks' depth: :class:`UnrolledTVAL3` and
+    :class:`~torchtof.recon.learned.Learned`)."""
+    if isinstance(n_layers, bool) or not isinstance(n_layers, int):
+        raise TypeError(f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
+    if n_layers < 1:
+        raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
+
+
 def weight_path(n: int, m: int, n_layers: int) -> Path:
     """Path of the shipped weight file for ``(n, SR = m/n², K)`` (it may not exist)."""
     return WEIGHTS_DIR / f"unrolled_n{n}_sr{sr_code(m / (n * n))}_K{n_layers}.pt"
@@ -299,11 +310,7 @@ class UnrolledTVAL3(nn.Module):
         func = "UnrolledTVAL3"
         n_layers = renamed_option(func, "n_iter", "n_layers", n_iter, n_layers, DEFAULT_N_LAYERS)
         _check_operator(A, func)
-        if isinstance(n_layers, bool) or not isinstance(n_layers, int):
-            raise TypeError(
-                f"{func}: expected n_layers to be an int, got {type(n_layers).__name__}")
-        if n_layers < 1:
-            raise ValueError(f"{func}: expected n_layers >= 1, got {n_layers}")
+        check_n_layers(n_layers, func)
         self.A = A
         self.n_layers = n_layers
         self.isotropic = bool(isotropic)
