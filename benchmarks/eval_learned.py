@@ -27,9 +27,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -99,14 +101,14 @@ def score(x_hat: torch.Tensor, x: torch.Tensor) -> tuple[float, float]:
 METHODS = ("learned", "tval3", "auto", "unrolled")
 
 
-def run_cell(n, sr, order, level, cls, methods=METHODS):
+def run_cell(n, sr, order, level, cls, methods=METHODS, weights=True):
     """One (n, SR, order, noise, class) cell: PSNR/SSIM and time per image of each method."""
     A = Hadamard(n, sr=sr, order=order)
     x = scenes(cls, n)
     y = buckets(A, x, level, salt=n + int(sr * 1e4) + int(level * 1e4))
     row = {"n": n, "sr": sr, "order": order, "level": level, "class": cls}
     if "learned" in methods:
-        xl, row["t_learned"] = timed(Learned(A), y)
+        xl, row["t_learned"] = timed(Learned(A, pretrained=weights), y)
         row["learned"] = score(xl, x)
     if "tval3" in methods:
         xt, row["t_tval3"] = timed(lambda v: tval3(v, A).x, y)
@@ -260,6 +262,34 @@ def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
     return out
 
 
+def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True) -> list[dict]:
+    """Time per image, learned vs TVAL3's defaults, on the three depth scenes at SR 12.5 % and
+    1 % noise (one batched call / 3), 1 thread: after a warm-up, ``repeats`` rounds that
+    alternate the two methods; the minimum of each (the least disturbed by other processes)."""
+    out = []
+    for n in sizes:
+        A = Hadamard(n, sr=0.125)
+        x = scenes("depth", n)
+        y = buckets(A, x, 0.01, salt=n)
+        net = Learned(A, pretrained=weights)
+        fns = {"learned": net, "tval3": lambda v, A=A: tval3(v, A).x}
+        t = {k: [] for k in fns}
+        with torch.no_grad():
+            for fn in fns.values():
+                fn(y[:1])
+            for _ in range(repeats):
+                for k, fn in fns.items():
+                    t0 = time.perf_counter()
+                    fn(y)
+                    t[k].append((time.perf_counter() - t0) / y.shape[0])
+        row = {"n": n, **{f"{k}_ms": 1e3 * min(v) for k, v in t.items()},
+               "load_avg": os.getloadavg()[0]}
+        row["ratio"] = row["tval3_ms"] / row["learned_ms"]
+        out.append(row)
+        print(row, flush=True)
+    return out
+
+
 def paper(realisations: int = 3) -> list[dict]:
     """The paper's experiment (:class:`torchtof.experiment.PaperExperiment`, 天 at n = 32, in
     air, default stray light), depth buckets without and with the 3 m gate, the paper's SRs:
@@ -299,7 +329,11 @@ def main() -> int:
                         "and be joined by --table)")
     p.add_argument("--onnx", action="store_true", help="only the onnxruntime timing/parity")
     p.add_argument("--paper", action="store_true", help="only the paper's experiment")
+    p.add_argument("--speed", action="store_true",
+                   help="only the time per image learned vs TVAL3 (n = 32 … 256, min of 3)")
     p.add_argument("--out", default=None, help="JSON file of every row")
+    p.add_argument("--weights", default=None,
+                   help="a weights file to evaluate (recipe.json beside it; default: shipped)")
     p.add_argument("--table", nargs="+", default=None,
                    help="print the markdown tables of JSON files (joined cell by cell) and exit")
     args = p.parse_args()
@@ -313,17 +347,21 @@ def main() -> int:
             print(gen_table(rows))
         return 0
     torch.set_num_threads(1)
-    if args.onnx or args.paper:
-        rows = onnx_times() if args.onnx else paper()
+    if args.onnx or args.paper or args.speed:
+        if args.speed:
+            rows = speed(weights=args.weights or True)
+        else:
+            rows = onnx_times() if args.onnx else paper()
         if args.out:
             with open(args.out, "w") as f:
                 json.dump(rows, f, indent=0)
         return 0
     recipe = None
+    weights = Path(args.weights) if args.weights else WEIGHTS_FILE
     if "learned" in args.methods:
-        if not WEIGHTS_FILE.is_file():
-            raise SystemExit(f"no shipped weights at {WEIGHTS_FILE}")
-        recipe = json.loads((WEIGHTS_FILE.parent / "recipe.json").read_text())
+        if not weights.is_file():
+            raise SystemExit(f"no weights at {weights}")
+        recipe = json.loads((weights.parent / "recipe.json").read_text())
         check_seeds_unseen(recipe)
     rows = []
     t0 = time.perf_counter()
@@ -331,7 +369,7 @@ def main() -> int:
         for sr in args.srs:
             for level in args.levels:
                 for cls in args.classes:
-                    r = run_cell(n, sr, "cake_cutting", level, cls, args.methods)
+                    r = run_cell(n, sr, "cake_cutting", level, cls, args.methods, weights)
                     rows.append(r)
                     print(f"n={n:3d} sr={sr:.4f} noise={level:.2f} {cls:10s} " + "  ".join(
                         f"{k} {r[k][0]:6.2f} dB {r['t_' + k] * 1e3:7.1f} ms"
@@ -340,7 +378,7 @@ def main() -> int:
         for order in ("cake_cutting", "sequency", "russian_doll", "natural"):
             for sr in (0.125, 0.25, 0.5, 0.75):
                 for cls in args.classes:
-                    r = run_cell(64, sr, order, 0.01, cls, ("learned", "tval3"))
+                    r = run_cell(64, sr, order, 0.01, cls, ("learned", "tval3"), weights)
                     r["generalisation"] = True
                     rows.append(r)
                     print(f"gen order={order:12s} sr={sr:.3f} {cls:10s} learned "
