@@ -199,7 +199,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 1500,
+    steps: int = 1200,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
