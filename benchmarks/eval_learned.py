@@ -371,6 +371,9 @@ def main() -> int:
                 for cls in args.classes:
                     r = run_cell(n, sr, "cake_cutting", level, cls, args.methods, weights)
                     rows.append(r)
+                    if args.out:  # after every cell: an interrupted run keeps what it measured
+                        with open(args.out, "w") as f:
+                            json.dump({"recipe": recipe, "rows": rows}, f, indent=0)
                     print(f"n={n:3d} sr={sr:.4f} noise={level:.2f} {cls:10s} " + "  ".join(
                         f"{k} {r[k][0]:6.2f} dB {r['t_' + k] * 1e3:7.1f} ms"
                         for k in METHODS if k in r), flush=True)
