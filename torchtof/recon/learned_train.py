@@ -57,7 +57,6 @@ __all__ = [
     "calibrate_tau",
     "TAU_GRID",
     "noise_levels",
-    "NOISE_REF",
 ]
 
 #: Grid of ``τ`` searched by :func:`calibrate_tau`.
@@ -116,12 +115,7 @@ def step_config(
     return n, m, orders[int(r.integers(0, len(orders)))]
 
 
-#: Default ``noise_ref`` of :func:`train_learned`: the Gaussian levels reach, at every size,
-#: the per-pixel noise of ``Aᵀy`` that the top level gives at this size.
-NOISE_REF = 128
-
-
-def noise_levels(n: int, noise_ref: int | None = NOISE_REF) -> tuple[float, float]:
+def noise_levels(n: int, noise_ref: int | None = None) -> tuple[float, float]:
     """The Gaussian levels drawn at size ``n``: :data:`~torchtof.data.TRAIN_LEVELS` with the
     upper end multiplied by ``max(1, noise_ref / n)``.
 
@@ -141,7 +135,7 @@ def noise_levels(n: int, noise_ref: int | None = NOISE_REF) -> tuple[float, floa
 
 
 def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
-           noise_ref: int | None = NOISE_REF):
+           noise_ref: int | None = None):
     x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
     gens = [torch.Generator().manual_seed(int(_seq(seed, step, i, 1).integers(0, 2**62)))
             for i in indices]
@@ -163,7 +157,7 @@ def calibrate_tau(
     sr_range: tuple[float, float] = (0.0625, 0.5),
     orders: tuple[str, ...] = ORDERS,
     grid: tuple[float, ...] = TAU_GRID,
-    noise_ref: int | None = NOISE_REF,
+    noise_ref: int | None = None,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -199,7 +193,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 1200,
+    steps: int = 1300,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -210,7 +204,7 @@ def train_learned(
     n_layers: int = DEFAULT_N_LAYERS,
     width: int = DEFAULT_WIDTH,
     shuffle: int = DEFAULT_SHUFFLE,
-    noise_ref: int | None = NOISE_REF,
+    noise_ref: int | None = None,
     out: str | os.PathLike | None = None,
     checkpoint_every: int = 100,
     resume: bool = False,
@@ -234,7 +228,7 @@ def train_learned(
         orders: Hadamard orders drawn.
         n_layers, width, shuffle: the network (:class:`Learned`).
         noise_ref: Gaussian noise levels scaled to this size (:func:`noise_levels`;
-            ``None``: the same at every size).
+            ``None``, the shipped recipe: the same levels at every size).
         out: folder of the checkpoint, log and final weights (``None``: nothing written).
         checkpoint_every: steps between checkpoints (0: none).
         resume: continue from ``out/checkpoint.pt`` if it exists.
