@@ -201,6 +201,26 @@ def acceptance(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def summary_table(rows: list[dict]) -> str:
+    """Markdown: mean Δ (learned − TVAL3) over SR and class per (noise, n), with the worst
+    (class, SR) cell, and the median time per image per n (the README's table)."""
+    rows = [r for r in rows if not r.get("generalisation") and "learned" in r and "tval3" in r]
+    sizes = sorted({r["n"] for r in rows})
+    out = ["| noise | " + " | ".join(f"n = {n}" for n in sizes) + " |",
+           "|---" * (1 + len(sizes)) + "|"]
+    for level in sorted({r["level"] for r in rows}):
+        cells = []
+        for n in sizes:
+            d = [r["learned"][0] - r["tval3"][0] for r in rows if r["n"] == n and r["level"] == level]
+            cells.append(f"{np.mean(d):+.2f} (min {min(d):+.2f})" if d else "-")
+        out.append(f"| {level * 100:g} % | " + " | ".join(cells) + " |")
+    tl = [np.median([r["t_learned"] for r in rows if r["n"] == n]) * 1e3 for n in sizes]
+    tt = [np.median([r["t_tval3"] for r in rows if r["n"] == n]) * 1e3 for n in sizes]
+    out.append("| time learned / TVAL3 (median per image) | "
+               + " | ".join(f"{a:.0f} / {b:.0f} ms" for a, b in zip(tl, tt, strict=True)) + " |")
+    return "\n".join(out)
+
+
 def gen_table(rows: list[dict]) -> str:
     """Markdown: mean PSNR difference learned − TVAL3 over the classes per (order, SR), n = 64,
     noise 1 %."""
@@ -340,6 +360,8 @@ def main() -> int:
     if args.table:
         rows = merge(args.table)
         print(table(rows))
+        print()
+        print(summary_table(rows))
         print()
         print(acceptance(rows))
         if any(r.get("generalisation") for r in rows):

@@ -12,6 +12,10 @@ compared on one fixed validation set.
   ``--resume`` continues ``--out`` to more steps (the cosine schedule then spans the new
   total).
 
+- ``--sigma``: the conditioning ``σ_n = σ·n/‖y‖`` of the held-out depth scenes
+  (``benchmarks/eval_learned.py``) with the true ``σ`` (noise std of the buckets) and with the
+  ``"auto"`` estimate, against ``σ·n/‖A x‖`` (the scale without noise), at n = 32 … 256.
+
 usage: python benchmarks/learned_variants.py --time
        python benchmarks/learned_variants.py --train 16 1 200 --out /tmp/v16
 """
@@ -54,6 +58,31 @@ def prior_times(sizes=(32, 128, 256)) -> list[dict]:
     return out
 
 
+def sigma_table() -> list[dict]:
+    from eval_learned import buckets, scenes
+
+    from torchtof.recon.tval3 import bucket_noise_sigma
+
+    out = []
+    for n in (32, 64, 128, 256):
+        for sr in (0.0625, 0.125):
+            for level in (0.01, 0.05):
+                A = Hadamard(n, sr=sr, order="cake_cutting")
+                x = scenes("depth", n)
+                y0 = A(x)
+                y = buckets(A, x, level, salt=n + int(sr * 1e4) + int(level * 1e4))
+                sigma = level * (y0.amax(-1) - y0.amin(-1))
+                row = {"n": n, "sr": sr, "level": level,
+                       "sigma_n_true": float((sigma * n / y.norm(dim=-1)).mean()),
+                       "sigma_n_auto": float((bucket_noise_sigma(y) * n / y.norm(dim=-1)).mean()),
+                       "sigma_n_clean_scale": float((sigma * n / y0.norm(dim=-1)).mean()),
+                       "bound_1_over_sqrt_sr": sr ** -0.5}
+                out.append(row)
+                print({k: round(v, 2) if isinstance(v, float) else v for k, v in row.items()},
+                      flush=True)
+    return out
+
+
 def validation_set() -> list:
     out = []
     for n in (32, 64, 128):
@@ -84,6 +113,7 @@ def validate(model) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--time", action="store_true")
+    p.add_argument("--sigma", action="store_true")
     p.add_argument("--train", nargs=3, type=int, metavar=("WIDTH", "SHUFFLE", "STEPS"))
     p.add_argument("--out", default=None)
     p.add_argument("--resume", action="store_true")
@@ -91,6 +121,8 @@ def main() -> int:
     torch.set_num_threads(1)
     if args.time:
         prior_times()
+    if args.sigma:
+        sigma_table()
     if args.train:
         width, shuffle, steps = args.train
         t = time.perf_counter()
