@@ -180,13 +180,15 @@ def acceptance(rows: list[dict]) -> str:
     low = [r for r in rows if r["sr"] <= 0.125 + 1e-9 and abs(r["level"] - 0.01) < 1e-9]
     out = []
     for ref in ("tval3", "auto"):
-        if not all(ref in r for r in rows):
+        have = [r for r in rows if ref in r]  # auto may cover part of the cells
+        d = [r["learned"][0] - r[ref][0] for r in low if ref in r]
+        if not d:
             continue
-        d = [r["learned"][0] - r[ref][0] for r in low]
-        worse = sorted((r["learned"][0] - r[ref][0], r) for r in rows
-                       if r["learned"][0] - r[ref][0] < -0.5)
+        worse = sorted(((r["learned"][0] - r[ref][0], i) for i, r in enumerate(have)
+                        if r["learned"][0] - r[ref][0] < -0.5))
+        worse = [(dd, have[i]) for dd, i in worse]
         out.append(f"vs {ref}: mean Δ at SR <= 12.5 %, 1 % noise {np.mean(d):+.2f} dB "
-                   f"(min {min(d):+.2f}, {len(d)} cells); {len(worse)} of {len(rows)} cells "
+                   f"(min {min(d):+.2f}, {len(d)} cells); {len(worse)} of {len(have)} cells "
                    "worse by > 0.5 dB" + (":" if worse else ""))
         out += [f"  n={r['n']} SR {r['sr'] * 100:g} % noise {r['level'] * 100:g} % "
                 f"{r['class']} {dd:+.2f}" for dd, r in worse]
