@@ -343,16 +343,20 @@ def test_resume_continues_the_same_run(tmp_path):
 # -- ONNX ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("n", [32, pytest.param(128, marks=pytest.mark.slow)])
-def test_onnx_parity_other_batch_sizes(n, tmp_path):
+@pytest.mark.parametrize("n,shuffle", [(32, None), pytest.param(128, None, marks=pytest.mark.slow),
+                                       (16, 2)])
+def test_onnx_parity_other_batch_sizes(n, shuffle, tmp_path):
     """Exported at batch 2 (dynamic batch axis), onnxruntime at batch 1 and 3, images in
-    [0, 1]: max abs error <= 1e-4."""
+    [0, 1]: max abs error <= 1e-4 (shipped weights; and an untrained pixel-unshuffled prior)."""
     ort = pytest.importorskip("onnxruntime")
     import numpy as np
 
     A = Hadamard(n, sr=0.125)
     torch.manual_seed(0)
-    net = Learned(A, pretrained=WEIGHTS_FILE.is_file()).eval()
+    if shuffle is None:
+        net = Learned(A, pretrained=WEIGHTS_FILE.is_file()).eval()
+    else:
+        net = Learned(A, width=8, shuffle=shuffle, pretrained=False).eval()
     path = tmp_path / "learned.onnx"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
