@@ -22,15 +22,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+#: seconds and machine load of each ``--run NAME``, written by ``--run``
+TIMES = ROOT / "docs" / "build_times.json"
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,39 @@ def _f(x: float, digits: int = 2) -> str:
     return f"{x:.{digits}f}"
 
 
+def _load(res: dict) -> str:
+    """"load 0.4–1.2 on 2 CPUs, 1 thread": the machine's 1-minute load average at the start
+    and end of the run (``machine`` of the JSON), which every stated time needs."""
+    m = res.get("machine") or {}
+    start, end = m.get("start") or {}, m.get("end") or {}
+    loads = sorted(x for x in (start.get("load_1min"), end.get("load_1min")) if x is not None)
+    if not loads:
+        return "load not recorded"
+    span = f"{loads[0]:.1f}" if f"{loads[0]:.1f}" == f"{loads[-1]:.1f}" else \
+        f"{loads[0]:.1f}–{loads[-1]:.1f}"
+    th = start.get("threads")
+    return (f"load {span} on {start.get('cpus')} CPUs"
+            + (f", {th} thread{'s' * (th != 1)}" if th else ""))
+
+
+def _ms(s: float) -> str:
+    """Seconds as milliseconds with 3 significant digits."""
+    ms = 1e3 * s
+    return f"{ms:.3f}" if ms < 1 else f"{ms:.2f}" if ms < 10 else f"{ms:.1f}" if ms < 100 \
+        else f"{ms:.0f}"
+
+
+def _run_load(name: str) -> str:
+    """How long the last ``--run NAME`` took and under what load (for commands whose JSON
+    does not record it)."""
+    try:
+        rec = json.loads(TIMES.read_text(encoding="utf-8"))[name]
+    except (OSError, KeyError, ValueError):
+        return "load not recorded"
+    return (f"the whole command {rec['seconds']:.0f} s, "
+            + _load({"machine": {"start": rec["start"], "end": rec["end"]}}))
+
+
 def render_demo(rows: list[dict]) -> str:
     kinds = {"raw": "raw ToF map", "depth": "depth", "depth_gated": "depth, 3 m gate",
              "taps": "taps I/Q (torchtof)"}
@@ -54,6 +91,7 @@ def render_demo(rows: list[dict]) -> str:
         t = "–" if r.get("time_s") is None else f"{r['time_s']:.3f}"
         out.append(f"| {r['method']} | {kinds.get(r.get('buckets'), '?')} | {psnr} | "
                    f"{_f(r['ssim'], 3)} | {t} |")
+    out += ["", f"Times: one wall-clock run each, {_run_load('demo')}."]
     return "\n".join(out)
 
 
@@ -116,6 +154,98 @@ def render_depth(res: dict) -> str:
     return "\n".join(out)
 
 
+def render_operators(res: dict) -> str:
+    rows = res["rows"]
+    out = [f"One run, forward + adjoint, batch {res['batch']}, SR {res['sr']:.0%}, "
+           f"{_load(res)}, torch {res['torch']} (median of {res.get('repeat', 5)} samples):",
+           "", "| n | Hadamard (auto) | dense `(M, N)` matmul | `PatternOperator` | speed-up vs "
+           "dense | time growth kron / butterflies / N log N |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        auto = r[f"hadamard_{r['hadamard_auto']}_s"]
+        dense = (f"{_ms(r['dense_s'])} ms" if r.get("dense_s") else
+                 f"not built ({r.get('dense_skipped', '').split('need ')[-1]})")
+        pat = f"{_ms(r['pattern_operator_s'])} ms" if r.get("pattern_operator_s") else "not built"
+        speed = f"{r['dense_s'] / auto:.1f}×" if r.get("dense_s") else "–"
+        growth = (f"{r['kron_growth']:.2f} / {r['fwht_growth']:.2f} / {r['NlogN_growth']:.2f}"
+                  if "kron_growth" in r else "–")
+        out.append(f"| {r['n']} | {_ms(auto)} ms ({r['hadamard_auto']}) | {dense} | {pat} | "
+                   f"{speed} | {growth} |")
+    big = [r for r in rows if r["n"] >= 64]
+    if big:
+        ns = " / ".join(str(r["n"]) for r in big)
+        out += ["", f"In the same run the separable matmul took "
+                f"{' / '.join(_ms(r['hadamard_matmul_s']) for r in big)} ms at n = {ns}, the "
+                f"Kronecker transform {' / '.join(_ms(r['hadamard_kron_s']) for r in big)} ms "
+                f"and the butterflies {' / '.join(_ms(r['hadamard_fwht_s']) for r in big)} ms."]
+        fast = [r for r in rows
+                if min(("matmul", "kron", "fwht"), key=lambda k: r[f"hadamard_{k}_s"])
+                != r["hadamard_auto"]]
+        if fast:
+            out[-1] += " Where `auto` was not the fastest here: " + "; ".join(
+                f"n = {r['n']}: " + min(("matmul", "kron", "fwht"),
+                                        key=lambda k: r[f"hadamard_{k}_s"])
+                + f" {r['hadamard_' + r['hadamard_auto'] + '_s'] / r['best_hadamard_s']:.2f}× "
+                  f"faster" for r in fast) + "."
+        if len(big) > 1:
+            a, b = big[0], big[-1]
+            nl = (b["N"] * math.log2(b["N"])) / (a["N"] * math.log2(a["N"]))
+            out[-1] += (f" From n = {a['n']} to {b['n']} the Kronecker transform's time grew "
+                        f"{b['hadamard_kron_s'] / a['hadamard_kron_s']:.0f}× against "
+                        f"{nl:.0f}× for N log N.")
+    return "\n".join(out)
+
+
+def _label(lab: str) -> str:
+    """A sweep label (``TVAL3@80``, ``DIP@100``, ``Unrolled``) in words."""
+    names = {"PINV": "PINV / g2", "Unrolled": "unrolled TVAL3", "TVAL3": "TVAL3 defaults",
+             "BP": "BP, noise-aware `eps`", "DIP": "DIP"}
+    method, _, budget = lab.partition("@")
+    if not budget:
+        return names.get(method, method)
+    unit = "steps" if method == "DIP" else "iterations"
+    return f"{method}, {budget} {unit}"
+
+
+def _sec(s: float) -> str:
+    return f"{1e6 * s:.0f} µs" if s < 1e-3 else f"{_ms(s)} ms" if s < 1 else f"{s:.1f} s"
+
+
+def render_tradeoff(res: dict) -> str:
+    rec = res["recommend"]
+    ns = sorted({r["n"] for r in rec})
+    budgets = sorted({r["budget_s"] for r in rec})
+    out = [f"`torchtof bench tradeoff{' --quick' if res.get('quick') else ''}`: "
+           f"{len(res['scenes'])} scenes ({', '.join(res['scenes'])}), SR "
+           f"{', '.join(f'{s:.2%}' for s in sorted({p['sr'] for p in res['points']}))}, "
+           f"{res['noise']:.0%} noise; one run of {res['total_s']:.0f} s, {_load(res)}, "
+           f"torch {res['torch']}. Best PSNR averaged over scenes and SRs within each budget "
+           "per image:", "", "| budget per image | " + " | ".join(f"n = {n}" for n in ns) + " |",
+           "|---|" + "---|" * len(ns)]
+    for b in budgets:
+        cells = []
+        for n in ns:
+            r = next(x for x in rec if x["n"] == n and x["budget_s"] == b)
+            cells.append("–" if r["psnr"] is None else
+                         f"{_label(r['method'])} ({r['psnr']:.1f} dB, {_sec(r['time_s'])})")
+        out.append(f"| {f'{1e3 * b:g} ms' if b < 1 else f'{b:g} s'} | " + " | ".join(cells)
+                   + " |")
+    pts = res["points"]
+    cells = sorted({(p["n"], p["sr"]) for p in pts})
+    best = [max((p for p in pts if (p["n"], p["sr"]) == c), key=lambda p: p["psnr"])
+            for c in cells]
+    winners = sorted({_label(p["label"]) for p in best})
+    out += ["", f"Most accurate point of each of the {len(cells)} (n, SR) cells: "
+            + ", ".join(f"{w} in {sum(_label(p['label']) == w for p in best)}" for w in winners)
+            + f" ({min(p['psnr'] for p in best):.1f}–{max(p['psnr'] for p in best):.1f} dB at "
+            f"{_sec(min(p['time_s'] for p in best))}–{_sec(max(p['time_s'] for p in best))} per "
+            "image)."]
+    bp = [p for p in pts if p["method"] == "BP" and p["pareto"]]
+    out[-1] += (" BP on the Pareto front: " + ("; ".join(
+        f"n = {p['n']}, SR {p['sr']:.2%} ({_label(p['label'])})" for p in bp) if bp else "nowhere")
+        + ".")
+    return "\n".join(out)
+
+
 SECTIONS: dict[str, Section] = {
     "demo": Section(
         "docs/demo/demo.json", render_demo,
@@ -133,6 +263,17 @@ SECTIONS: dict[str, Section] = {
          "depth_curves; r = depth_curves(pathlib.Path('docs/depth'), scenes=('motorcycle',)); "
          "pathlib.Path('docs/depth/depth.json').write_text(json.dumps(r, indent=1))"),
         "depth RMSE of the motorcycle scene vs SR, multipath on and off",
+    ),
+    "operators": Section(
+        "docs/bench/bench_operators.json", render_operators,
+        (sys.executable, "-m", "torchtof.cli", "bench", "operators", "--out", "docs/bench"),
+        "forward + adjoint time of the Hadamard operator against dense baselines",
+    ),
+    "tradeoff": Section(
+        "docs/bench/tradeoff.json", render_tradeoff,
+        (sys.executable, "-m", "torchtof.cli", "bench", "tradeoff", "--quick", "--out",
+         "docs/bench"),
+        "which reconstructor for which time budget (quick grid)",
     ),
     "stability": Section(
         "docs/bench/stability.json", render_stability,
@@ -196,10 +337,26 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:
             if name not in SECTIONS:
                 p.error(f"--run: unknown section {name!r}; choose from {', '.join(SECTIONS)}")
+        took = {}
+        sys.path.insert(0, str(ROOT))
+        from torchtof.apps.bench.timing import machine_load
+
         for name in names:
             cmd = SECTIONS[name].command
             print(f"[docs] {name}: {' '.join(cmd)}", flush=True)
+            t0, start = time.perf_counter(), machine_load()
+            start.pop("threads")  # this process's, not the command's
             subprocess.run(cmd, cwd=ROOT, check=True)
+            took[name] = time.perf_counter() - t0
+            times = json.loads(TIMES.read_text(encoding="utf-8")) if TIMES.exists() else {}
+            end = machine_load()
+            end.pop("threads")
+            times[name] = {"seconds": round(took[name], 1), "start": start, "end": end,
+                           "command": " ".join(["python", *cmd[1:]])}
+            TIMES.write_text(json.dumps(times, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+            print(f"[docs] {name}: {took[name]:.0f} s", flush=True)
+        print("[docs] time per target: " + ", ".join(f"{k} {v:.0f} s" for k, v in took.items()),
+              flush=True)
     text, found = rewrite(README.read_text(encoding="utf-8"))
     README.write_text(text, encoding="utf-8")
     print(f"[docs] rewrote {len(found)} generated block(s) in README.md: {', '.join(found)}")

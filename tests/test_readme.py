@@ -43,17 +43,48 @@ def test_readme_cites_nothing_that_does_not_ship(name):
     assert name not in README.read_text(encoding="utf-8")
 
 
-def test_generated_readme_tables_match_their_json():
+def _build():
     import importlib.util
 
+    if "docs_build" in sys.modules:
+        return sys.modules["docs_build"]
     path = README.parent / "docs" / "build.py"
     spec = importlib.util.spec_from_file_location("docs_build", path)
     build = importlib.util.module_from_spec(spec)
     sys.modules["docs_build"] = build  # dataclasses resolve their module by name
     spec.loader.exec_module(build)
+    return build
+
+
+def _generated_names() -> list[str]:
     text = README.read_text(encoding="utf-8")
-    assert "<!-- generated:" in text
-    assert build.stale_blocks(text) == [], "README tables drifted: run python docs/build.py"
-    # the check is not vacuous: a changed number is caught
-    edited = text.replace("<!-- generated:demo -->\n", "<!-- generated:demo -->\n| x |\n", 1)
-    assert build.stale_blocks(edited) == ["demo"]
+    return re.findall(r"<!-- generated:([\w-]+) -->", text)
+
+
+def test_every_build_target_has_one_readme_block_and_back():
+    names = _generated_names()
+    assert len(names) == len(set(names)), f"a generated block appears twice: {names}"
+    assert sorted(names) == sorted(_build().SECTIONS), (
+        "README generated blocks and docs/build.py targets differ")
+
+
+@pytest.mark.parametrize("name", _generated_names())
+def test_generated_readme_block_matches_its_json(name):
+    build = _build()
+    text = README.read_text(encoding="utf-8")
+    assert name not in build.stale_blocks(text), (
+        f"README block {name!r} drifted from {build.SECTIONS[name].json}: run python docs/build.py")
+    # the check is not vacuous: one changed character in this block is caught
+    m = re.search(rf"<!-- generated:{name} -->\n(.*?)<!-- /generated:{name} -->", text, re.S)
+    body = m.group(1)
+    assert body.strip(), f"README block {name!r} is empty"
+    edited = text.replace(m.group(0), m.group(0).replace(body, body + "| x |\n", 1), 1)
+    assert build.stale_blocks(edited) == [name]
+
+
+def test_generated_blocks_state_the_load_where_they_state_seconds():
+    build = _build()
+    for name in _generated_names():
+        body = build.render(name)
+        if re.search(r"\d ms\b|\d s\b|time s", body):
+            assert "load" in body or "load" in build.SECTIONS[name].note, name
