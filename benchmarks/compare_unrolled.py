@@ -1,11 +1,17 @@
 """Unrolled TVAL3 (shipped weights) vs converged TVAL3 on held-out scenes.
 
 usage: python benchmarks/compare_unrolled.py [--n 32 64] [--sr ...] [--noise 0.01] [--train STEPS]
+                                            [--out DIR]
+
+With ``--out DIR`` the rows, the machine's load and the run time go to ``DIR/unrolled.json``
+(the README table is generated from it by ``docs/build.py``).
 """
 
 import argparse
+import json
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
@@ -59,8 +65,12 @@ def main():
         default=0,
         help="train in-process with this many steps instead of shipped weights",
     )
+    p.add_argument("--out", type=Path, default=None, help="write DIR/unrolled.json")
     a = p.parse_args()
     torch.set_num_threads(1)
+    from torchtof.apps.bench.timing import machine_load
+
+    t0, start, rows = time.perf_counter(), machine_load(), []
     print(
         "| n | SR % | noise % | unrolled dB | TVAL3 auto dB | TVAL3 mu=2^8 dB | diff vs best | unrolled ms | TVAL3 auto ms | TVAL3 2^8 ms | time ratio (vs best) |"
     )
@@ -83,12 +93,26 @@ def main():
                     xt, tt_ = per_scene(r, y)
                     res[k] = (psnr(xt, x).mean().item(), tt_)
                 best = max(res, key=lambda k: res[k][0])
+                rows.append({"n": n, "sr": sr, "noise": lvl, "unrolled_db": pu,
+                             "tval3_auto_db": res["auto"][0], "tval3_mu256_db": res["mu256"][0],
+                             "best_tval3": best, "best_tval3_db": res[best][0],
+                             "unrolled_s": tu, "tval3_auto_s": res["auto"][1],
+                             "tval3_mu256_s": res["mu256"][1],
+                             "time_ratio": res[best][1] / tu})
                 print(
                     f"| {n} | {sr * 100:g} | {lvl * 100:g} | {pu:.2f} | {res['auto'][0]:.2f} | {res['mu256'][0]:.2f} | "
                     f"{pu - res[best][0]:+.2f} | {tu * 1e3:.2f} | {res['auto'][1] * 1e3:.1f} | {res['mu256'][1] * 1e3:.1f} | "
                     f"{res[best][1] / tu:.0f}x |",
                     flush=True,
                 )
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        out = {"benchmark": "unrolled", "K": a.K, "trained_steps": a.train,
+               "scenes": len(held_out(8)), "threads": 1, "torch": torch.__version__,
+               "rows": rows, "total_s": time.perf_counter() - t0,
+               "machine": {"start": start, "end": machine_load()}}
+        (a.out / "unrolled.json").write_text(json.dumps(out, indent=1))
+        print(f"wrote {a.out / 'unrolled.json'} ({out['total_s']:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -115,7 +115,8 @@ def _bench_result(args: argparse.Namespace):
     if name == "onnx":
         from .apps.bench.onnx import bench_onnx, print_onnx
 
-        return bench_onnx(progress=True), print_onnx
+        return (bench_onnx(models=args.models, compile=not args.no_compile, progress=True),
+                print_onnx)
     if name == "tradeoff":
         from .apps.bench.tradeoff import bench_tradeoff, print_tradeoff
 
@@ -301,6 +302,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default="bench_out", help="folder for the JSON and PNGs")
     b.add_argument("--json", default=None,
                    help="write the result to this JSON file instead of OUT/bench_WHICH.json")
+    models = _export_models()
+    b.add_argument("--models", type=csv_list(models) if models else str, default=None,
+                   help="onnx: comma-separated subset of the export models (default: all)")
+    b.add_argument("--no-compile", action="store_true",
+                   help="onnx: time onnxruntime and eager PyTorch only, not torch.compile")
     b.add_argument("--seed", type=int, default=0, help="adaptive: noise seed")
     b.add_argument("--seeds", default=None,
                    help="adaptive: several seeds, e.g. 0-5 or 0,3,7 (one table per seed)")
