@@ -94,3 +94,29 @@ def test_export_checked_reports_an_out_of_tolerance_output(tmp_path, monkeypatch
 def test_export_checked_names_an_unknown_model():
     with pytest.raises(ValueError, match="export_checked: expected name in"):
         onnx_models.export_checked("nope")
+
+
+def test_bench_onnx_models_are_checked_up_front(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "onnx", "--models", "g2,nope"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --models" in err[0] and "'g2,nope'" in err[0], err
+
+
+def test_bench_onnx_passes_models_and_no_compile(monkeypatch, tmp_path, capsys):
+    import torchtof.apps.bench.onnx as bench
+
+    seen = {}
+
+    def fake(models=None, compile=True, progress=False):
+        seen.update(models=models, compile=compile)
+        return {"benchmark": "onnx", "rows": []}
+
+    monkeypatch.setattr(bench, "bench_onnx", fake)
+    monkeypatch.setattr(bench, "print_onnx", lambda res: None)
+    assert main(["bench", "onnx", "--models", "G2,bp", "--no-compile", "--out",
+                 str(tmp_path)]) == 0
+    assert seen == {"models": ["g2", "bp"], "compile": False}
+    saved = __import__("json").loads((tmp_path / "bench_onnx.json").read_text())
+    assert saved["machine"]["start"]["cpus"] >= 1
