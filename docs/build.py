@@ -500,7 +500,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:
             if name not in SECTIONS:
                 p.error(f"--run: unknown section {name!r}; choose from {', '.join(SECTIONS)}")
-        took = {}
+        took, failed = {}, []
         sys.path.insert(0, str(ROOT))
         from torchtof.apps.bench.timing import machine_load
 
@@ -509,7 +509,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[docs] {name}: {' '.join(cmd)}", flush=True)
             t0, start = time.perf_counter(), machine_load()
             start.pop("threads")  # this process's, not the command's
-            subprocess.run(cmd, cwd=ROOT, check=True)
+            rc = subprocess.run(cmd, cwd=ROOT).returncode
+            if rc != 0:  # unattended: the other targets still run, the status says it failed
+                failed.append(name)
+                print(f"[docs] {name}: FAILED with exit status {rc}; its block keeps the "
+                      "previous JSON", file=sys.stderr, flush=True)
+                continue
             took[name] = time.perf_counter() - t0
             times = json.loads(TIMES.read_text(encoding="utf-8")) if TIMES.exists() else {}
             end = machine_load()
@@ -518,12 +523,14 @@ def main(argv: list[str] | None = None) -> int:
                            "command": " ".join(["python", *cmd[1:]])}
             TIMES.write_text(json.dumps(times, indent=1, sort_keys=True) + "\n", encoding="utf-8")
             print(f"[docs] {name}: {took[name]:.0f} s", flush=True)
-        print("[docs] time per target: " + ", ".join(f"{k} {v:.0f} s" for k, v in took.items()),
-              flush=True)
+        print("[docs] time per target: " + ", ".join(f"{k} {v:.0f} s" for k, v in took.items())
+              + (f"; FAILED: {', '.join(failed)}" if failed else ""), flush=True)
+    else:
+        failed = []
     text, found = rewrite(README.read_text(encoding="utf-8"))
     README.write_text(text, encoding="utf-8")
     print(f"[docs] rewrote {len(found)} generated block(s) in README.md: {', '.join(found)}")
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

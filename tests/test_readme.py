@@ -172,3 +172,27 @@ def test_a_block_inside_a_list_item_keeps_its_indentation():
     assert lines and all(ln.startswith("  ") for ln in lines), body
     assert build.stale_blocks(out) == []
     assert build.stale_blocks(out.replace("\n  | 32 |", "\n| 32 |", 1)) == ["operators"]
+
+
+def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
+        tmp_path, monkeypatch, capsys):
+    import json
+
+    build = _build()
+    ok = (sys.executable, "-c", "import json; open('ok.json', 'w').write(json.dumps({'v': 3}))")
+    sections = {"ok": build.Section("ok.json", lambda d: f"value {d['v']}", ok),
+                "bad": build.Section("bad.json", str, (sys.executable, "-c",
+                                                       "raise SystemExit(3)"))}
+    readme = tmp_path / "README.md"
+    readme.write_text("x\n<!-- generated:ok -->\n<!-- /generated:ok -->\n", encoding="utf-8")
+    for name, value in (("ROOT", tmp_path), ("README", readme), ("SECTIONS", sections),
+                        ("TIMES", tmp_path / "times.json")):
+        monkeypatch.setattr(build, name, value)
+    assert build.main(["--run"]) == 1  # "bad" failed, "ok" still ran and was rendered
+    assert "<!-- generated:ok -->\nvalue 3\n<!-- /generated:ok -->" in readme.read_text()
+    out = capsys.readouterr()
+    assert "[docs] time per target: ok " in out.out and "FAILED: bad" in out.out
+    assert "bad: FAILED with exit status 3" in out.err
+    times = json.loads((tmp_path / "times.json").read_text())
+    assert set(times) == {"ok"} and times["ok"]["seconds"] > 0
+    assert times["ok"]["start"]["cpus"] >= 1 and "load_1min" in times["ok"]["end"]
