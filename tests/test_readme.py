@@ -136,14 +136,19 @@ def test_tradeoff_picks_the_best_psnr_within_each_budget():
 def test_unrolled_delta_and_the_within_half_a_db_count():
     build = _build()
     rows = [{"n": 32, "sr": 0.0625, "noise": 0.01, "unrolled_db": 17.0, "best_tval3": "auto",
-             "best_tval3_db": 17.7, "time_ratio": 20.0},
+             "best_tval3_db": 17.7, "time_ratio": 20.0, "cpu_time_ratio": 9.6},
             {"n": 64, "sr": 0.25, "noise": 0.01, "unrolled_db": 21.3, "best_tval3": "mu256",
-             "best_tval3_db": 20.8, "time_ratio": 14.4}]
+             "best_tval3_db": 20.8, "time_ratio": 14.4, "cpu_time_ratio": 12.2}]
     text = build.render_unrolled({"rows": rows, "total_s": 60, "scenes": 23, "torch": "t",
                                   "machine": _machine(1, 1)})
-    assert "| 32 | 6.25 % | 17.00 | 17.70 (μ auto) | −0.70 | 20× |" in text
-    assert "| 64 | 25 % | 21.30 | 20.80 (μ 2⁸) | +0.50 | 14× |" in text
+    assert "| 32 | 6.25 % | 17.00 | 17.70 (μ auto) | −0.70 | 20× / 10× |" in text
+    assert "| 64 | 25 % | 21.30 | 20.80 (μ 2⁸) | +0.50 | 14× / 12× |" in text
     assert "1 of 2 rows are within 0.5 dB" in text and "(worst -0.70 dB at n = 32" in text
+    assert "takes 10× to 12× less CPU time per image" in text
+    del rows[0]["cpu_time_ratio"]  # a run without CPU times: wall-clock ratios, said so
+    text = build.render_unrolled({"rows": rows, "total_s": 60, "scenes": 23, "torch": "t",
+                                  "machine": _machine(1, 1)})
+    assert "| 20× / – |" in text and "takes 14× to 20× less wall-clock time" in text
 
 
 def test_reproduce_counts_the_cells_each_method_wins():
