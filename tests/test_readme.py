@@ -184,7 +184,8 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     import json
 
     build = _build()
-    ok = (sys.executable, "-c", "import json; open('ok.json', 'w').write(json.dumps({'v': 3}))")
+    ok = (sys.executable, "-c", "import json, os; open('ok.json', 'w').write(json.dumps("
+          "{'v': 3, 'path': os.environ['PYTHONPATH']}))")
     sections = {"ok": build.Section("ok.json", lambda d: f"value {d['v']}", ok),
                 "bad": build.Section("bad.json", str, (sys.executable, "-c",
                                                        "raise SystemExit(3)"))}
@@ -200,4 +201,7 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     assert "bad: FAILED with exit status 3" in out.err
     times = json.loads((tmp_path / "times.json").read_text())
     assert set(times) == {"ok"} and times["ok"]["seconds"] > 0
+    # the commands import the checkout's torchtof, not whatever is installed
+    path = json.loads((tmp_path / "ok.json").read_text())["path"]
+    assert path.split(__import__("os").pathsep)[0] == str(tmp_path)
     assert times["ok"]["start"]["cpus"] >= 1 and "load_1min" in times["ok"]["end"]
