@@ -120,3 +120,36 @@ def test_bench_onnx_passes_models_and_no_compile(monkeypatch, tmp_path, capsys):
     assert seen == {"models": ["g2", "bp"], "compile": False}
     saved = __import__("json").loads((tmp_path / "bench_onnx.json").read_text())
     assert saved["machine"]["start"]["cpus"] >= 1
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a pseudo-terminal")
+def test_a_real_terminal_gets_the_bar_and_a_pipe_the_summary(tmp_path):
+    """End to end: stderr on a pseudo-terminal 100 columns wide, stdout a pipe."""
+    import fcntl
+    import os
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    proc = subprocess.Popen([sys.executable, "-m", "torchtof.cli", "export", "unrolled_tval3",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=slave)
+    os.close(slave)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # the terminal closed with the process
+            break
+        if not chunk:
+            break
+        seen += chunk
+    out = proc.stdout.read().decode()
+    assert proc.wait() == 0
+    frames = [f for f in seen.decode().split("\r") if f.strip()]
+    assert frames and all(f.startswith("torchtof export: tracing unrolled_tval3") for f in frames)
+    assert "00:0" in frames[-1]
+    assert out.count("\n") == 1 and "onnxruntime matches PyTorch at batch 3" in out

@@ -181,15 +181,15 @@ def _elapsed_bar(desc: str, enabled: bool = True, interval_s: float = 0.25):
     from ._optional import progress_bar
 
     bar = progress_bar(total=None, desc=desc, file=sys.stderr, leave=False,
-                       bar_format="{desc} {postfix} {elapsed}",
+                       bar_format="{desc} {elapsed}",
                        disable=None if enabled else True)
     stop = threading.Event()
 
     def spin() -> None:
-        k = 0
+        k, spinner = 0, "|/-\\"
         while not stop.wait(interval_s):
             k += 1
-            bar.set_postfix_str("|/-\\"[k % 4])  # redraws, with the elapsed time
+            bar.set_description_str(f"{desc} {spinner[k % 4]}")  # redraws with the time
 
     thread = threading.Thread(target=spin, daemon=True)
     if not getattr(bar, "disable", True):
