@@ -71,7 +71,7 @@ AUTO_MU_MAX = 2.0**8
 #: splitting weight: 4× gave +0.05–0.15 dB and ~15 % fewer iterations in the calibration).
 AUTO_TVL2_BETA = 4.0
 #: ``mu="auto"``: the constrained model is kept when its hold-out error is within this relative
-#: slack of the TV-L2 model's (fewer training rows bias hold-out towards smoothing).
+#: slack of the better TV-L2 model's (fewer training rows bias hold-out towards smoothing).
 AUTO_CV_SLACK = 0.1
 #: ``mu="auto"``: iteration cap of the hold-out solves (bounds the check's cost).
 AUTO_CV_MAX_ITER = 300
@@ -367,6 +367,17 @@ def tval3(
     0.5 dB with the true ``σ``, 1.0 dB with the estimated one (the estimate reads signal left
     in the tail as noise). Noise-free buckets of piecewise-constant scenes estimate
     ``σ ≈ 0`` and get the published model. Give ``mu`` a number for the published behaviour.
+
+    Hold-out check (only when ``σ`` was *estimated* and chose TV-L2, ``adaptive=True``): signal
+    left in the last rows only adds to the tail estimate, so ``μ_auto`` can only be too small
+    (at low SR, on textured or smooth scenes). The constrained model and the TV-L2 models at
+    ``μ_auto`` and ``4 μ_auto`` are fitted on the rows before a held-out block and scored on
+    it (:func:`holdout_split`; for low-to-high orders the last quarter predicted from the rows
+    before it and the quarter before from the first half; ≤ 300 iterations, one batched call);
+    the constrained model is kept when its error is within 10 % of the better TV-L2 model's,
+    else that model is used. When it runs, the call costs 2.8–5× one solve with ``μ = 2⁸``
+    (n = 32–128, measured; ``docs/noise.md``). A ``noise_sigma``
+    from the caller (e.g. :func:`~torchtof.recon.noise.noise_from_pairs`) is trusted as is.
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``; float32 or float64.
