@@ -31,10 +31,10 @@ import statistics
 import time
 
 import torch
+from auto_eval import psnr  # benchmarks/ is the script's directory
+from auto_eval import scene as _scene
 
 import torchtof as tt
-from auto_eval import scene as _scene  # noqa: E402  (benchmarks/ is the script's directory)
-from auto_eval import psnr
 from torchtof.recon import tval3
 from torchtof.recon.tval3 import bucket_noise_sigma
 
