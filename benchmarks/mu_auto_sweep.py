@@ -110,18 +110,20 @@ def report(ref_path, auto_path, base_path=None) -> None:
     srs = sorted({k[2] for k in keys})
     noises = sorted({k[3] for k in keys})
 
-    def summary(sel, field):
+    def summary(sel, field, worst=min, name="worst"):
         v = [auto[k][field] for k in sel if field in auto[k]]
         if not v:
             return "-"
-        return f"mean {statistics.fmean(v):+.2f}, worst {min(v):+.2f} dB ({len(v)} cells)"
+        return f"mean {statistics.fmean(v):+.2f}, {name} {worst(v):+.2f} dB ({len(v)} cells)"
 
     print("### Summary\n")
     for lev in noises:
         sel = [k for k in keys if k[3] == lev]
         print(f"- noise {100 * lev:g} %: auto − μ=2⁸ {summary(sel, 'd256')}; "
-              f"auto − best of grid: {summary([k for k in sel], 'gap').replace('worst', 'max')}"
-              + (f"; auto − baseline {summary(sel, 'dbase')}" if base else ""))
+              f"best of grid − auto: {summary(sel, 'gap', max, 'max')}"
+              + (f"; auto − baseline {summary(sel, 'dbase')}, changed in "
+                 f"{sum(1 for k in sel if abs(auto[k].get('dbase', 0.0)) > 0.005)}"
+                 if base else ""))
     miss = [k for k in keys if k[3] == 0 and auto[k]["d256"] < -0.5]
     print(f"- noise-free cells losing more than 0.5 dB against μ = 2⁸: {len(miss)} of "
           f"{sum(1 for k in keys if k[3] == 0)}"
