@@ -27,8 +27,9 @@ shift of every hidden layer. ``σ_n`` is the bucket noise std in the normalised 
 :func:`~torchtof.recon.tval3.bucket_noise_sigma`).
 
 Only convolutions, a stride-2 down- and a transposed up-sampling, and the fast operator act
-on the image, so one set of weights applies to every ``n`` divisible by 2 (the package's
-Hadamard sizes 32–256) and every ``(SR, order)``; the work per step is bounded
+on the image, so one set of weights applies to every ``n`` divisible by 2 (by ``2r`` for a
+prior with pixel unshuffle ``r``; the package's Hadamard sizes 32–256) and every
+``(SR, order)``; the work per step is bounded
 (``O(n²)`` convolutions plus one ``A`` and one ``Aᵀ``) and there is no data-dependent control
 flow (it exports to ONNX).
 
