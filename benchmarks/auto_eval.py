@@ -23,25 +23,11 @@ import time
 import torch
 
 import torchtof as tt
+from torchtof.data import planar_depth
 from torchtof.recon import auto, tval3
 from torchtof.recon.auto import AUTO_WEIGHTS
 
 SRS = (0.0625, 0.125, 0.25, 0.375)
-
-
-def planar_depth(n: int, seed: int = 0) -> torch.Tensor:
-    """Piecewise-planar depth: a tilted background plane and three tilted rectangles, in [0, 1]."""
-    g = torch.Generator().manual_seed(seed)
-    yy, xx = torch.meshgrid(torch.linspace(0, 1, n, dtype=torch.float64),
-                            torch.linspace(0, 1, n, dtype=torch.float64), indexing="ij")
-    z = 0.8 - 0.2 * xx - 0.1 * yy
-    for _ in range(3):
-        r0, c0 = (torch.rand(2, generator=g) * 0.6).tolist()
-        h, w = (0.2 + torch.rand(2, generator=g) * 0.3).tolist()
-        a, b, c = (torch.rand(3, generator=g) * torch.tensor([0.4, 0.3, 0.3])).tolist()
-        m = (yy >= r0) & (yy < r0 + h) & (xx >= c0) & (xx < c0 + w)
-        z = torch.where(m, 0.1 + a + b * (xx - c0) + c * (yy - r0), z)
-    return ((z - z.min()) / (z.max() - z.min()))[None, None]
 
 
 def scene(name: str, n: int) -> torch.Tensor:

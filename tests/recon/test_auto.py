@@ -134,3 +134,20 @@ def test_errors():
         auto(torch.zeros(1, 1, 31), A)
     with pytest.raises(TypeError, match="Auto: expected A to be a LinearOperator"):
         Auto("A")
+
+
+def test_planar_depth_is_piecewise_planar_in_the_unit_range():
+    from torchtof.data import planar_depth
+
+    x = planar_depth(48)
+    assert x.shape == (1, 1, 48, 48) and x.dtype == torch.float64
+    assert float(x.min()) == 0.0 and float(x.max()) == 1.0
+    torch.testing.assert_close(planar_depth(48), x)  # deterministic
+    assert not torch.equal(planar_depth(48, seed=1), x)
+    # second differences vanish inside every plane: only pixels next to an edge are nonzero
+    d2x = x[..., :, 2:] - 2 * x[..., :, 1:-1] + x[..., :, :-2]
+    d2y = x[..., 2:, :] - 2 * x[..., 1:-1, :] + x[..., :-2, :]
+    assert (d2x.abs() > 1e-9).float().mean() < 0.2 and (d2y.abs() > 1e-9).float().mean() < 0.2
+    assert planar_depth(8, dtype=torch.float32).dtype == torch.float32
+    with pytest.raises(ValueError, match="planar_depth: expected n"):
+        planar_depth(1)
