@@ -5,7 +5,7 @@ import torch
 
 from torchtof.operators import Hadamard
 from torchtof.recon import Auto, auto, get, tval3
-from torchtof.recon.auto import AUTO_WEIGHTS, candidates
+from torchtof.recon.auto import AUTO_BOUNDARIES, AUTO_TVS, AUTO_WEIGHTS, REFINE, candidates
 from torchtof.recon.tval3 import default_split, holdout_split
 
 
@@ -46,15 +46,34 @@ def test_tail_split_predicts_later_rows_from_earlier_ones():
 
 
 def test_candidates_and_cv_error_layout():
-    assert len(candidates()) == 2 * 2 * len(AUTO_WEIGHTS)
-    assert len(candidates((0.0, 1.0))) == 2 * 3 * len(AUTO_WEIGHTS)
+    # per (TV, boundary, bound): the coarse weights (stage 1) and their factor-2 neighbours
+    # that are not coarse weights themselves (stage 2); a finite box adds the box-only model
+    fine = {w * f for w in AUTO_WEIGHTS if w != float("inf") for f in (REFINE, 1 / REFINE)}
+    per_group = len(AUTO_WEIGHTS) + len(fine - set(AUTO_WEIGHTS))
+    groups = len(AUTO_TVS) * len(AUTO_BOUNDARIES)
+    assert len(candidates()) == groups * 2 * per_group
+    assert len(candidates((0.0, None))) == groups * 3 * per_group  # half-open: no box-only
+    cands = candidates((0.0, 1.0))
+    assert len(cands) == groups * 3 * per_group + 1
+    assert cands[-1]["tv"] is None and cands[-1]["bounds"] == (0.0, 1.0)
     A = Hadamard(16, sr=0.5)
-    r = auto(A(_square()), A, return_result=True, cv_iter=60, slack=0.0)
-    assert r.cv_error.shape == (1, 1, len(r.candidates))
-    k = int(r.cv_error[0, 0].argmin())  # slack 0: the smallest CV error wins
-    assert r.choice[0][0]["tv"] == r.candidates[k]["tv"]
-    assert r.choice[0][0]["mu"] == r.candidates[k]["mu"]
+    r = auto(_noisy(A, _square(), 0.01), A, return_result=True, cv_iter=60, slack=0.0)
+    e = r.cv_error[0, 0]
+    assert e.shape == (len(r.candidates),)
+    k = int(torch.nan_to_num(e, nan=float("inf")).argmin())  # slack 0: smallest CV error wins
+    assert {kk: r.choice[0][0][kk] for kk in ("tv", "boundary", "bounds", "mu")} == {
+        kk: r.candidates[k][kk] for kk in ("tv", "boundary", "bounds", "mu")}
     assert r.stop_reason[0][0] in ("tol", "max_outer", "max_iter")
+    # every stage-1 candidate was fitted; of stage 2 only the two neighbours of the
+    # first-stage choice (or none, when the first stage chose the constrained model)
+    st1 = torch.tensor([c["stage"] == 1 for c in r.candidates])
+    assert not e[st1].isnan().any()
+    fitted2 = [c for c, v in zip(r.candidates, e.tolist()) if c["stage"] == 2 and v == v]
+    assert len(fitted2) in (0, 2)
+    if fitted2:
+        g = {(c["tv"], c["boundary"], c["bounds"]) for c in fitted2}
+        assert len(g) == 1
+        assert fitted2[0]["mu"] / fitted2[1]["mu"] == pytest.approx(REFINE**2)
 
 
 def test_noise_free_binary_square_is_recovered():
@@ -68,7 +87,7 @@ def test_slack_prefers_the_least_regularised_near_tie():
     A = Hadamard(16, sr=0.375)
     y = _noisy(A, _square(), 0.01)
     r = auto(y, A, return_result=True, cv_iter=40, slack=0.5)
-    e = r.cv_error[0, 0]
+    e = torch.nan_to_num(r.cv_error[0, 0], nan=float("inf"))
     ok = e <= 1.5 * e.min()
     w = torch.tensor([float("inf") if c["mu"] is None else c["mu"] for c in r.candidates])
     top = w[ok].max()
