@@ -49,23 +49,26 @@ def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:
 
 
 def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
-    """PSNR of every candidate of ``auto`` refitted on all buckets as ``auto`` refits its
-    choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), order of ``cands``."""
+    """PSNR of every first-stage candidate of ``auto`` refitted on all buckets as ``auto``
+    refits its choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), in the
+    order of ``cands`` (second-stage weights and the box-only candidate are skipped)."""
     out = {}
-    finite = [w for w in AUTO_WEIGHTS if w != float("inf")]
-    pairs = []
+    groups = []
     for c in cands:
-        if (c["tv"], c["bounds"]) not in pairs:
-            pairs.append((c["tv"], c["bounds"]))
-    for tv, box in pairs:
-        r = tval3(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, bounds=box)
-        out[(tv, box, None)] = psnr(r.x, x)[0]
+        if c["stage"] == 1 and c["tv"] is not None and (
+                c["tv"], c["boundary"], c["bounds"]) not in groups:
+            groups.append((c["tv"], c["boundary"], c["bounds"]))
+    finite = [w for w in AUTO_WEIGHTS if w != float("inf")]
+    for tv, bd, box in groups:
+        r = tval3(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        out[(tv, bd, box, None)] = psnr(r.x, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
         r = tval3(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
-                  bounds=box)
+                  boundary=bd, bounds=box)
         for j, p in enumerate(psnr(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
-            out[(tv, box, finite[j])] = p
-    return [out[(c["tv"], c["bounds"], c["mu"])] for c in cands]
+            out[(tv, bd, box, finite[j])] = p
+    return [out[(c["tv"], c["boundary"], c["bounds"], c["mu"])] for c in cands
+            if (c["tv"], c["boundary"], c["bounds"], c["mu"]) in out]
 
 
 def noise_table(ns, srs, scenes, levels=(0.0, 0.01, 0.03)) -> list[dict]:
@@ -174,7 +177,7 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
                       f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
-                      f"{ch['tv'][:3]} {bd} {mu} | {t_def:.2f} | {t_auto:.1f} |", flush=True)
+                      f"{(ch['tv'] or 'box')[:3]} {bd} {mu} | {t_def:.2f} | {t_auto:.1f} |", flush=True)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)

@@ -170,3 +170,79 @@ def test_planar_depth_is_piecewise_planar_in_the_unit_range():
     assert planar_depth(8, dtype=torch.float32).dtype == torch.float32
     with pytest.raises(ValueError, match="planar_depth: expected n"):
         planar_depth(1)
+
+
+def _auto_module():
+    import sys
+
+    return sys.modules["torchtof.recon.auto"]  # the package re-exports the function as `auto`
+
+
+def test_box_least_squares_known_answer():
+    # every Hadamard row measured: A is orthogonal, so argmin ‖Ax − y‖² over the box is the
+    # box projection of Aᵀy = clamp(x)
+    am = _auto_module()
+    A = Hadamard(8, sr=1.0)
+    x = torch.linspace(-0.5, 1.5, 64, dtype=torch.float64).reshape(1, 1, 8, 8)
+    out = am._box_ls(A(x), A, 0.0, 1.0, 60, 1.0)
+    torch.testing.assert_close(out, x.clamp(0, 1), atol=1e-6, rtol=0)
+
+
+def test_the_box_alone_is_chosen_only_when_it_determines_the_image():
+    # A binary silhouette on the lowest-sequency half of the rows (1 % noise): the box [0, 1]
+    # and the data leave no room (box-only error ~1e-3): auto takes the box-only model. A
+    # smooth grey scene on the same rows leaves the null space free: TV is kept.
+    from torchtof.data import draw_scene
+
+    am = _auto_module()
+    A = Hadamard(16, sr=0.5, order="sequency").double()
+    binary = (draw_scene(16, seed=1, family="silhouette") > 0.5).double()
+    grey = draw_scene(16, seed=3, family="smooth").double()
+    x = torch.cat([binary, grey])
+    y0 = A(x)
+    g = torch.Generator().manual_seed(0)
+    y = y0 + 0.01 * y0.norm(dim=-1, keepdim=True) / A.m**0.5 * torch.randn(
+        y0.shape, dtype=y0.dtype, generator=g)
+    xb, unique = am._box_alone(y.reshape(2, 1, -1), A, 0.0, 1.0, 1.0, 0)
+    assert unique.tolist() == [True, False]
+    assert float((xb[0] - binary[0]).pow(2).mean().sqrt()) < 0.01
+    r = auto(y, A, bounds=(0.0, 1.0), cv_iter=60, return_result=True)
+    assert r.choice[0][0]["tv"] is None and r.choice[1][0]["tv"] is not None
+    torch.testing.assert_close(r.x[0], xb[0])
+    # without a finite box there is no box-only candidate
+    r = auto(y[:1], A, bounds=(0.0, None), cv_iter=60, return_result=True)
+    assert r.choice[0][0]["tv"] is not None
+
+
+def test_discrepancy_bound_drops_underfitting_candidates():
+    am = _auto_module()
+    cv = torch.tensor([[1.0, 2.0, 3.0, float("nan")], [1.0, 2.0, 3.0, 4.0]])
+    fit = torch.tensor([[9.0, 1.0, 1.0, float("nan")], [9.0, 9.0, 9.0, 9.0]])
+    s = am._score(cv, fit, torch.tensor([[2.0], [2.0]]))
+    # row 0: candidate 0 fits its training rows worse than the bound -> dropped; the
+    # unfitted one is never picked. Row 1: all exceed the bound -> none is dropped.
+    assert s[0].tolist() == [float("inf"), 2.0, 3.0, float("inf")]
+    assert s[1].tolist() == [1.0, 2.0, 3.0, 4.0]
+    rank = torch.tensor([float("inf"), 8.0, 4.0, 2.0])
+    assert am._pick(s, rank, 0.0).tolist() == [1, 0]
+    assert am._pick(s, rank, 0.6).tolist() == [1, 0]  # 3 > 1.6·2: the smallest CV stays
+    assert am._pick(s, rank, 2.0).tolist() == [1, 0]  # within 3×: least regularised wins
+
+
+def test_regret_against_its_own_candidates_on_a_small_cell():
+    # a noisy two-rectangle scene (n = 16, SR 25 %): auto's pick, refitted, must not fall
+    # more than 0.5 dB below the median of its first-stage candidates refitted the same way
+    from benchmarks.auto_eval import candidate_psnrs, psnr
+
+    n = 16
+    A = Hadamard(n, sr=0.25).double()
+    x = torch.zeros(1, 1, n, n, dtype=torch.float64)
+    x[..., 2:10, 2:7] = 1.0
+    x[..., 5:14, 8:14] = 0.6
+    y = _noisy(A, x, 0.01)
+    r = auto(y, A, return_result=True)
+    cp = candidate_psnrs(y, A, x, r.candidates, 100)
+    assert len(cp) == sum(c["stage"] == 1 for c in r.candidates)
+    med = sorted(cp)[len(cp) // 2]
+    assert psnr(r.x, x)[0] >= med - 0.5
+    assert psnr(r.x, x)[0] >= max(cp) - 3.0

@@ -17,24 +17,46 @@ Which measurements are held out matters. For Hadamard rows in a low-to-high orde
 package's default cake-cutting order) the reconstruction's task is to predict the rows
 *after* the measured ones, so the default ``split="tail"`` holds out the last rows and fits
 on the rows before them (a forward, "rolling-origin" validation, Tashman 2000, Int. J.
-Forecasting 16). A random partition (``split="random"``, the default for unordered patterns
-such as random 0/1) held out rows of every sequency and, on textured scenes at low SR,
-preferred the smoothest candidate (it predicts unpredictable coefficients as 0) and lost
+Forecasting 16); with the default ``folds=3`` the last quarter is predicted from the first
+three quarters and the third quarter from the first half. A random partition
+(``split="random"``, the default for unordered patterns such as random 0/1) held out rows of
+every sequency and, on textured scenes at low SR, preferred the smoothest candidate and lost
 up to 3 dB (``docs/auto.md``). Rows that alone carry the image mean (the all-ones Hadamard
 row: TV does not see a constant) stay in every training set.
 
-Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` × bounds ``{none, x ≥ 0}``
-(plus the caller's ``bounds`` box) × weights: the published equality-constrained TVAL3
-(``μ = 2⁸``) and the TV-L2 model with ``μ ∈ 2^{10, 8, 6, 4}`` on the scaled buckets: 20
-candidates (30 with a box).
+**Discrepancy bound.** On a textured scene the held-out rows are barely predictable and the
+smoothest candidate, which predicts them as almost 0, scores best while it misfits the rows
+it was fitted on. A candidate whose misfit of its own training rows exceeds
+``FIT_TAU2 · (training rows) · σ̂²`` is therefore dropped (Morozov's discrepancy principle,
+Morozov 1966, Soviet Math. Dokl. 7, as a bound, not as the choice); ``σ̂`` is
+:func:`~torchtof.recon.tval3.bucket_noise_sigma`, which over-estimates σ at low SR, so the
+bound errs towards keeping candidates. If every candidate exceeds it, none is dropped.
 
-Cost: each (TV, bounds) pair is one batched :func:`~torchtof.recon.tval3` call with
-``F × 5`` channels per sample (``F`` folds: ``K − 1`` for ``"tail"``, ``K`` for
-``"random"``) at ``cv_iter`` iterations, then the refit (one call per chosen (TV, bounds,
-model) group). With the defaults (``K = 2`` tail split, ``cv_iter = 100``, 4 pairs): 4
-batched calls of 5 channels × 100 iterations plus one TVAL3 solve: about 20 × 100 = 2000
-single-image iterations besides the refit, i.e. about 20 default TVAL3 solves of ~100
-iterations (measured times in ``docs/auto.md``).
+Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` with Neumann boundaries (no
+difference across the image border, the discrete gradient of Chambolle 2004, J. Math.
+Imaging Vis. 20) × bounds ``{none, x ≥ 0}`` (plus the caller's ``bounds`` box) × weights: the
+published equality-constrained TVAL3 (``μ = 2⁸``) and the TV-L2 model with
+``μ ∈ 2^{12, 10, 8, 6, 4, 2}`` on the scaled buckets (stage 1: 28 candidates, 42 with a box);
+then (stage 2) the stage-1 TV-L2 choice is compared with its neighbours ``μ·2`` and
+``μ/2`` on the same folds.
+
+**The box alone.** Given a finite box ``(lo, hi)``, the image may be determined by the box
+and the measurements without any prior: a binary image is a vertex of the box, and a
+vertex is the unique box-feasible solution from fewer measurements than a smooth image needs
+(Donoho & Tanner 2010, Discrete Comput. Geom. 43; Mangasarian & Recht 2011, Eur. J. Oper.
+Res. 214). Cross-validation cannot see this (with a quarter of the rows held out the box no
+longer determines the image: ``docs/auto.md``), so it is tested directly: box-constrained
+least squares is solved from two starts that differ only in the null space of ``A``; if the
+two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
+leave no freedom and that solution is returned (``choice["tv"] is None``).
+
+Cost (defaults: ``folds=3`` → 2 folds, ``cv_iter=100``): stage 1 is one batched
+:func:`~torchtof.recon.tval3` call per (TV, bounds) pair — 4 calls (6 with a box) of
+2 folds × 7 weights = 14 channels × 100 iterations; stage 2 one call of 4 channels for the
+chosen pair; with a finite box two projected-gradient solves of ``BOX_ITER = 100`` steps
+(``A`` and ``Aᵀ`` only); then one refit. That is 5,600 (8,400 with a box) single-channel
+TVAL3 iterations besides the refit, bounded and independent of the data; batched, it ran
+3–6× the time of one default TVAL3 solve (measured in ``docs/auto.md``).
 """
 
 from __future__ import annotations
@@ -132,7 +154,8 @@ def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
     (``None``: the constrained model with ``μ = 2⁸``) and ``stage`` (1: fitted for every
     sample; 2: a factor-``REFINE`` neighbour of a first-stage weight, fitted only around a
     sample's first-stage choice). Given a finite box, one more candidate ``tv=None``: least
-    squares on the box alone, no TV (projected gradient)."""
+    squares on the box alone, no TV (projected gradient); it is not cross-validated (its
+    ``cv_error`` is ``nan``) but chosen when the box alone determines the image (module doc)."""
     out = []
     for tv, bd, box in _groups(bounds):
         for mu in AUTO_WEIGHTS:
@@ -239,10 +262,13 @@ def auto(
     regularised one (largest ``μ``; the constrained and the box-only models count as
     ``μ = ∞``) whose CV error is within ``1 + slack`` of the smallest (CV with fewer
     training rows tends to over-regularise, Shao 1993, JASA 88; measured in
-    ``docs/auto.md``, ``slack = 0`` is the default). The refit runs a chosen TV-L2 model to
-    convergence (``max_iter``), the constrained model and the box-only candidate with the
-    ``cv_iter`` budget that was validated (their iteration count is their regulariser: run
-    longer, they fit more noise).
+    ``docs/auto.md``, ``slack = 0`` is the default). Candidates that break the discrepancy
+    bound are dropped first, and the box-only model overrides the choice when the box alone
+    determines the image (module doc). The refit runs a chosen TV-L2 model to
+    convergence (``max_iter``) and the constrained model with the ``cv_iter`` budget that
+    was validated (its iteration count is its regulariser: run longer, it fits more noise);
+    the box-only solution is the test's own (``BOX_ITER`` steps, ``stop_reason``
+    ``"max_iter"``).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``, float32/float64; every sample chooses alone.
@@ -250,7 +276,7 @@ def auto(
         bounds: a box ``(lo, hi)`` the caller knows (units of ``x``; e.g. ``(0, 1)`` for an
             image normalised by a calibration frame, ``(0, c/2f)`` for a depth image): added
             as a bound beside none and ``x ≥ 0``; a finite box also adds the box-only
-            candidate.
+            candidate (module doc).
         folds: ``K ≥ 2``. ``split="random"``: ``K`` folds of a random partition.
             ``split="tail"``: ``K − 1`` folds, fold ``j`` holding out the block of ``M/(2(K−1))``
             rows ending ``j`` blocks before the last row, trained on the rows before it.
