@@ -95,7 +95,7 @@ AUTO_BOUNDARIES = ("neumann",)
 #: Discrepancy bound: a candidate whose misfit of its own training rows exceeds
 #: ``FIT_TAU2 · (training rows) · σ̂²`` (``σ̂``: :func:`~torchtof.recon.tval3.bucket_noise_sigma`)
 #: under-fits and is dropped, unless every candidate does.
-FIT_TAU2 = 2.0
+FIT_TAU2 = 1.0
 #: Iterations of the box-only candidate (projected gradient, only with a finite box).
 BOX_ITER = 100
 #: The box alone is taken to determine the image when two box-only solves from starts that
