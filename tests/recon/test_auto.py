@@ -60,7 +60,10 @@ def test_candidates_and_cv_error_layout():
     r = auto(_noisy(A, _square(), 0.01), A, return_result=True, cv_iter=60, slack=0.0)
     e = r.cv_error[0, 0]
     assert e.shape == (len(r.candidates),)
-    k = int(torch.nan_to_num(e, nan=float("inf")).argmin())  # slack 0: smallest CV error wins
+    ok = r.fit_error[0, 0] <= r.fit_bound[0, 0]  # the discrepancy bound (nan: not fitted)
+    assert ok.any()
+    # slack 0: the smallest CV error among the candidates within the bound wins
+    k = int(torch.where(ok, e, torch.full_like(e, float("inf"))).argmin())
     assert {kk: r.choice[0][0][kk] for kk in ("tv", "boundary", "bounds", "mu")} == {
         kk: r.candidates[k][kk] for kk in ("tv", "boundary", "bounds", "mu")}
     assert r.stop_reason[0][0] in ("tol", "max_outer", "max_iter")

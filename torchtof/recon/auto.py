@@ -27,10 +27,11 @@ row: TV does not see a constant) stay in every training set.
 **Discrepancy bound.** On a textured scene the held-out rows are barely predictable and the
 smoothest candidate, which predicts them as almost 0, scores best while it misfits the rows
 it was fitted on. A candidate whose misfit of its own training rows exceeds
-``FIT_TAU2 · (training rows) · σ̂²`` is therefore dropped (Morozov's discrepancy principle,
-Morozov 1966, Soviet Math. Dokl. 7, as a bound, not as the choice); ``σ̂`` is
-:func:`~torchtof.recon.tval3.bucket_noise_sigma`, which over-estimates σ at low SR, so the
-bound errs towards keeping candidates. If every candidate exceeds it, none is dropped.
+``FIT_TAU2 · (training rows) · σ̂²`` (``FIT_TAU2 = 1``) is therefore dropped (Morozov's
+discrepancy principle, Morozov 1966, Soviet Math. Dokl. 7, as a bound, not as the choice);
+``σ̂`` is :func:`~torchtof.recon.tval3.bucket_noise_sigma`, which over-estimates σ (it reads
+signal in the tail rows as noise), so the bound errs towards keeping candidates. If every
+candidate exceeds it, none is dropped.
 
 Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` with Neumann boundaries (no
 difference across the image border, the discrete gradient of Chambolle 2004, J. Math.
@@ -121,6 +122,10 @@ class AutoResult(NamedTuple):
             the squared units of ``y``; ``nan`` for a second-stage weight that was not fitted
             for that sample (only the neighbours of its first-stage choice are).
         candidates: the candidate list, as dicts (same order as ``cv_error``).
+        fit_error: ``(B, C, len(candidates))`` each candidate's misfit of its own training
+            rows, summed over the folds (``nan`` where not fitted).
+        fit_bound: ``(B, C)`` the discrepancy bound on ``fit_error``; candidates above it
+            are not chosen unless all are (module doc).
     """
 
     x: torch.Tensor
@@ -131,6 +136,8 @@ class AutoResult(NamedTuple):
     choice: tuple
     cv_error: torch.Tensor
     candidates: tuple
+    fit_error: torch.Tensor | None = None
+    fit_bound: torch.Tensor | None = None
 
 
 def _finite_box(bounds) -> bool:
@@ -312,7 +319,8 @@ def auto(
         x = y.new_zeros(b, c, A.n, A.n)
         res = AutoResult(x, torch.zeros(b, c, dtype=torch.int64, device=y.device),
                          y.new_zeros(b, c), torch.ones(b, c, dtype=torch.bool, device=y.device),
-                         (), (), y.new_zeros(b, c, len(cands)), cands)
+                         (), (), y.new_zeros(b, c, len(cands)), cands,
+                         y.new_zeros(b, c, len(cands)), y.new_zeros(b, c))
         return res if return_result else x
     bc = b * c
     ys = y.reshape(bc, 1, m)
@@ -415,7 +423,8 @@ def auto(
     codes = codes.reshape(b, c)
     reasons = tuple(tuple(STOP_REASONS[k] for k in row) for row in codes.tolist())
     res = AutoResult(x, n_iter.reshape(b, c), residual, conv.reshape(b, c), reasons, choice,
-                     cv_err.reshape(b, c, -1), cands)
+                     cv_err.reshape(b, c, -1), cands, fit_err.reshape(b, c, -1),
+                     fit_max.reshape(b, c))
     return res if return_result else x
 
 
