@@ -55,9 +55,10 @@ Cost (defaults: ``folds=3`` → 2 folds, ``cv_iter=100``): stage 1 is one batche
 :func:`~torchtof.recon.tval3` call per (TV, bounds) pair — 4 calls (6 with a box) of
 2 folds × 7 weights = 14 channels × 100 iterations; stage 2 one call of 4 channels for the
 chosen pair; with a finite box two projected-gradient solves of ``BOX_ITER = 100`` steps
-(``A`` and ``Aᵀ`` only); then one refit. That is 5,600 (8,400 with a box) single-channel
-TVAL3 iterations besides the refit, bounded and independent of the data; batched, it ran
-3–6× the time of one default TVAL3 solve (measured in ``docs/auto.md``).
+(``A`` and ``Aᵀ`` only); then one refit. That is 6,000 (8,800 with a box) single-channel
+TVAL3 iterations besides the refit, bounded and independent of the data; batched, it took
+a median 5.2× (n = 32) and 8.5× (n = 64) the time of one default TVAL3 solve (measured in
+``docs/auto.md``).
 """
 
 from __future__ import annotations
