@@ -6,10 +6,14 @@ grid (lam = 2^(k/8) sigma, true sigma; the grid is wide enough that its best poi
 Timing (median of 9 after a warm-up) on the first seed; PSNR on every seed, because one draw
 hides how much the estimated noise std (and with it the automatic weight) varies.
 
-usage: python benchmarks/bench_tval3.py [--threads 2] [--seeds 0-5] [--no-baseline]
+usage: python benchmarks/bench_tval3.py [--threads 2] [--seeds 0-5] [--no-baseline] [--out DIR]
+
+With ``--out DIR`` the timings, rows and the machine's load go to ``DIR/tval3.json`` (the
+README's TVAL3 numbers are generated from it by ``docs/build.py``).
 """
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -44,8 +48,12 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--seeds", default="0", help="noise seeds, e.g. 0-5 (default 0)")
     p.add_argument("--no-baseline", action="store_true")
+    p.add_argument("--out", type=Path, default=None, help="write DIR/tval3.json")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    from torchtof.apps.bench.timing import machine_load
+
+    t_run, start, timing = time.perf_counter(), machine_load(), {}
     img = transform.resize(data.horse().astype(np.float64), (N, N), anti_aliasing=True) < 0.5
     x = torch.tensor(img, dtype=torch.float32)[None, None]
     A = Hadamard(N, sr=0.25)
@@ -59,11 +67,16 @@ def main() -> None:
         if i == 0:
             for u_step in ("bb", "exact"):
                 tval3(y, A, u_step=u_step)  # warm-up (and the exact step's factor cache)
-                ts = []
+                ts, cs = [], []
                 for _ in range(9):
-                    t = time.perf_counter()
+                    t, c = time.perf_counter(), time.process_time()
                     r = tval3(y, A, u_step=u_step)
                     ts.append(time.perf_counter() - t)
+                    cs.append(time.process_time() - c)  # CPU time: much less load-dependent
+                timing[u_step] = {"median_s": statistics.median(ts), "min_s": min(ts),
+                                  "cpu_median_s": statistics.median(cs),
+                                  "n_iter": int(r.n_iter), "converged": bool(r.converged),
+                                  "psnr": psnr(r.x, x)}
                 print(
                     f"seed {seed}, TVAL3 defaults u_step={u_step}: median "
                     f"{statistics.median(ts):.3f} s, min {min(ts):.3f} s ({args.threads} threads), "
@@ -104,6 +117,14 @@ def main() -> None:
             f"range {min(gaps):+.3f} .. {max(gaps):+.3f}; seeds with defaults >= oracle: "
             f"{sum(gap >= 0 for gap in gaps)}"
         )
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        res = {"benchmark": "tval3", "n": N, "sr": 0.25, "noise": 0.01, "scene": "horse",
+               "threads": args.threads, "torch": torch.__version__, "timing": timing,
+               "rows": rows, "total_s": time.perf_counter() - t_run,
+               "machine": {"start": start, "end": machine_load()}}
+        (args.out / "tval3.json").write_text(json.dumps(res, indent=1))
+        print(f"wrote {args.out / 'tval3.json'} ({res['total_s']:.0f} s)")
 
 
 if __name__ == "__main__":

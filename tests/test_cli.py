@@ -175,8 +175,13 @@ def test_bench_summary_names_every_file_it_wrote(tmp_path, capsys, monkeypatch):
     assert main(["bench", "tradeoff", "--quick", "--out", str(tmp_path)]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith("torchtof bench tradeoff: 1 rows in ")
-    for name in ("bench_tradeoff.json", "tradeoff.png", "tradeoff.json"):
+    for name in ("tradeoff.png", "tradeoff.json"):
         assert str(tmp_path / name) in last, last
+    # one JSON, the bench's own, with the load the run had (no second bench_tradeoff.json)
+    assert not (tmp_path / "bench_tradeoff.json").exists()
+    saved = json.loads((tmp_path / "tradeoff.json").read_text())
+    assert set(saved["machine"]) == {"start", "end"}
+    assert {"load_1min", "cpus", "threads"} <= set(saved["machine"]["start"])
 
 
 def test_bench_onnx_progress_line_has_three_significant_digits():
@@ -218,7 +223,7 @@ def test_error_inside_a_command_is_one_line_and_debug_shows_it(tmp_path, capsys,
     def fails(*a, **k):
         raise ValueError("export_model: expected something else")
 
-    monkeypatch.setattr(torchtof.apps.onnx_models, "export_model", fails)
+    monkeypatch.setattr(torchtof.apps.onnx_models, "export_checked", fails)
     argv = ["export", "hadamard", "--out", str(tmp_path)]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -39,6 +39,28 @@ def test_affine_fit_recovers_an_affine_image():
     torch.testing.assert_close(flat, z.mean(dim=(1, 2, 3), keepdim=True).expand_as(z))
 
 
+def test_affine_fit_is_the_library_fit_restricted_to_the_mask():
+    from torchtof.metrics import affine_fit as library_fit
+
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(2, 1, 8, 8, generator=g, dtype=torch.float64)
+    z = torch.rand(2, 1, 8, 8, generator=g, dtype=torch.float64) + 1.0
+    everything = torch.ones(1, 1, 8, 8, dtype=torch.bool)
+    torch.testing.assert_close(affine_fit(x, z, everything), library_fit(x, z))
+    # a partial mask: on its pixels, the library's fit of those pixels alone ...
+    mask = torch.zeros(1, 1, 8, 8, dtype=torch.bool)
+    mask[..., 2:6, 1:7] = True
+    got = affine_fit(x, z, mask)
+    sel = mask.expand_as(x)
+    alone = library_fit(x[sel].view(2, 1, 1, -1), z[sel].view(2, 1, 1, -1))
+    torch.testing.assert_close(got[sel].view(2, 1, 1, -1), alone)
+    # ... and the same (a, b) off the mask: every pixel lies on one line a·x + b per image
+    for i in range(2):
+        a = (got[i, 0, 2, 1] - got[i, 0, 2, 2]) / (x[i, 0, 2, 1] - x[i, 0, 2, 2])
+        torch.testing.assert_close(got[i], a * (x[i] - x[i, 0, 2, 1]) + got[i, 0, 2, 1])
+    assert not torch.allclose(got, library_fit(x, z))  # the mask matters
+
+
 def test_evaluate_depth_sky_object_only_and_bad_method():
     data = PaperExperiment(sr=0.25, n=16, roi_px=32, srs=(0.25,)).run(seed=1, realisations=1)
     rows, maps = evaluate_depth(data, 0.25, methods=("raw ToF", "I/Q pinv"))

@@ -43,17 +43,165 @@ def test_readme_cites_nothing_that_does_not_ship(name):
     assert name not in README.read_text(encoding="utf-8")
 
 
-def test_generated_readme_tables_match_their_json():
+def _build():
     import importlib.util
 
+    if "docs_build" in sys.modules:
+        return sys.modules["docs_build"]
     path = README.parent / "docs" / "build.py"
     spec = importlib.util.spec_from_file_location("docs_build", path)
     build = importlib.util.module_from_spec(spec)
     sys.modules["docs_build"] = build  # dataclasses resolve their module by name
     spec.loader.exec_module(build)
+    return build
+
+
+def _generated_names() -> list[str]:
     text = README.read_text(encoding="utf-8")
-    assert "<!-- generated:" in text
-    assert build.stale_blocks(text) == [], "README tables drifted: run python docs/build.py"
-    # the check is not vacuous: a changed number is caught
-    edited = text.replace("<!-- generated:demo -->\n", "<!-- generated:demo -->\n| x |\n", 1)
-    assert build.stale_blocks(edited) == ["demo"]
+    return re.findall(r"<!-- generated:([\w-]+) -->", text)
+
+
+def test_every_build_target_has_one_readme_block_and_back():
+    names = _generated_names()
+    assert len(names) == len(set(names)), f"a generated block appears twice: {names}"
+    assert sorted(names) == sorted(_build().SECTIONS), (
+        "README generated blocks and docs/build.py targets differ")
+
+
+@pytest.mark.parametrize("name", _generated_names())
+def test_generated_readme_block_matches_its_json(name):
+    build = _build()
+    text = README.read_text(encoding="utf-8")
+    assert name not in build.stale_blocks(text), (
+        f"README block {name!r} drifted from {build.SECTIONS[name].json}: run python docs/build.py")
+    # the check is not vacuous: one changed character in this block is caught
+    m = re.search(rf"<!-- generated:{name} -->\n(.*?)<!-- /generated:{name} -->", text, re.S)
+    assert m.group(1).strip(), f"README block {name!r} is empty"
+    opening = f"<!-- generated:{name} -->\n"
+    edited = text.replace(opening, opening + "| x |\n", 1)
+    assert build.stale_blocks(edited) == [name]
+
+
+def test_generated_blocks_state_the_load_where_they_state_seconds():
+    build = _build()
+    for name in _generated_names():
+        body = build.render(name)
+        if re.search(r"\d ms\b|\d s\b|time s", body):
+            assert "load" in body or "load" in build.SECTIONS[name].note, name
+
+
+# --- the renderers, on hand-made JSON whose right answer is worked out here -----------------
+def _machine(a, b, threads=1):
+    return {"start": {"load_1min": a, "cpus": 2, "threads": threads},
+            "end": {"load_1min": b, "cpus": 2, "threads": threads}}
+
+
+def test_load_is_stated_as_the_range_of_start_and_end():
+    build = _build()
+    assert build._load({"machine": _machine(1.01, 0.36)}) == "load 0.4–1.0 on 2 CPUs, 1 thread"
+    assert build._load({"machine": _machine(2.0, 2.04, 2)}) == "load 2.0 on 2 CPUs, 2 threads"
+    assert build._load({}) == "load not recorded"
+
+
+def test_operators_speed_up_is_dense_over_the_auto_method():
+    build = _build()
+    rows = [{"n": 32, "N": 1024, "hadamard_auto": "matmul", "hadamard_matmul_s": 2.5e-4,
+             "hadamard_kron_s": 5e-4, "hadamard_fwht_s": 1e-3, "best_hadamard_s": 2.5e-4,
+             "dense_s": 1e-3, "pattern_operator_s": 2e-3}]
+    text = build.render_operators({"batch": 16, "sr": 0.25, "torch": "t", "repeat": 5,
+                                   "machine": _machine(1, 1), "rows": rows})
+    # 1e-3 / 2.5e-4 = 4.0
+    assert "| 32 | 0.250 ms (matmul) | 1.00 ms | 2.00 ms | 4.0× | – |" in text
+
+
+def test_tradeoff_picks_the_best_psnr_within_each_budget():
+    build = _build()
+    rec = [{"n": 32, "budget_s": 1e-3, "method": "PINV", "psnr": 10.04, "time_s": 1e-4},
+           {"n": 32, "budget_s": 1.0, "method": "TVAL3@80", "psnr": 13.6, "time_s": 0.12}]
+    pts = [{"n": 32, "sr": 0.25, "label": "PINV", "method": "PINV", "psnr": 10.04,
+            "time_s": 1e-4, "pareto": True},
+           {"n": 32, "sr": 0.25, "label": "BP@20", "method": "BP", "psnr": 11.0,
+            "time_s": 1e-2, "pareto": True},
+           {"n": 32, "sr": 0.25, "label": "TVAL3@80", "method": "TVAL3", "psnr": 13.6,
+            "time_s": 0.12, "pareto": True}]
+    text = build.render_tradeoff({"recommend": rec, "points": pts, "scenes": ["sky"],
+                                  "noise": 0.01, "quick": True, "total_s": 9.6,
+                                  "torch": "t", "machine": _machine(3, 3)})
+    assert "| 1 ms | PINV / g2 (10.0 dB, 100 µs) |" in text
+    assert "| 1 s | TVAL3, 80 iterations (13.6 dB, 120 ms) |" in text
+    assert "TVAL3, 80 iterations in 1 (13.6–13.6 dB" in text
+    assert "BP on the Pareto front: n = 32, SR 25.00% (BP, 20 iterations)." in text
+
+
+def test_unrolled_delta_and_the_within_half_a_db_count():
+    build = _build()
+    rows = [{"n": 32, "sr": 0.0625, "noise": 0.01, "unrolled_db": 17.0, "best_tval3": "auto",
+             "best_tval3_db": 17.7, "time_ratio": 20.0, "cpu_time_ratio": 9.6},
+            {"n": 64, "sr": 0.25, "noise": 0.01, "unrolled_db": 21.3, "best_tval3": "mu256",
+             "best_tval3_db": 20.8, "time_ratio": 14.4, "cpu_time_ratio": 12.2}]
+    text = build.render_unrolled({"rows": rows, "total_s": 60, "scenes": 23, "torch": "t",
+                                  "machine": _machine(1, 1)})
+    assert "| 32 | 6.25 % | 17.00 | 17.70 (μ auto) | −0.70 | 20× / 10× |" in text
+    assert "| 64 | 25 % | 21.30 | 20.80 (μ 2⁸) | +0.50 | 14× / 12× |" in text
+    assert "1 of 2 rows are within 0.5 dB" in text and "(worst -0.70 dB at n = 32" in text
+    assert "takes 10× to 12× less CPU time per image" in text
+    del rows[0]["cpu_time_ratio"]  # a run without CPU times: wall-clock ratios, said so
+    text = build.render_unrolled({"rows": rows, "total_s": 60, "scenes": 23, "torch": "t",
+                                  "machine": _machine(1, 1)})
+    assert "| 20× / – |" in text and "takes 14× to 20× less wall-clock time" in text
+
+
+def test_reproduce_counts_the_cells_each_method_wins():
+    build = _build()
+    psnr = {(0.0625, "CGI"): 8.0, (0.0625, "BP"): 7.5, (0.0625, "TVAL3"): 8.5,
+            (0.0625, "DIP"): 9.0, (0.125, "CGI"): 8.5, (0.125, "BP"): 8.0,
+            (0.125, "TVAL3"): 9.6, (0.125, "DIP"): 9.4}
+    rows = [{"method": m, "sr": sr, "psnr": v} for (sr, m), v in psnr.items()]
+    res = {"table": {"air": rows}, "raw": {"air": {"psnr": 6.5}}, "options": {}, "quick": True,
+           "realisations": 2, "total_s": 70, "machine": _machine(1, 1), "claims": []}
+    text = build.render_reproduce(res)
+    assert "above in 1 of 2 (case, SR) cells" in text  # 9.0 > 8.5, 9.4 < 9.6
+    assert "best of all methods in 1 of 2 cells (the others: TVAL3 1)" in text
+    assert "TVAL3 ≥ CGI and BP at SR ≤ 12.5 %** in 2 of 2 cells" in text
+    assert "CGI 8.50 dB at 12.5% (paper 8.23)" in text
+    assert "raw ToF image 6.50 dB (paper 5.70)" in text
+
+
+def test_a_block_inside_a_list_item_keeps_its_indentation():
+    build = _build()
+    text = "- item\n\n  <!-- generated:operators -->\n  <!-- /generated:operators -->\n"
+    out, found = build.rewrite(text)
+    assert found == ["operators"]
+    body = out.split("<!-- generated:operators -->\n", 1)[1].split("  <!-- /generated")[0]
+    lines = [ln for ln in body.splitlines() if ln.strip()]
+    assert lines and all(ln.startswith("  ") for ln in lines), body
+    assert build.stale_blocks(out) == []
+    assert build.stale_blocks(out.replace("\n  | 32 |", "\n| 32 |", 1)) == ["operators"]
+
+
+def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
+        tmp_path, monkeypatch, capsys):
+    import json
+
+    build = _build()
+    ok = (sys.executable, "-c", "import json, os; open('ok.json', 'w').write(json.dumps("
+          "{'v': 3, 'path': os.environ['PYTHONPATH']}))")
+    sections = {"ok": build.Section("ok.json", lambda d: f"value {d['v']}", ok),
+                "bad": build.Section("bad.json", str, (sys.executable, "-c",
+                                                       "raise SystemExit(3)"))}
+    readme = tmp_path / "README.md"
+    readme.write_text("x\n<!-- generated:ok -->\n<!-- /generated:ok -->\n", encoding="utf-8")
+    for name, value in (("ROOT", tmp_path), ("README", readme), ("SECTIONS", sections),
+                        ("TIMES", tmp_path / "times.json")):
+        monkeypatch.setattr(build, name, value)
+    assert build.main(["--run"]) == 1  # "bad" failed, "ok" still ran and was rendered
+    assert "<!-- generated:ok -->\nvalue 3\n<!-- /generated:ok -->" in readme.read_text()
+    out = capsys.readouterr()
+    assert "[docs] time per target: ok " in out.out and "FAILED: bad" in out.out
+    assert "bad: FAILED with exit status 3" in out.err
+    times = json.loads((tmp_path / "times.json").read_text())
+    assert set(times) == {"ok"} and times["ok"]["seconds"] > 0
+    # the commands import the checkout's torchtof, not whatever is installed
+    path = json.loads((tmp_path / "ok.json").read_text())["path"]
+    assert path.split(__import__("os").pathsep)[0] == str(tmp_path)
+    assert times["ok"]["start"]["cpus"] >= 1 and "load_1min" in times["ok"]["end"]

@@ -11,9 +11,11 @@ wrote.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -113,7 +115,8 @@ def _bench_result(args: argparse.Namespace):
     if name == "onnx":
         from .apps.bench.onnx import bench_onnx, print_onnx
 
-        return bench_onnx(progress=True), print_onnx
+        return (bench_onnx(models=args.models, compile=not args.no_compile, progress=True),
+                print_onnx)
     if name == "tradeoff":
         from .apps.bench.tradeoff import bench_tradeoff, print_tradeoff
 
@@ -141,10 +144,15 @@ def _bench_result(args: argparse.Namespace):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    t0 = time.perf_counter()
+    from .apps.bench.timing import machine_load
+
+    t0, start = time.perf_counter(), machine_load()
     res, show = _bench_result(args)
+    if isinstance(res, dict):  # seconds only mean something with the load they ran under
+        res["machine"] = {"start": start, "end": machine_load()}
     show(res)
-    path = Path(args.json) if args.json else Path(args.out) / f"bench_{args.which}.json"
+    own = res.get("json") if isinstance(res, dict) else None  # a bench's own JSON file
+    path = Path(args.json or own or Path(args.out) / f"bench_{args.which}.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=2, default=str))
     rows = res.get("rows") if isinstance(res, dict) else None
@@ -164,17 +172,59 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _elapsed_bar(desc: str, enabled: bool = True, interval_s: float = 0.25):
+    """A tqdm bar on stderr with the elapsed time and a spinner for one long call that reports
+    no progress itself (``torch.onnx.export``), redrawn by a background thread. No bar with
+    ``enabled=False``, when stderr is not a terminal (tqdm's ``disable=None``) or without
+    tqdm."""
+    from ._optional import progress_bar
+
+    bar = progress_bar(total=None, desc=desc, file=sys.stderr, leave=False,
+                       bar_format="{desc} {elapsed}",
+                       disable=None if enabled else True)
+    stop = threading.Event()
+
+    def spin() -> None:
+        k, spinner = 0, "|/-\\"
+        while not stop.wait(interval_s):
+            k += 1
+            bar.set_description_str(f"{desc} {spinner[k % 4]}")  # redraws with the time
+
+    thread = threading.Thread(target=spin, daemon=True)
+    if not getattr(bar, "disable", True):
+        thread.start()
+    try:
+        yield bar
+    finally:
+        stop.set()
+        if thread.is_alive():
+            thread.join()
+        bar.close()
+
+
+def _size(nbytes: int) -> str:
+    return f"{nbytes / 1e6:.1f} MB" if nbytes >= 1e6 else f"{nbytes / 1e3:.0f} kB"
+
+
 def cmd_export(args: argparse.Namespace) -> int:
-    from .apps.onnx_models import export_model
+    from .apps import onnx_models
 
     t0 = time.perf_counter()
-    print(f"torchtof export: tracing {args.model} (n={args.n}, SR {args.sr:.2%}); one call "
-          "without a progress bar, up to a minute or two for the iterative models", flush=True)
     path = args.output or Path(args.out) / f"{args.model}_n{args.n}_sr{args.sr:g}.onnx"
-    path = export_model(args.model, n=args.n, sr=args.sr, path=path, opset=args.opset)
-    print(f"torchtof export: {args.model} (n={args.n}, SR {args.sr:.2%}) in "
-          f"{time.perf_counter() - t0:.1f} s; wrote {path}")
-    return 0
+    what = f"{args.model} (n={args.n}, SR {args.sr:.2%})"
+    with _elapsed_bar(f"torchtof export: tracing {what}", enabled=not args.no_progress):
+        res = onnx_models.export_checked(args.model, n=args.n, sr=args.sr, path=path,
+                                         opset=args.opset)
+    par = res["parity"]
+    if par["ok"]:
+        err = max(o["max_abs_err"] for o in par["outputs"])
+        parity = f"matches PyTorch at batch 3 (max abs error {err:.1e})"
+    else:
+        parity = f"DIFFERS from PyTorch at batch 3: {par['error']}"
+    print(f"torchtof export: {what} in {time.perf_counter() - t0:.1f} s; wrote {res['path']} "
+          f"({_size(res['bytes'])}); onnxruntime {parity}")
+    return 0 if par["ok"] else 1
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -252,6 +302,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default="bench_out", help="folder for the JSON and PNGs")
     b.add_argument("--json", default=None,
                    help="write the result to this JSON file instead of OUT/bench_WHICH.json")
+    models = _export_models()
+    b.add_argument("--models", type=csv_list(models) if models else str, default=None,
+                   help="onnx: comma-separated subset of the export models (default: all)")
+    b.add_argument("--no-compile", action="store_true",
+                   help="onnx: time onnxruntime and eager PyTorch only, not torch.compile")
     b.add_argument("--seed", type=int, default=0, help="adaptive: noise seed")
     b.add_argument("--seeds", default=None,
                    help="adaptive: several seeds, e.g. 0-5 or 0,3,7 (one table per seed)")
@@ -288,6 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", default="export_out", help="folder of the .onnx file")
     e.add_argument("-o", "--output", default=None,
                    help="the .onnx file (default OUT/MODEL_nN_srSR.onnx)")
+    e.add_argument("--no-progress", action="store_true",
+                   help="no elapsed-time bar on stderr during the export (none is drawn when "
+                        "stderr is not a terminal either)")
     e.set_defaults(func=cmd_export, check=_check_export, parser=e)
 
     t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)",

@@ -45,6 +45,11 @@ DEPTH_METHODS = ("raw ToF", "depth-sum", "depth-sum gate", "I/Q pinv", "I/Q TVAL
 def affine_fit(x: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Least-squares ``a·x + b`` onto ``depth`` over ``mask``, per image (oracle calibration).
 
+    :func:`torchtof.metrics.affine_fit` with a mask: the same ``(a, b)`` as the library's fit
+    of the masked pixels alone, applied to every pixel (the background is shown in the depth
+    maps but not fitted). Without a mask argument the library's function cannot give this;
+    with an all-true mask the two agree (``tests/test_depth_demo.py``).
+
     Args:
         x: images ``(B, 1, H, W)``; depth: true depth broadcastable to ``x``; mask: bool,
         broadcastable, the pixels that count.

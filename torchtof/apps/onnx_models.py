@@ -33,7 +33,7 @@ from ..recon.tval3 import TVAL3
 from ..recon.unrolled import UnrolledTVAL3, available_weights
 from ..sensor import CameraReadout, correlation_taps, phasor_from_depth
 
-__all__ = ["MODELS", "ModelSpec", "export_model", "MODULATION_HZ", "PAPER_STEP_M"]
+__all__ = ["MODELS", "ModelSpec", "export_model", "export_checked", "MODULATION_HZ", "PAPER_STEP_M"]
 
 #: Modulation frequency of the example inputs (the paper's camera, 30 MHz).
 MODULATION_HZ = 30e6
@@ -466,13 +466,20 @@ def export_model(
     Raises:
         ValueError: unknown ``name`` (or as :func:`export`).
     """
+    return _export_spec(name, n, sr, path, opset, n_iter=n_iter, exporter=exporter,
+                        dynamic_batch=dynamic_batch)[0]
+
+
+def _export_spec(name, n, sr, path, opset, *, n_iter=None, exporter=None, dynamic_batch=True,
+                 func="export_model"):
+    """:func:`export_model`, returning ``(path, module, example inputs)``."""
     if name not in MODELS:
-        raise ValueError(f"export_model: expected name in {sorted(MODELS)}, got {name!r}")
+        raise ValueError(f"{func}: expected name in {sorted(MODELS)}, got {name!r}")
     spec = MODELS[name]
     module, inputs = spec(n, sr, n_iter=n_iter)
     if path is None:
         path = f"{name}_n{n}_sr{sr:g}.onnx"
-    return export(
+    path = export(
         module,
         inputs,
         path,
@@ -482,3 +489,40 @@ def export_model(
         output_names=spec.outputs,
         exporter=exporter or spec.exporter,
     )
+    return path, module, inputs
+
+
+def export_checked(
+    name: str,
+    n: int = 32,
+    sr: float = 0.25,
+    path: str | os.PathLike | None = None,
+    opset: int | None = DEFAULT_OPSET,
+    *,
+    n_iter: int | None = None,
+    exporter: str | None = None,
+    rtol: float = 1e-4,
+    atol: float = 1e-5,
+) -> dict:
+    """:func:`export_model`, then onnxruntime against eager PyTorch on the file
+    (:func:`torchtof.onnx.check`, ``rtol``/``atol``) at a batch of 3, one more than the
+    export's, so the dynamic batch axis is exercised (``torchtof export MODEL``).
+
+    Returns:
+        ``{"path", "bytes", "parity"}``; ``parity`` is the report of
+        :func:`~torchtof.onnx.check` (``"ok": True``, each output's ``max_abs_err``) or
+        ``{"ok": False, "error": message}`` when an output is out of tolerance.
+
+    Raises:
+        ValueError: as :func:`export_model`.
+    """
+    from ..onnx import check
+
+    path, module, inputs = _export_spec(name, n, sr, path, opset, n_iter=n_iter,
+                                        exporter=exporter, func="export_checked")
+    batch3 = tuple(torch.cat([t, t[:1]]) for t in inputs)  # EXPORT_BATCH + 1 samples
+    try:
+        parity = check(path, module, batch3, rtol=rtol, atol=atol)
+    except AssertionError as exc:  # check's way of saying "out of tolerance"
+        parity = {"ok": False, "error": str(exc).strip().splitlines()[0]}
+    return {"path": Path(path), "bytes": Path(path).stat().st_size, "parity": parity}

@@ -159,7 +159,9 @@ def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
     r = realisations if realisations is not None else (2 if quick else 5)
     # --quick: 100 DIP steps instead of the default schedule (the DIP fits dominate the time)
     options = {"DIP": {"max_iter": 100}} if quick else {}
-    t0 = time.perf_counter()
+    from .bench.timing import machine_load
+
+    t0, load_start = time.perf_counter(), machine_load()
     table: dict[str, list[dict]] = {}
     raw: dict[str, dict] = {}
     timings = {}
@@ -239,7 +241,8 @@ def reproduce(out: Path = Path("reproduce_out"), quick: bool = False,
     result = {"realisations": r, "quick": quick, "options": options, "raw": raw, "table": table,
               "depth": depth,
               "claims": [{"claim": c, "held": h, "evidence": e} for c, h, e in claims],
-              "timings": timings, "total_s": time.perf_counter() - t0}
+              "timings": timings, "total_s": time.perf_counter() - t0,
+              "machine": {"start": load_start, "end": machine_load()}}
     (out / "reproduce.json").write_text(json.dumps(result, indent=2))
     print("\n".join(md))
     print("\n".join(cl))

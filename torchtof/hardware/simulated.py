@@ -501,6 +501,8 @@ class FakeOPT8241(_Gone):
                     value = f.put(value, f.get(old))
             self.regs[address] = value
             self._update_flags()
+            with self._cond:  # a read waiting on a camera just halted returns (read())
+                self._cond.notify_all()
             return len(data)
         if int(data_or_wLength) != nbytes:
             raise stall
@@ -542,6 +544,9 @@ class FakeOPT8241(_Gone):
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise _usb_timeout()
+                if self._halted():  # nothing can come: the timeout passes in simulated time
+                    self._cond.wait(min(left, 0.002))  # (a short wall wait: no busy loop)
+                    raise _usb_timeout()
                 if self._pending and self.bench.realtime:
                     left = min(left, max(0.0, (self._pending[0][0] - self.bench.now())
                                          / self.bench.speed))
@@ -564,6 +569,12 @@ class FakeOPT8241(_Gone):
         self.delivered += 1
         self.time_s = stamp
         return bytearray(packet)
+
+    def _halted(self) -> bool:
+        """Streaming halted (``tg_dis``) with nothing queued or being taken, on the instant
+        bench: no frame can arrive before the next register write."""
+        return (not self.bench.realtime and bool(self.field("tg_dis")) and not self._fifo
+                and not self._pending)
 
     @property
     def freq_hz(self) -> float:
@@ -671,7 +682,8 @@ class SimulatedBench:
         realtime: frames take their frame time on the wall clock (scaled by ``speed``) and
             the camera's FIFO holds at most ``fifo_frames``; otherwise every frame is ready
             at once (fast tests) while frame times and missed triggers still follow the
-            simulated clock.
+            simulated clock, and a bulk read of a halted camera (``tg_dis``) times out at
+            once instead of after its timeout.
         speed: how much faster than real time the realtime bench runs.
         fifo_frames: undelivered frames the camera holds (realtime only; a simulator choice).
         sdk_initialised: whether TI's SDK initialised the camera since power-up

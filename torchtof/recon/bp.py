@@ -371,9 +371,9 @@ def basis_pursuit(
             r == "max_iter" for row in names for r in row):  # one check per call, after the loop
         warnings.warn(
             "basis_pursuit: the equality-constrained model (eps=None) ran out of iterations "
-            f"({n_iter}) without converging, which is what noisy buckets do (it fits the noise "
-            "exactly, slowly); pass eps='auto' (noise from the buckets' tail) or eps=<noise "
-            "radius>", UserWarning, stacklevel=2)
+            f"({n_iter}) without converging; raise n_iter, or, if the buckets are noisy (the "
+            "exact fit then fits the noise, slowly), pass eps='auto' (noise from the buckets' "
+            "tail) or eps=<noise radius>", UserWarning, stacklevel=2)
     return BPResult(x, iters, residual, done, names)
 
 

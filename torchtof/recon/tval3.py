@@ -71,10 +71,14 @@ AUTO_MU_MAX = 2.0**8
 #: splitting weight: 4× gave +0.05–0.15 dB and ~15 % fewer iterations in the calibration).
 AUTO_TVL2_BETA = 4.0
 #: ``mu="auto"``: the constrained model is kept when its hold-out error is within this relative
-#: slack of the TV-L2 model's (fewer training rows bias hold-out towards smoothing).
+#: slack of the better TV-L2 model's (fewer training rows bias hold-out towards smoothing).
 AUTO_CV_SLACK = 0.1
 #: ``mu="auto"``: iteration cap of the hold-out solves (bounds the check's cost).
 AUTO_CV_MAX_ITER = 300
+#: ``mu="auto"``: the hold-out check also tries the TV-L2 model at this multiple of the
+#: estimated weight (the tail estimate can only over-read the noise, so the weight it gives can
+#: only be too small; see :func:`tval3`).
+AUTO_CV_FACTOR = 4.0
 #: :func:`bucket_noise_sigma`: fraction of the measurements (from the end) and the quantile used.
 NOISE_TAIL = 0.25
 NOISE_QUANTILE = 0.2
@@ -364,6 +368,17 @@ def tval3(
     in the tail as noise). Noise-free buckets of piecewise-constant scenes estimate
     ``σ ≈ 0`` and get the published model. Give ``mu`` a number for the published behaviour.
 
+    Hold-out check (only when ``σ`` was *estimated* and chose TV-L2, ``adaptive=True``): signal
+    left in the last rows only adds to the tail estimate, so ``μ_auto`` can only be too small
+    (at low SR, on textured or smooth scenes). The constrained model and the TV-L2 models at
+    ``μ_auto`` and ``4 μ_auto`` are fitted on the rows before a held-out block and scored on
+    it (:func:`holdout_split`; for low-to-high orders the last quarter predicted from the rows
+    before it and the quarter before from the first half; ≤ 300 iterations, one batched call);
+    the constrained model is kept when its error is within 10 % of the better TV-L2 model's,
+    else that model is used. When it runs, the call costs 2.8–5× one solve with ``μ = 2⁸``
+    (n = 32–128, measured; ``docs/noise.md``). A ``noise_sigma``
+    from the caller (e.g. :func:`~torchtof.recon.noise.noise_from_pairs`) is trusted as is.
+
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``; float32 or float64.
         A: measurement operator (:class:`~torchtof.operators.LinearOperator`).
@@ -482,7 +497,9 @@ def tval3(
         if (noise_sigma is None or isinstance(noise_sigma, str)) and adaptive and A.m >= 8 \
                 and not is_tracing() and y.device.type != "meta" and bool((~constrained).any()):
             # one host read at entry: validate the estimate's TV-L2 choice on held-out rows
-            keep = _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_iter)
+            keep, mu_cv = _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary,
+                                                max_iter)
+            mu_f = torch.where(constrained, mu_f, mu_cv)
             constrained = constrained | keep
             mu_f = torch.where(keep, torch.full_like(mu_f, AUTO_MU_MAX), mu_f)
             beta_f = torch.where(keep, torch.full_like(beta_f, float(beta)), beta_f)
@@ -523,34 +540,41 @@ def stop_names(code: torch.Tensor) -> tuple:
 
 
 def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_iter
-                          ) -> torch.Tensor:
-    """``(B, C)`` bool: samples where the published constrained model (``μ = 2⁸``) predicts
-    held-out buckets at least as well as the TV-L2 model that the noise estimate chose.
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(keep, mu)``, each ``(B, C)``: ``keep`` where the published constrained model
+    (``μ = 2⁸``) predicts held-out buckets within :data:`AUTO_CV_SLACK` of the better of the
+    two TV-L2 models ``μ`` and ``4μ`` (:data:`AUTO_CV_FACTOR`) around the weight the noise
+    estimate chose; ``mu`` the TV-L2 weight of the two that predicts them better.
 
     Hold-out folds of :func:`holdout_split` with ``k = 3`` (for low-to-high Hadamard orders
     the last quarter of the rows predicted from the rows before it, and the quarter before
-    that from the first half; else three random folds), both
-    models fitted with the same options as the final solve and at most
-    :data:`AUTO_CV_MAX_ITER` iterations, batched as four channels of one call (cost: at
-    most 4 × 300 batched iterations, run only when the estimate chose TV-L2). A tail noise
-    estimate reads signal as noise where the high-order rows still carry signal (low SR,
-    smooth or textured scenes); this check keeps the published model there
-    (``docs/auto.md``: the loss on noise-free buckets).
+    that from the first half; else three random folds), the three models fitted with the same
+    options as the final solve and at most :data:`AUTO_CV_MAX_ITER` iterations, batched as
+    channels of one call (cost: at most 9 × 300 batched iterations, run only when the
+    estimate chose TV-L2). A tail noise estimate reads signal as noise where the high-order
+    rows still carry signal (low SR, smooth or textured scenes), so the weight it gives is too
+    small there; this check keeps the published model or the larger weight there
+    (``docs/noise.md``: the loss on noise-free buckets).
     """
     b, c, m = y.shape
     held, train = holdout_split(A, 3, y, 0, default_split(A))  # (F, M), F = 2 or 3
-    nf = held.shape[0]
-    op = MaskedRows(A, train.repeat_interleave(2, dim=0))  # channel 2f + j: fold f, model j
+    nf, nm = held.shape[0], 3  # models: constrained, TV-L2 μ, TV-L2 4μ
+    op = MaskedRows(A, train.repeat_interleave(nm, dim=0))  # channel nm·f + j: fold f, model j
     ys = y.reshape(b * c, 1, m)
-    yt = ys * train.repeat_interleave(2, dim=0).to(y.dtype)
-    mus = torch.stack((torch.full_like(mu_f, AUTO_MU_MAX), mu_f), dim=-1).reshape(b * c, 2)
-    tl = torch.tensor([False, True], device=y.device).repeat(nf)
+    yt = ys * train.repeat_interleave(nm, dim=0).to(y.dtype)
+    mus = torch.stack((torch.full_like(mu_f, AUTO_MU_MAX), mu_f, AUTO_CV_FACTOR * mu_f),
+                      dim=-1).reshape(b * c, nm)
+    tl = torch.tensor([False, True, True], device=y.device).repeat(nf)
     budget = min(max_iter, AUTO_CV_MAX_ITER)
     r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=budget, tv=tv,
               nonneg=nonneg, bounds=bounds, boundary=boundary)
-    hm = held.repeat_interleave(2, dim=0).to(y.dtype)
-    err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, 2).sum(1)  # (BC, 2)
-    return (err[:, 0] <= (1 + AUTO_CV_SLACK) * err[:, 1]).reshape(b, c)
+    hm = held.repeat_interleave(nm, dim=0).to(y.dtype)
+    err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, nm).sum(1)  # (BC, nm)
+    larger = err[:, 2] < err[:, 1]
+    best = torch.where(larger, err[:, 2], err[:, 1])
+    keep = err[:, 0] <= (1 + AUTO_CV_SLACK) * best
+    mu = torch.where(larger, mus[:, 2], mus[:, 1])
+    return keep.reshape(b, c), mu.reshape(b, c)
 
 
 def _check_boundary(boundary: str, fn: str) -> None:

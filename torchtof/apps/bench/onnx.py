@@ -139,6 +139,7 @@ def bench_onnx(
         "threads": threads,
         "torch": torch.__version__,
         "onnxruntime": __import__("onnxruntime").__version__,
+        "n_iter": {k: v for k, v in n_iter.items() if k in names},
         "rows": rows,
     }
 

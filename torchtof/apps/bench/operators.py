@@ -65,6 +65,7 @@ def bench_operators(
         "benchmark": "operators",
         "batch": batch,
         "sr": sr,
+        "repeat": repeat,
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
         "rows": rows,

@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import torch
 
-__all__ = ["time_call"]
+__all__ = ["time_call", "machine_load"]
 
 
 def time_call(fn: Callable[[], object], repeat: int = 7, min_time_s: float = 0.05, warmup: int = 1):
@@ -33,3 +33,16 @@ def time_call(fn: Callable[[], object], repeat: int = 7, min_time_s: float = 0.0
         sync()
         samples.append((time.perf_counter() - t0) / inner)
     return statistics.median(samples)
+
+
+def machine_load() -> dict:
+    """What the machine was doing: the 1-minute load average (``os.getloadavg``, ``None``
+    where the OS has none), the CPU count and torch's intra-op threads. Benchmarks record it
+    at their start and end, because their seconds only mean something with the load."""
+    import os
+
+    try:
+        load = round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):  # Windows
+        load = None
+    return {"load_1min": load, "cpus": os.cpu_count(), "threads": torch.get_num_threads()}
