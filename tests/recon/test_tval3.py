@@ -633,7 +633,7 @@ def test_auto_mu_loses_at_most_half_a_db_on_noise_free_buckets_at_low_sr(scene, 
     from torchtof.scenes import skimage_scene
 
     A = Hadamard(n, sr=0.0625)
-    x = skimage_scene("coins", n, dtype=torch.float64) if scene == "coins" else _planar(n)
+    x = skimage_scene("coins", n, dtype=torch.float64) if scene == "coins" else planar_depth(n)
     y = A(x)
     assert float(bucket_noise_sigma(y)) > 0.005 * float(y.max() - y.min())
     r = tval3(y, A)
