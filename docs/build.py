@@ -14,6 +14,10 @@ typed by hand. ``make docs`` reruns the commands and rewrites the blocks::
     python docs/build.py                  # rewrite README.md from the JSON already there
     python docs/build.py --check          # exit 1 if README.md differs from its JSON
 
+A target whose rerun takes far longer than ``make docs`` may (the fault sweep, the learned
+reconstructor's held-out evaluation) is render-only: ``--run NAME`` prints its command and
+measured duration instead of running it, and its block is still rendered from the JSON.
+
 ``--run`` prints how long each command took and records its seconds and the machine's load
 in ``docs/build_times.json``; every command writes its JSON under ``docs/`` with ``--out DIR``
 (and records the load itself where it reports seconds), so a rendered time always comes with
@@ -49,6 +53,9 @@ class Section:
     render: Callable[[object], str]
     command: tuple[str, ...]  # what regenerates the JSON (run from the repository root)
     note: str = ""
+    #: a rerun far longer than ``make docs`` may take: ``--run NAME`` prints the command and
+    #: this measured duration instead of running it (the block still renders from the JSON)
+    render_only: str = ""
 
 
 def _f(x: float, digits: int = 2) -> str:
@@ -345,6 +352,47 @@ def render_unrolled(res: dict) -> str:
     return "\n".join(out)
 
 
+def _int(k: int) -> str:
+    """12656 as "12 656"."""
+    return f"{k:,}".replace(",", " ")
+
+
+def render_bad_inputs(res: dict) -> str:
+    """The bad-input matrix of ``tests/reliability/`` summed over the modules it covers."""
+    tot = {c: sum(res["counts"][m][c] for m in res["modules"]) for c in res["classes"]}
+    return (f"`tests/reliability/` misuses {res['calls']} public calls of these modules as a "
+            "user would (a list, int64, NaN, Inf, wrong rank, float16/bfloat16/complex, B = 0, "
+            f"meta tensors, bad sizes and rates): of {_int(sum(tot.values()))} cases, "
+            f"{_int(tot['clear'])} are refused clearly and {_int(tot['correct'])} answered "
+            f"correctly — {tot['silent-wrong']} silent-wrong, {tot['cryptic']} cryptic, "
+            f"{tot['crash']} crash (torch {res['torch']}; `{res['command']}` prints the table "
+            "per module and writes this JSON).")
+
+
+FAULT_KINDS = {"drop": "lost", "extra": "spurious", "duplicate": "duplicated",
+               "frame_timeout": "missed-trigger", "corrupt": "short", "split": "split",
+               "stall": "stalled"}
+
+
+def render_fault_sweep(res: dict) -> str:
+    """The full fault sweep of ``benchmarks/fault_sweep.py``: counts, time and load."""
+    setup, modes = res["setup"], res["modes"]
+    kinds = setup["kinds"]
+    one = next(iter(modes.values()))
+    loads = (res["load_avg_start"][0], res["load_avg_end"][0])
+    return (f"Every single frame fault ({', '.join(FAULT_KINDS.get(k, k) for k in kinds)}: "
+            f"{len(kinds)} kinds × {setup['positions']} frames of one sequence) and every "
+            f"unordered pair of them ({_int(one['doubles'])}) on the simulated bench, with device "
+            f"frame numbers and with host counting: **{_int(res['runs'])} runs, "
+            f"{res['wrong_buckets']} wrong buckets, {res['failed_runs']} failed runs**, each "
+            "run's buckets read back from its own store and compared bit for bit with the clean "
+            "run's (`docs/reliability/fault_sweep.json`). To reproduce: `OMP_NUM_THREADS=1 "
+            f"{res['command']}` ({res['workers']} worker processes; one run of "
+            f"{res['wall_s'] / 60:.0f} min wall, {res['cpu_s'] / 60:.0f} min CPU on a shared "
+            f"{res['cores']}-core machine, 1-minute load average {min(loads):.0f}–"
+            f"{max(loads):.0f}, torch {res['torch']}, {res['date_utc'][:10]}).")
+
+
 ONNX_LABELS = {"unrolled_tval3": "unrolled TVAL3 (K = 12)", "g2": "g2", "bp": "basis pursuit",
                "tval3": "TVAL3, fixed iterations", "dip": "DIP U-Net"}
 
@@ -440,6 +488,18 @@ SECTIONS: dict[str, Section] = {
         (sys.executable, "-m", "torchtof.cli", "bench", "stability", "--out", "docs/bench"),
         "the numerical stress matrix",
     ),
+    "bad_inputs": Section(
+        "docs/reliability/bad_inputs.json", render_bad_inputs,
+        (sys.executable, "-m", "tests.reliability.matrix", "--out",
+         "docs/reliability/bad_inputs.json"),
+        "the bad-input matrix: every misuse of the public calls, classified",
+    ),
+    "fault_sweep": Section(
+        "docs/reliability/fault_sweep.json", render_fault_sweep,
+        (sys.executable, "benchmarks/fault_sweep.py", "--workers", "2"),
+        "every single and double frame fault on the simulated bench",
+        render_only="37 min wall on 2 workers at load 7–18",
+    ),
 }
 
 _BLOCK = re.compile(
@@ -514,6 +574,11 @@ def main(argv: list[str] | None = None) -> int:
 
         for name in names:
             cmd = SECTIONS[name].command
+            if SECTIONS[name].render_only:
+                print(f"[docs] {name}: not rerun here ({SECTIONS[name].render_only}); to "
+                      f"regenerate {SECTIONS[name].json}: OMP_NUM_THREADS=1 python "
+                      f"{' '.join(cmd[1:])}", flush=True)
+                continue
             print(f"[docs] {name}: {' '.join(cmd)}", flush=True)
             t0, start = time.perf_counter(), machine_load()
             start.pop("threads")  # this process's, not the command's

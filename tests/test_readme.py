@@ -205,3 +205,50 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     path = json.loads((tmp_path / "ok.json").read_text())["path"]
     assert path.split(__import__("os").pathsep)[0] == str(tmp_path)
     assert times["ok"]["start"]["cpus"] >= 1 and "load_1min" in times["ok"]["end"]
+
+
+def test_bad_inputs_sums_only_the_modules_the_sentence_names():
+    build = _build()
+    zero = dict.fromkeys(("clear", "correct", "silent-wrong", "cryptic", "crash"), 0)
+    res = {"calls": 3, "modules": ["operators", "sensor"], "classes": list(zero),
+           "counts": {"operators": {**zero, "clear": 10, "correct": 4},
+                      "sensor": {**zero, "clear": 5, "cryptic": 1},
+                      "recon": {**zero, "clear": 100, "crash": 7}},  # outside: not counted
+           "torch": "t", "command": "python -m tests.reliability.matrix --out x.json"}
+    text = build.render_bad_inputs(res)
+    # 10 + 4 + 5 + 1 = 20 cases, 15 clear, 4 correct, 1 cryptic, recon left out
+    assert "misuses 3 public calls" in text and "of 20 cases, 15 are refused clearly and 4 " \
+        "answered correctly — 0 silent-wrong, 1 cryptic, 0 crash" in text
+
+
+def test_fault_sweep_states_counts_time_and_load_from_its_json():
+    build = _build()
+    mode = {"runs": 6328, "singles": 112, "doubles": 6216}
+    res = {"setup": {"kinds": ["drop", "stall"], "positions": 16}, "modes": {"device": mode},
+           "runs": 12656, "wrong_buckets": 1, "failed_runs": 2, "wall_s": 2220.6,
+           "cpu_s": 1570.2, "workers": 2, "cores": 2, "load_avg_start": [7.06, 3.6, 2.5],
+           "load_avg_end": [17.58, 14.9, 12.7], "torch": "t", "date_utc": "2026-11-25T15:38Z",
+           "command": "python benchmarks/fault_sweep.py --workers 2"}
+    text = build.render_fault_sweep(res)
+    assert "(lost, stalled: 2 kinds × 16 frames" in text and "pair of them (6 216)" in text
+    assert "**12 656 runs, 1 wrong buckets, 2 failed runs**" in text
+    # 2220.6 s = 37.0 min, 1570.2 s = 26.2 min; loads 7.06 and 17.58
+    assert "37 min wall, 26 min CPU" in text and "load average 7–18" in text
+
+
+def test_run_prints_a_render_only_command_instead_of_running_it(tmp_path, monkeypatch, capsys):
+    build = _build()
+    marker = tmp_path / "ran"
+    sec = build.Section("x.json", lambda d: f"v {d['v']}",
+                        (sys.executable, "-c", f"open({str(marker)!r}, 'w')"),
+                        render_only="2 h here")
+    (tmp_path / "x.json").write_text('{"v": 7}', encoding="utf-8")
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- generated:x -->\n<!-- /generated:x -->\n", encoding="utf-8")
+    for name, value in (("ROOT", tmp_path), ("README", readme), ("SECTIONS", {"x": sec}),
+                        ("TIMES", tmp_path / "times.json")):
+        monkeypatch.setattr(build, name, value)
+    assert build.main(["--run", "x"]) == 0
+    assert not marker.exists()
+    assert "x: not rerun here (2 h here)" in capsys.readouterr().out
+    assert "<!-- generated:x -->\nv 7\n" in readme.read_text()
