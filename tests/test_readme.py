@@ -184,7 +184,9 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     import json
 
     build = _build()
-    ok = (sys.executable, "-c", "import json, os; open('ok.json', 'w').write(json.dumps("
+    # sleeps 0.2 s so that its time, recorded to 0.1 s, cannot round to 0
+    ok = (sys.executable, "-c", "import json, os, time; time.sleep(0.2); "
+          "open('ok.json', 'w').write(json.dumps("
           "{'v': 3, 'path': os.environ['PYTHONPATH']}))")
     sections = {"ok": build.Section("ok.json", lambda d: f"value {d['v']}", ok),
                 "bad": build.Section("bad.json", str, (sys.executable, "-c",
