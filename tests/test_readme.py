@@ -254,3 +254,38 @@ def test_run_prints_a_render_only_command_instead_of_running_it(tmp_path, monkey
     assert not marker.exists()
     assert "x: not rerun here (2 h here)" in capsys.readouterr().out
     assert "<!-- generated:x -->\nv 7\n" in readme.read_text()
+
+
+def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
+    build = _build()
+
+    def row(n, sr, level, cls, learned, tval3, t_l=0.01, t_t=0.2):
+        return {"n": n, "sr": sr, "level": level, "class": cls, "learned": [learned, 0.5],
+                "tval3": [tval3, 0.4], "t_learned": t_l, "t_tval3": t_t}
+
+    rows = [row(32, 0.125, 0.01, "depth", 20.0, 19.0),   # Δ +1.0, ratio 20
+            row(32, 0.125, 0.01, "natural", 18.0, 19.0),  # Δ -1.0, ratio 20
+            row(32, 0.25, 0.0, "depth", 25.0, 22.0, t_t=0.05),  # Δ +3.0, ratio 5
+            row(256, 0.125, 0.0, "depth", 30.0, 29.5, t_l=1.0, t_t=0.8)]  # Δ +0.5, ratio 0.8
+    res = {"rows": rows,
+           "auto_rows": [{"n": 32, "sr": 0.125, "level": 0.01, "class": "depth",
+                          "auto": [19.5, 0.4]}],
+           "speed": [{"n": 32, "learned_ms": 15.2, "tval3_ms": 220.8, "ratio": 14.56,
+                      "load_avg": 12.3}],
+           "onnx": [{"n": 32, "batch": 8, "ort_ms": 5.01, "torch_ms": 14.64,
+                     "max_abs_err": 6.6e-7}],
+           "paper": [{"sr": 0.125, "gate": False, "learned": [10.6, 0.2],
+                      "tval3": [9.9, 0.15]}]}
+    text = build.render_learned(res)
+    assert "| n = 32 | n = 256 (SR ≤ 12.5 % only) |" in text
+    assert "| 0 % | +3.00 (min +3.00) | +0.50 (min +0.50) |" in text
+    assert "| 1 % | +0.00 (min -1.00) | - |" in text  # (1 - 1) / 2
+    assert "| 14.6× (15 / 221 ms) | - |" in text
+    assert "+0.50 dB at SR ≤ 12.5 %, 1 % noise (1 cells, min +0.50)" in text  # 20 - 19.5
+    assert "at every SR, with and without the 3 m gate" in text
+    assert "it is +0.00 dB from TVAL3's defaults on average (2 cells" in text
+    assert "worse in 1 of 3 (class, n, SR, noise) cells at n ≤ 128 (worst -1.00 dB: n = 32, " \
+        "SR 12.5 %, 1 % noise natural)" in text
+    # medians: n = 32 over 20, 20, 5 -> 20; n = 256: 0.8
+    assert "20.0× at n = 32, 0.8× at n = 256" in text
+    assert "below 10× on 1 of 1 noise-free cells at n ≤ 128 (down to 5.0×), 0.8–0.8×" in text
