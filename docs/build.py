@@ -481,6 +481,21 @@ def render_learned(res: dict) -> str:
     return "\n".join(out + ["", text, "", text2])
 
 
+def render_export_time(res: dict) -> str:
+    """Seconds each exporter took per model (``export/export.py``'s own timer)."""
+    out = []
+    for model in dict.fromkeys(r["model"] for r in res["rows"]):
+        by = {r["exporter"]: r for r in res["rows"] if r["model"] == model}
+        r = next(iter(by.values()))
+        lab = ONNX_LABELS.get(model, f"`{model}`")
+        if "torchscript" in by and "dynamo" in by:
+            t, d = by["torchscript"]["export_s"], by["dynamo"]["export_s"]
+            out.append(f"{lab} at n = {r['n']}, SR {_sr(r['sr'])}: {d:.1f} s to export with "
+                       f"dynamo against {t:.1f} s with the TorchScript tracer ({d / t:.0f}×)")
+    return ("Export time, one run each (`" + res["command"] + "`, " + _load(res) + ", torch "
+            + res["torch"] + "): " + "; ".join(out) + ".")
+
+
 ONNX_LABELS = {"unrolled_tval3": "unrolled TVAL3 (K = 12)", "g2": "g2", "bp": "basis pursuit",
                "tval3": "TVAL3, fixed iterations", "dip": "DIP U-Net"}
 
@@ -564,6 +579,11 @@ SECTIONS: dict[str, Section] = {
         (sys.executable, "-m", "torchtof.cli", "bench", "onnx", "--models",
          "unrolled_tval3,g2,bp,tval3,dip", "--no-compile", "--out", "docs/bench"),
         "onnxruntime against eager PyTorch for the reconstructors",
+    ),
+    "export_time": Section(
+        "docs/export_time/export_time.json", render_export_time,
+        (sys.executable, "benchmarks/export_time.py", "--out", "docs/export_time"),
+        "seconds each ONNX exporter takes on the unrolled TVAL3",
     ),
     "tval3": Section(
         "docs/bench/tval3.json", render_tval3,

@@ -289,3 +289,15 @@ def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
     # medians: n = 32 over 20, 20, 5 -> 20; n = 256: 0.8
     assert "20.0× at n = 32, 0.8× at n = 256" in text
     assert "below 10× on 1 of 1 noise-free cells at n ≤ 128 (down to 5.0×), 0.8–0.8×" in text
+
+
+def test_export_time_is_dynamo_over_the_tracer_with_its_load():
+    build = _build()
+    rows = [{"model": "unrolled_tval3", "n": 32, "sr": 0.25, "n_iter": 12, "exporter": e,
+             "export_s": s} for e, s in (("torchscript", 1.5), ("dynamo", 36.0))]
+    text = build.render_export_time({"rows": rows, "machine": _machine(4.37, 5.37),
+                                     "torch": "t", "command": "python x.py"})
+    # 36.0 / 1.5 = 24
+    assert ("unrolled TVAL3 (K = 12) at n = 32, SR 25 %: 36.0 s to export with dynamo against "
+            "1.5 s with the TorchScript tracer (24×)") in text
+    assert "load 4.4–5.4 on 2 CPUs, 1 thread" in text and "`python x.py`" in text
