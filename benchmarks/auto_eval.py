@@ -23,25 +23,11 @@ import time
 import torch
 
 import torchtof as tt
+from torchtof.data import planar_depth
 from torchtof.recon import auto, tval3
 from torchtof.recon.auto import AUTO_WEIGHTS
 
 SRS = (0.0625, 0.125, 0.25, 0.375)
-
-
-def planar_depth(n: int, seed: int = 0) -> torch.Tensor:
-    """Piecewise-planar depth: a tilted background plane and three tilted rectangles, in [0, 1]."""
-    g = torch.Generator().manual_seed(seed)
-    yy, xx = torch.meshgrid(torch.linspace(0, 1, n, dtype=torch.float64),
-                            torch.linspace(0, 1, n, dtype=torch.float64), indexing="ij")
-    z = 0.8 - 0.2 * xx - 0.1 * yy
-    for _ in range(3):
-        r0, c0 = (torch.rand(2, generator=g) * 0.6).tolist()
-        h, w = (0.2 + torch.rand(2, generator=g) * 0.3).tolist()
-        a, b, c = (torch.rand(3, generator=g) * torch.tensor([0.4, 0.3, 0.3])).tolist()
-        m = (yy >= r0) & (yy < r0 + h) & (xx >= c0) & (xx < c0 + w)
-        z = torch.where(m, 0.1 + a + b * (xx - c0) + c * (yy - r0), z)
-    return ((z - z.min()) / (z.max() - z.min()))[None, None]
 
 
 def scene(name: str, n: int) -> torch.Tensor:
@@ -63,23 +49,26 @@ def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:
 
 
 def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
-    """PSNR of every candidate of ``auto`` refitted on all buckets as ``auto`` refits its
-    choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), order of ``cands``."""
+    """PSNR of every first-stage candidate of ``auto`` refitted on all buckets as ``auto``
+    refits its choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), in the
+    order of ``cands`` (second-stage weights and the box-only candidate are skipped)."""
     out = {}
-    finite = [w for w in AUTO_WEIGHTS if w != float("inf")]
-    pairs = []
+    groups = []
     for c in cands:
-        if (c["tv"], c["bounds"]) not in pairs:
-            pairs.append((c["tv"], c["bounds"]))
-    for tv, box in pairs:
-        r = tval3(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, bounds=box)
-        out[(tv, box, None)] = psnr(r.x, x)[0]
+        if c["stage"] == 1 and c["tv"] is not None and (
+                c["tv"], c["boundary"], c["bounds"]) not in groups:
+            groups.append((c["tv"], c["boundary"], c["bounds"]))
+    finite = [w for w in AUTO_WEIGHTS if w != float("inf")]
+    for tv, bd, box in groups:
+        r = tval3(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        out[(tv, bd, box, None)] = psnr(r.x, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
         r = tval3(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
-                  bounds=box)
+                  boundary=bd, bounds=box)
         for j, p in enumerate(psnr(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
-            out[(tv, box, finite[j])] = p
-    return [out[(c["tv"], c["bounds"], c["mu"])] for c in cands]
+            out[(tv, bd, box, finite[j])] = p
+    return [out[(c["tv"], c["boundary"], c["bounds"], c["mu"])] for c in cands
+            if (c["tv"], c["boundary"], c["bounds"], c["mu"]) in out]
 
 
 def noise_table(ns, srs, scenes, levels=(0.0, 0.01, 0.03)) -> list[dict]:
@@ -188,7 +177,7 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
                       f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
-                      f"{ch['tv'][:3]} {bd} {mu} | {t_def:.2f} | {t_auto:.1f} |", flush=True)
+                      f"{(ch['tv'] or 'box')[:3]} {bd} {mu} | {t_def:.2f} | {t_auto:.1f} |", flush=True)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)

@@ -581,22 +581,28 @@ def winners(data: dict) -> str:
 
 
 def merge(runs: list[dict]) -> dict:
-    """One document from several runs (each run's header kept). Cells of the same problem
-    (scene, n, SR, order, noise, seed) are united: a later run's methods are added beside
-    the earlier ones (a method in both keeps the earlier result) and the headline is
-    recomputed."""
+    """One document from several runs (each run's header kept; a merged document's run list
+    is flattened into the new one). Cells of the same problem (scene, n, SR, order, noise,
+    seed) are united: a later run's methods are added beside the earlier ones. A method in
+    both keeps the earlier result, unless the later run was asked for it by name (``--only``:
+    a re-measurement, e.g. of ``torchtof auto`` after a change), then the later result
+    replaces it. The headline is recomputed."""
     if len(runs) == 1:
         return runs[0]
-    out = {"runs": [{k: v for k, v in r.items() if k != "cells"} for r in runs], "cells": []}
+    heads = []
+    for r in runs:
+        heads += r["runs"] if "runs" in r else [{k: v for k, v in r.items() if k != "cells"}]
+    out = {"runs": heads, "cells": []}
     index: dict = {}
     for r in runs:
         seed = r.get("args", {}).get("seed", 0)
+        redo = set(r.get("args", {}).get("only") or ())
         for c in r["cells"]:
             key = (*_cell_key(c), seed)
             if key in index:
                 old = index[key]
                 for name, v in c["results"].items():
-                    if name not in old["results"]:
+                    if name not in old["results"] or name in redo:
                         old["results"][name] = {**v, "other_process": True}
                 old["headline"] = headline(old["results"])
             else:

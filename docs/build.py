@@ -707,7 +707,7 @@ def main(argv: list[str] | None = None) -> int:
             times = json.loads(TIMES.read_text(encoding="utf-8")) if TIMES.exists() else {}
             end = machine_load()
             end.pop("threads")
-            times[name] = {"seconds": round(took[name], 1), "start": start, "end": end,
+            times[name] = {"seconds": round(took[name], 3), "start": start, "end": end,
                            "command": " ".join(["python", *cmd[1:]])}
             TIMES.write_text(json.dumps(times, indent=1, sort_keys=True) + "\n", encoding="utf-8")
             print(f"[docs] {name}: {took[name]:.0f} s", flush=True)

@@ -172,6 +172,15 @@ def test_merge_unites_cells_of_the_same_problem():
     assert r["torchtof auto"]["other_process"]
     h = m["cells"][0]["headline"]
     assert h["default"] == "torchtof auto" and h["gap_db"] == pytest.approx(1.0)
+    # a later run that names a method (--only) re-measures it: its result replaces the old
+    run3 = {"args": {"only": ["torchtof auto"]},
+            "cells": [cell({"torchtof tval3": {"peer": "torchtof", "psnr": 98.0},
+                            "torchtof auto": {"peer": "torchtof", "psnr": 24.0}})]}
+    m2 = pb.merge([m, run3])
+    r2 = m2["cells"][0]["results"]
+    assert r2["torchtof auto"]["psnr"] == 24.0 and r2["torchtof tval3"]["psnr"] == 20.0
+    assert m2["cells"][0]["headline"]["gap_db"] == pytest.approx(-1.0)
+    assert len(m2["runs"]) == 3  # the merged document's run list is flattened
 
 
 # --------------------------------------------------------------------------- adapters

@@ -9,6 +9,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from torchtof.data import planar_depth
 from torchtof.operators import Hadamard, PatternOperator, random_binary_patterns
 from torchtof.recon.tv import grad2, grad2_adjoint
 from torchtof.recon.tval3 import (
@@ -607,28 +608,13 @@ def test_boundary_known_answer(boundary):
     assert abs(float(tv_norm(r.x, boundary=boundary)) - expected) < 0.05 * expected
 
 
-def _planar(n, seed=0):
-    """Piecewise-planar depth in [0, 1]: tilted background and three tilted rectangles."""
-    g = torch.Generator().manual_seed(seed)
-    yy, xx = torch.meshgrid(torch.linspace(0, 1, n, dtype=torch.float64),
-                            torch.linspace(0, 1, n, dtype=torch.float64), indexing="ij")
-    z = 0.8 - 0.2 * xx - 0.1 * yy
-    for _ in range(3):
-        r0, c0 = (torch.rand(2, generator=g) * 0.6).tolist()
-        h, w = (0.2 + torch.rand(2, generator=g) * 0.3).tolist()
-        a, b, c = (torch.rand(3, generator=g) * torch.tensor([0.4, 0.3, 0.3])).tolist()
-        m = (yy >= r0) & (yy < r0 + h) & (xx >= c0) & (xx < c0 + w)
-        z = torch.where(m, 0.1 + a + b * (xx - c0) + c * (yy - r0), z)
-    return ((z - z.min()) / (z.max() - z.min()))[None, None]
-
-
 def test_auto_mu_keeps_the_published_model_on_noise_free_smooth_buckets():
     # Piecewise-planar depth, noise-free, SR 25 %: the tail of the cake-cutting rows still
     # carries signal, so the tail estimate reads noise and alone picks the TV-L2 model
     # (18.7 dB below mu = 2^8 before the check); the hold-out check keeps the published model.
     n = 32
     A = Hadamard(n, sr=0.25)
-    x = _planar(n)
+    x = planar_depth(n)
     y = A(x)
     spread = float(y.max() - y.min())
     assert float(bucket_noise_sigma(y)) > 0.005 * spread  # the estimate reads signal as noise
@@ -647,7 +633,7 @@ def test_auto_mu_loses_at_most_half_a_db_on_noise_free_buckets_at_low_sr(scene, 
     from torchtof.scenes import skimage_scene
 
     A = Hadamard(n, sr=0.0625)
-    x = skimage_scene("coins", n, dtype=torch.float64) if scene == "coins" else _planar(n)
+    x = skimage_scene("coins", n, dtype=torch.float64) if scene == "coins" else planar_depth(n)
     y = A(x)
     assert float(bucket_noise_sigma(y)) > 0.005 * float(y.max() - y.min())
     r = tval3(y, A)

@@ -9,6 +9,7 @@ from .scenes import (
     draw_scene,
     draw_scenes,
     grey_image,
+    planar_depth,
 )
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "draw_scene",
     "draw_scenes",
     "grey_image",
+    "planar_depth",
     "NoiseRecipe",
     "noisy_buckets",
     "training_noise",

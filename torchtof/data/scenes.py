@@ -42,6 +42,7 @@ __all__ = [
     "draw_scene",
     "draw_scenes",
     "grey_image",
+    "planar_depth",
 ]
 
 #: Scene families and their training probabilities.
@@ -296,3 +297,33 @@ def draw_scenes(
     return torch.cat(
         [draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype) for i in indices]
     )
+
+
+def planar_depth(n: int, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """A fixed piecewise-planar depth map for evaluation: a tilted background plane and three
+    tilted axis-aligned rectangles, min–max normalised to ``[0, 1]``, shape ``(1, 1, n, n)``.
+
+    Unlike the ``"planar"`` family of :func:`draw_scene` (random polygons and ellipses, random
+    span) the layout is simple and the range is always the full ``[0, 1]``; deterministic for
+    a given ``(n, seed)``.
+
+    Raises:
+        ValueError: if ``n < 2``.
+
+    Example:
+        >>> planar_depth(16).shape
+        torch.Size([1, 1, 16, 16])
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 2:
+        raise ValueError(f"planar_depth: expected n to be an int >= 2, got {n!r}")
+    g = torch.Generator().manual_seed(int(seed))
+    yy, xx = torch.meshgrid(torch.linspace(0, 1, n, dtype=torch.float64),
+                            torch.linspace(0, 1, n, dtype=torch.float64), indexing="ij")
+    z = 0.8 - 0.2 * xx - 0.1 * yy
+    for _ in range(3):
+        r0, c0 = (torch.rand(2, generator=g) * 0.6).tolist()
+        h, w = (0.2 + torch.rand(2, generator=g) * 0.3).tolist()
+        a, b, c = (torch.rand(3, generator=g) * torch.tensor([0.4, 0.3, 0.3])).tolist()
+        m = (yy >= r0) & (yy < r0 + h) & (xx >= c0) & (xx < c0 + w)
+        z = torch.where(m, 0.1 + a + b * (xx - c0) + c * (yy - r0), z)
+    return ((z - z.min()) / (z.max() - z.min()))[None, None].to(dtype)

@@ -17,28 +17,53 @@ Which measurements are held out matters. For Hadamard rows in a low-to-high orde
 package's default cake-cutting order) the reconstruction's task is to predict the rows
 *after* the measured ones, so the default ``split="tail"`` holds out the last rows and fits
 on the rows before them (a forward, "rolling-origin" validation, Tashman 2000, Int. J.
-Forecasting 16). A random partition (``split="random"``, the default for unordered patterns
-such as random 0/1) held out rows of every sequency and, on textured scenes at low SR,
-preferred the smoothest candidate (it predicts unpredictable coefficients as 0) and lost
+Forecasting 16); with the default ``folds=3`` the last quarter is predicted from the first
+three quarters and the third quarter from the first half. A random partition
+(``split="random"``, the default for unordered patterns such as random 0/1) held out rows of
+every sequency and, on textured scenes at low SR, preferred the smoothest candidate and lost
 up to 3 dB (``docs/auto.md``). Rows that alone carry the image mean (the all-ones Hadamard
 row: TV does not see a constant) stay in every training set.
 
-Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` × bounds ``{none, x ≥ 0}``
-(plus the caller's ``bounds`` box) × weights: the published equality-constrained TVAL3
-(``μ = 2⁸``) and the TV-L2 model with ``μ ∈ 2^{10, 8, 6, 4}`` on the scaled buckets: 20
-candidates (30 with a box).
+**Discrepancy bound.** On a textured scene the held-out rows are barely predictable and the
+smoothest candidate, which predicts them as almost 0, scores best while it misfits the rows
+it was fitted on. A candidate whose misfit of its own training rows exceeds
+``FIT_TAU2 · (training rows) · σ̂²`` (``FIT_TAU2 = 1``) is therefore dropped (Morozov's
+discrepancy principle, Morozov 1966, Soviet Math. Dokl. 7, as a bound, not as the choice);
+``σ̂`` is :func:`~torchtof.recon.tval3.bucket_noise_sigma`, which over-estimates σ (it reads
+signal in the tail rows as noise), so the bound errs towards keeping candidates. If every
+candidate exceeds it, none is dropped.
 
-Cost: each (TV, bounds) pair is one batched :func:`~torchtof.recon.tval3` call with
-``F × 5`` channels per sample (``F`` folds: ``K − 1`` for ``"tail"``, ``K`` for
-``"random"``) at ``cv_iter`` iterations, then the refit (one call per chosen (TV, bounds,
-model) group). With the defaults (``K = 2`` tail split, ``cv_iter = 100``, 4 pairs): 4
-batched calls of 5 channels × 100 iterations plus one TVAL3 solve: about 20 × 100 = 2000
-single-image iterations besides the refit, i.e. about 20 default TVAL3 solves of ~100
-iterations (measured times in ``docs/auto.md``).
+Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` with Neumann boundaries (no
+difference across the image border, the discrete gradient of Chambolle 2004, J. Math.
+Imaging Vis. 20) × bounds ``{none, x ≥ 0}`` (plus the caller's ``bounds`` box) × weights: the
+published equality-constrained TVAL3 (``μ = 2⁸``) and the TV-L2 model with
+``μ ∈ 2^{12, 10, 8, 6, 4, 2}`` on the scaled buckets (stage 1: 28 candidates, 42 with a box);
+then (stage 2) the stage-1 TV-L2 choice is compared with its neighbours ``μ·2`` and
+``μ/2`` on the same folds.
+
+**The box alone.** Given a finite box ``(lo, hi)``, the image may be determined by the box
+and the measurements without any prior: a binary image is a vertex of the box, and a
+vertex is the unique box-feasible solution from fewer measurements than a smooth image needs
+(Donoho & Tanner 2010, Discrete Comput. Geom. 43; Mangasarian & Recht 2011, Eur. J. Oper.
+Res. 214). Cross-validation cannot see this (with a quarter of the rows held out the box no
+longer determines the image: ``docs/auto.md``), so it is tested directly: box-constrained
+least squares is solved from two starts that differ only in the null space of ``A``; if the
+two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
+leave no freedom and that solution is returned (``choice["tv"] is None``).
+
+Cost (defaults: ``folds=3`` → 2 folds, ``cv_iter=100``): stage 1 is one batched
+:func:`~torchtof.recon.tval3` call per (TV, bounds) pair — 4 calls (6 with a box) of
+2 folds × 7 weights = 14 channels × 100 iterations; stage 2 one call of 4 channels for the
+chosen pair; with a finite box two projected-gradient solves of ``BOX_ITER = 100`` steps
+(``A`` and ``Aᵀ`` only); then one refit. That is 6,000 (8,800 with a box) single-channel
+TVAL3 iterations besides the refit, bounded and independent of the data; batched, it took
+a median 5.2× (n = 32) and 8.5× (n = 64) the time of one default TVAL3 solve (measured in
+``docs/auto.md``).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import torch
@@ -46,14 +71,40 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
-from .tval3 import STOP_REASONS, MaskedRows, check_buckets, default_split, holdout_split, tval3
+from .tv import largest_eig_normal
+from .tval3 import (
+    STOP_REASONS,
+    MaskedRows,
+    bucket_noise_sigma,
+    check_buckets,
+    default_split,
+    holdout_split,
+    tval3,
+)
 
-__all__ = ["auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "candidates"]
+__all__ = [
+    "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_TVS", "AUTO_BOUNDARIES", "candidates",
+]
 
-#: TV-L2 weights tried (on the buckets scaled as TVAL3's ``Scaleb``); ``inf``: the published
-#: equality-constrained model with ``μ = 2⁸``.
-AUTO_WEIGHTS = (float("inf"), 2.0**10, 2.0**8, 2.0**6, 2.0**4)
+#: First-stage TV-L2 weights (on the buckets scaled as TVAL3's ``Scaleb``), a factor 4 apart;
+#: ``inf``: the published equality-constrained model with ``μ = 2⁸``.
+AUTO_WEIGHTS = (float("inf"), 2.0**12, 2.0**10, 2.0**8, 2.0**6, 2.0**4, 2.0**2)
+#: Second stage: the first stage's TV-L2 choice is compared with ``μ·REFINE`` and ``μ/REFINE``.
+REFINE = 2.0
+#: TV priors and boundary conditions tried.
+AUTO_TVS = ("isotropic", "anisotropic")
+AUTO_BOUNDARIES = ("neumann",)
+#: Discrepancy bound: a candidate whose misfit of its own training rows exceeds
+#: ``FIT_TAU2 · (training rows) · σ̂²`` (``σ̂``: :func:`~torchtof.recon.tval3.bucket_noise_sigma`)
+#: under-fits and is dropped, unless every candidate does.
+FIT_TAU2 = 1.0
+#: Iterations of the box-only candidate (projected gradient, only with a finite box).
+BOX_ITER = 100
+#: The box alone is taken to determine the image when two box-only solves from starts that
+#: differ in the null space of ``A`` agree to this fraction of the box width (RMS).
+BOX_UNIQUE = 0.01
 _CONSTRAINED_MU = 2.0**8
+_INF = float("inf")
 
 
 class AutoResult(NamedTuple):
@@ -65,11 +116,17 @@ class AutoResult(NamedTuple):
         residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)``.
         converged: ``(B, C)`` bool.
         stop_reason: names ``[b][c]`` (see :data:`~torchtof.recon.tval3.STOP_REASONS`).
-        choice: the chosen candidate per sample ``[b][c]``, a dict ``tv``, ``bounds``, ``mu``
-            (``None``: the constrained model), ``cv``.
+        choice: the chosen candidate per sample ``[b][c]``, a dict ``tv`` (``None``: the
+            box-only candidate), ``boundary``, ``bounds``, ``mu`` (``None``: the constrained
+            model or the box-only candidate), ``cv``.
         cv_error: ``(B, C, len(candidates))`` cross-validation error of every candidate, in
-            the squared units of ``y``.
+            the squared units of ``y``; ``nan`` for a second-stage weight that was not fitted
+            for that sample (only the neighbours of its first-stage choice are).
         candidates: the candidate list, as dicts (same order as ``cv_error``).
+        fit_error: ``(B, C, len(candidates))`` each candidate's misfit of its own training
+            rows, summed over the folds (``nan`` where not fitted).
+        fit_bound: ``(B, C)`` the discrepancy bound on ``fit_error``; candidates above it
+            are not chosen unless all are (module doc).
     """
 
     x: torch.Tensor
@@ -80,17 +137,44 @@ class AutoResult(NamedTuple):
     choice: tuple
     cv_error: torch.Tensor
     candidates: tuple
+    fit_error: torch.Tensor | None = None
+    fit_bound: torch.Tensor | None = None
+
+
+def _finite_box(bounds) -> bool:
+    return bounds is not None and bounds[0] is not None and bounds[1] is not None
+
+
+def _boxes(bounds) -> list:
+    return [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
+
+
+def _groups(bounds) -> list:
+    return [(tv, bd, box) for tv in AUTO_TVS for bd in AUTO_BOUNDARIES for box in _boxes(bounds)]
+
+
+def _fine(w: float) -> tuple:
+    return () if w == _INF else (w * REFINE, w / REFINE)
 
 
 def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
-    """The candidate list of :func:`auto`: dicts ``tv``, ``bounds``, ``mu`` (``None``: the
-    constrained model with ``μ = 2⁸``)."""
-    boxes = [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
+    """The candidate list of :func:`auto`: dicts ``tv``, ``boundary``, ``bounds``, ``mu``
+    (``None``: the constrained model with ``μ = 2⁸``) and ``stage`` (1: fitted for every
+    sample; 2: a factor-``REFINE`` neighbour of a first-stage weight, fitted only around a
+    sample's first-stage choice). Given a finite box, one more candidate ``tv=None``: least
+    squares on the box alone, no TV (projected gradient); it is not cross-validated (its
+    ``cv_error`` is ``nan``) but chosen when the box alone determines the image (module doc)."""
     out = []
-    for tv in ("isotropic", "anisotropic"):
-        for box in boxes:
-            for mu in AUTO_WEIGHTS:
-                out.append(dict(tv=tv, bounds=box, mu=None if mu == float("inf") else mu))
+    for tv, bd, box in _groups(bounds):
+        for mu in AUTO_WEIGHTS:
+            out.append(dict(tv=tv, boundary=bd, bounds=box,
+                            mu=None if mu == _INF else mu, stage=1))
+        fine = sorted({f for w in AUTO_WEIGHTS for f in _fine(w)} - set(AUTO_WEIGHTS),
+                      reverse=True)
+        for mu in fine:
+            out.append(dict(tv=tv, boundary=bd, bounds=box, mu=mu, stage=2))
+    if _finite_box(bounds):
+        out.append(dict(tv=None, boundary=None, bounds=tuple(bounds), mu=None, stage=1))
     return tuple(out)
 
 
@@ -111,11 +195,67 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
     check_positive(slack, "slack", fn, strict=False)
 
 
+def _box_ls(y: torch.Tensor, A: LinearOperator, lo: float, hi: float, iters: int,
+            lip: float, x0: torch.Tensor | None = None) -> torch.Tensor:
+    """``argmin ½‖Ax − y‖²`` over the box ``lo ≤ x ≤ hi`` by FISTA with projection (Beck &
+    Teboulle 2009, SIAM J. Imaging Sci. 2, Eq. 4.1–4.3; step ``1/L``, ``L = λ_max(AᵀA)``),
+    ``iters`` steps from ``x0`` (default: the box's centre). ``y (B, C, M)`` ->
+    ``x (B, C, n, n)``."""
+    x = y.new_full((*y.shape[:2], A.n, A.n), 0.5 * (float(lo) + float(hi))) if x0 is None else x0
+    z, t = x, 1.0
+    for _ in range(iters):
+        xn = (z - A.adjoint(A(z) - y) / lip).clamp(float(lo), float(hi))
+        tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
+        z = xn + ((t - 1.0) / tn) * (xn - x)
+        x, t = xn, tn
+    return x
+
+
+def _box_alone(ys: torch.Tensor, A: LinearOperator, lo: float, hi: float, lip: float,
+               seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Box-only least squares from two starts that differ only in the null space of ``A``:
+    ``c ± r``, ``c`` the box's centre, ``r = P_null(s)`` scaled to ``max|r| = (hi − lo)/2``,
+    ``s`` a seeded ±1 pattern. ``ys (R, 1, M)`` -> (their mean ``(R, 1, n, n)``, ``(R,)`` bool:
+    the two agree to :data:`BOX_UNIQUE` of the box width, RMS)."""
+    g = torch.Generator().manual_seed(int(seed))
+    s = (torch.randint(0, 2, (1, 1, A.n, A.n), generator=g) * 2 - 1).to(ys.dtype).to(ys.device)
+    r = s - A.pinv(A(s))  # the part of s that no measurement sees
+    r = r * (0.5 * (hi - lo) / r.abs().amax().clamp_min(torch.finfo(ys.dtype).tiny))
+    x0 = torch.cat([0.5 * (lo + hi) + r, 0.5 * (lo + hi) - r], dim=1).expand(ys.shape[0], -1, -1,
+                                                                             -1)
+    xs = _box_ls(ys.expand(-1, 2, -1), A, lo, hi, BOX_ITER, lip, x0)
+    gap = (xs[:, 0] - xs[:, 1]).pow(2).mean(dim=(-2, -1)).sqrt() / (hi - lo)
+    return xs.mean(dim=1, keepdim=True), gap <= BOX_UNIQUE
+
+
+def _rank(cands: tuple, like: torch.Tensor) -> torch.Tensor:
+    """Least-regularised first: the weight, ``inf`` for the constrained and box-only models."""
+    return torch.tensor([_INF if c["mu"] is None else c["mu"] for c in cands], dtype=like.dtype,
+                        device=like.device)
+
+
+def _score(cv: torch.Tensor, fit: torch.Tensor, fit_max: torch.Tensor) -> torch.Tensor:
+    """The held-out error, ``inf`` where not fitted and, in every row where some candidate
+    meets the discrepancy bound ``fit ≤ fit_max``, for the candidates that do not."""
+    ok = fit <= fit_max  # nan (not fitted) compares False
+    drop = ok.any(dim=1, keepdim=True) & ~ok
+    return torch.where(drop | cv.isnan(), torch.full_like(cv, _INF), cv)
+
+
+def _pick(cv: torch.Tensor, rank: torch.Tensor, slack: float) -> torch.Tensor:
+    """Per row of ``cv (R, K)`` (``inf`` where not fitted): the least regularised candidate
+    whose CV error is within ``1 + slack`` of the row's smallest, ties to the smallest CV."""
+    ok = cv <= (1 + slack) * cv.amin(dim=1, keepdim=True)
+    r = rank.expand_as(cv)
+    top = torch.where(ok, r, torch.full_like(r, -1.0)).amax(dim=1, keepdim=True)
+    return torch.where(ok & (r == top), cv, torch.full_like(cv, _INF)).argmin(1)
+
+
 def auto(
     y: torch.Tensor,
     A: LinearOperator,
     bounds: tuple[float | None, float | None] | None = None,
-    folds: int = 2,
+    folds: int = 3,
     cv_iter: int = 100,
     max_iter: int = 1025,
     *,
@@ -127,20 +267,24 @@ def auto(
     """TV reconstruction with prior, bounds and weight chosen by cross-validation (module doc).
 
     Choice: the candidate with the smallest CV error; with ``slack > 0`` the least
-    regularised one (largest ``μ``; the constrained model counts as ``μ = ∞``) whose CV error
-    is within ``1 + slack`` of the smallest (CV with fewer training rows tends to
-    over-regularise, Shao 1993, JASA 88; but measured over the scenes of ``docs/auto.md``
-    ``slack = 0.1`` lost up to 10 dB on smooth images, ``slack = 0`` is the default). The
-    refit runs a chosen TV-L2 model to convergence (``max_iter``) and the constrained model
-    with the ``cv_iter`` budget that was validated (its iteration count is its regulariser:
-    run longer, it fits more noise).
+    regularised one (largest ``μ``; the constrained and the box-only models count as
+    ``μ = ∞``) whose CV error is within ``1 + slack`` of the smallest (CV with fewer
+    training rows tends to over-regularise, Shao 1993, JASA 88; measured in
+    ``docs/auto.md``, ``slack = 0`` is the default). Candidates that break the discrepancy
+    bound are dropped first, and the box-only model overrides the choice when the box alone
+    determines the image (module doc). The refit runs a chosen TV-L2 model to
+    convergence (``max_iter``) and the constrained model with the ``cv_iter`` budget that
+    was validated (its iteration count is its regulariser: run longer, it fits more noise);
+    the box-only solution is the test's own (``BOX_ITER`` steps, ``stop_reason``
+    ``"max_iter"``).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``, float32/float64; every sample chooses alone.
         A: the operator (any :class:`~torchtof.operators.LinearOperator`).
         bounds: a box ``(lo, hi)`` the caller knows (units of ``x``; e.g. ``(0, 1)`` for an
             image normalised by a calibration frame, ``(0, c/2f)`` for a depth image): added
-            as a candidate beside none and ``x ≥ 0``.
+            as a bound beside none and ``x ≥ 0``; a finite box also adds the box-only
+            candidate (module doc).
         folds: ``K ≥ 2``. ``split="random"``: ``K`` folds of a random partition.
             ``split="tail"``: ``K − 1`` folds, fold ``j`` holding out the block of ``M/(2(K−1))``
             rows ending ``j`` blocks before the last row, trained on the rows before it.
@@ -176,52 +320,100 @@ def auto(
         x = y.new_zeros(b, c, A.n, A.n)
         res = AutoResult(x, torch.zeros(b, c, dtype=torch.int64, device=y.device),
                          y.new_zeros(b, c), torch.ones(b, c, dtype=torch.bool, device=y.device),
-                         (), (), y.new_zeros(b, c, len(cands)), cands)
+                         (), (), y.new_zeros(b, c, len(cands)), cands,
+                         y.new_zeros(b, c, len(cands)), y.new_zeros(b, c))
         return res if return_result else x
-    ys = y.reshape(b * c, 1, m)
-    nw = len(AUTO_WEIGHTS)
-    boxes = [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
-    pairs = [(tv, box) for tv in ("isotropic", "anisotropic") for box in boxes]
+    bc = b * c
+    ys = y.reshape(bc, 1, m)
+    index = {(k["tv"], k["boundary"], k["bounds"], k["mu"]): i for i, k in enumerate(cands)}
     held, train = holdout_split(A, folds, y, seed, split)  # (F, M)
     nf = held.shape[0]
-    mask = train.repeat_interleave(nw, dim=0)  # channel j: fold j // nw, weight j % nw
-    op = MaskedRows(A, mask)
+    hm, tm = held.to(y.dtype), train.to(y.dtype)
+    cv_err = y.new_full((bc, len(cands)), float("nan"))
+    fit_err = y.new_full((bc, len(cands)), float("nan"))
+    # the discrepancy bound on a candidate's misfit of its own training rows (module doc)
+    sig = bucket_noise_sigma(y).reshape(bc, 1)
+    fit_max = FIT_TAU2 * float(train.sum()) * sig * sig
+
+    # -- stage 1: every group at the coarse weights, batched over folds × weights
     wts = torch.tensor(AUTO_WEIGHTS, dtype=y.dtype, device=y.device)
-    mus = torch.where(wts.isinf(), torch.full_like(wts, _CONSTRAINED_MU), wts).repeat(nf)
-    tvl2 = (~wts.isinf()).repeat(nf)
-    yt = ys * mask.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
-    hm = held.repeat_interleave(nw, dim=0).to(y.dtype)
-    cv = []
-    for tv, box in pairs:
-        r = tval3(yt, op, mu=mus.expand(b * c, -1), tvl2=tvl2.expand(b * c, -1),
-                  max_iter=cv_iter, tv=tv, bounds=box)
-        pred = (A(r.x) - ys) * hm
-        cv.append((pred * pred).sum(-1).reshape(b * c, nf, nw).sum(1))  # (BC, W)
-    cv_err = torch.stack(cv, dim=1).reshape(b * c, -1)  # (BC, pairs·W), order of `cands`
-    wrank = wts.repeat(len(pairs))  # weight of each candidate (inf: constrained)
-    ok = cv_err <= (1 + slack) * cv_err.amin(dim=1, keepdim=True)
-    top = torch.where(ok, wrank, torch.full_like(wrank, -1.0)).amax(dim=1, keepdim=True)
-    best = torch.where(ok & (wrank == top), cv_err, torch.full_like(cv_err, torch.inf)).argmin(1)
-    best_l = best.tolist()  # one host read: the choice decides which solves run
-    x = y.new_zeros(b * c, 1, A.n, A.n)
-    n_iter = torch.zeros(b * c, 1, dtype=torch.int64, device=y.device)
-    conv = torch.zeros(b * c, 1, dtype=torch.bool, device=y.device)
-    codes = torch.zeros(b * c, 1, dtype=torch.int64, device=y.device)
-    for p, (tv, box) in enumerate(pairs):
+    mus1 = torch.where(wts.isinf(), torch.full_like(wts, _CONSTRAINED_MU), wts)
+    tvl2_1 = ~wts.isinf()
+    mask1 = train.repeat_interleave(len(wts), dim=0)
+    yt1 = ys * mask1.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
+    hm1, tm1 = hm.repeat_interleave(len(wts), dim=0), tm.repeat_interleave(len(wts), dim=0)
+    for g in _groups(bounds):
+        tv, bd, box = g
+        r = tval3(yt1, MaskedRows(A, mask1), mu=mus1.repeat(nf).expand(bc, -1),
+                  tvl2=tvl2_1.repeat(nf).expand(bc, -1), max_iter=cv_iter, tv=tv, boundary=bd,
+                  bounds=box)
+        r2 = (A(r.x) - ys).square()
+        cols = [index[(tv, bd, box, None if w == _INF else w)] for w in AUTO_WEIGHTS]
+        cv_err[:, cols] = (r2 * hm1).sum(-1).reshape(bc, nf, len(wts)).sum(1)  # (BC, W)
+        fit_err[:, cols] = (r2 * tm1).sum(-1).reshape(bc, nf, len(wts)).sum(1)
+    lip, unique = 1.0, None
+    if _finite_box(bounds):  # does the box alone determine the image? (module doc)
+        lip = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
+        xb, unique = _box_alone(ys, A, float(bounds[0]), float(bounds[1]), lip, seed)
+    rank = _rank(cands, y)
+    first = _pick(_score(cv_err, fit_err, fit_max), rank, slack).tolist()  # one host read:
+    # the first stage's choice decides which solves run next
+
+    # -- stage 2: the factor-REFINE neighbours of each sample's first-stage TV-L2 weight
+    for g in _groups(bounds):
+        tv, bd, box = g
+        rows = [i for i, k in enumerate(first)
+                if cands[k]["tv"] == tv and cands[k]["boundary"] == bd
+                and cands[k]["bounds"] == box and cands[k]["mu"] is not None]
+        if not rows:
+            continue
+        fine = [_fine(cands[first[i]]["mu"]) for i in rows]
+        mus2 = torch.tensor(fine, dtype=y.dtype, device=y.device)  # (R, 2)
+        mask2 = train.repeat_interleave(2, dim=0)
+        idx = torch.tensor(rows, device=y.device)
+        r = tval3(ys[idx] * mask2.to(y.dtype), MaskedRows(A, mask2), mu=mus2.repeat(1, nf),
+                  tvl2=True, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        r2 = (A(r.x) - ys[idx]).square()
+        e = (r2 * hm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2).sum(1)
+        f = (r2 * tm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2).sum(1)
+        for j, i in enumerate(rows):
+            for q, w in enumerate(fine[j]):
+                cv_err[i, index[(tv, bd, box, w)]] = e[j, q]
+                fit_err[i, index[(tv, bd, box, w)]] = f[j, q]
+    best_l = _pick(_score(cv_err, fit_err, fit_max), rank, slack).tolist()
+    if unique is not None:
+        k_box = index[(None, None, tuple(bounds), None)]
+        best_l = [k_box if u else k for k, u in zip(best_l, unique.tolist())]
+
+    # -- refit the choice on every row: one call per (group, model)
+    x = y.new_zeros(bc, 1, A.n, A.n)
+    n_iter = torch.zeros(bc, 1, dtype=torch.int64, device=y.device)
+    conv = torch.zeros(bc, 1, dtype=torch.bool, device=y.device)
+    codes = torch.zeros(bc, 1, dtype=torch.int64, device=y.device)
+    for g in _groups(bounds):
+        tv, bd, box = g
         for constrained in (True, False):
             rows = [i for i, k in enumerate(best_l)
-                    if k // nw == p and (AUTO_WEIGHTS[k % nw] == float("inf")) == constrained]
+                    if (cands[k]["tv"], cands[k]["boundary"], cands[k]["bounds"]) == g
+                    and (cands[k]["mu"] is None) == constrained]
             if not rows:
                 continue
-            w = torch.tensor([AUTO_WEIGHTS[best_l[i] % nw] for i in rows], dtype=y.dtype,
-                             device=y.device)
             idx = torch.tensor(rows, device=y.device)
             if constrained:
-                r = tval3(ys[idx], A, mu=_CONSTRAINED_MU, max_iter=cv_iter, tv=tv, bounds=box)
-            else:
-                r = tval3(ys[idx], A, mu=w[:, None], tvl2=True, max_iter=max_iter, tv=tv,
+                r = tval3(ys[idx], A, mu=_CONSTRAINED_MU, max_iter=cv_iter, tv=tv, boundary=bd,
                           bounds=box)
+            else:
+                w = torch.tensor([cands[best_l[i]]["mu"] for i in rows], dtype=y.dtype,
+                                 device=y.device)
+                r = tval3(ys[idx], A, mu=w[:, None], tvl2=True, max_iter=max_iter, tv=tv,
+                          boundary=bd, bounds=box)
             x[idx], n_iter[idx], conv[idx], codes[idx] = r.x, r.n_iter, r.converged, r.stop_code
+    rows = [i for i, k in enumerate(best_l) if cands[k]["tv"] is None]
+    if rows:
+        idx = torch.tensor(rows, device=y.device)
+        x[idx] = xb[idx]
+        n_iter[idx] = BOX_ITER  # its fixed budget (the validated regulariser), not a tolerance
+        codes[idx] = STOP_REASONS.index("max_iter")
     x = x.reshape(b, c, A.n, A.n)
     ynorm = y.norm(dim=-1)
     residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
@@ -232,7 +424,8 @@ def auto(
     codes = codes.reshape(b, c)
     reasons = tuple(tuple(STOP_REASONS[k] for k in row) for row in codes.tolist())
     res = AutoResult(x, n_iter.reshape(b, c), residual, conv.reshape(b, c), reasons, choice,
-                     cv_err.reshape(b, c, -1), cands)
+                     cv_err.reshape(b, c, -1), cands, fit_err.reshape(b, c, -1),
+                     fit_max.reshape(b, c))
     return res if return_result else x
 
 
@@ -249,7 +442,7 @@ class Auto(nn.Module):
         torch.Size([2, 1, 8, 8])
     """
 
-    def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int = 2,
+    def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int = 3,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
                  slack: float = 0.0, seed: int = 0) -> None:
         super().__init__()
