@@ -496,6 +496,18 @@ def render_export_time(res: dict) -> str:
             + res["torch"] + "): " + "; ".join(out) + ".")
 
 
+def render_learned_recipe(rec: dict) -> str:
+    """How the shipped learned weights were trained, from the ``recipe.json`` beside them."""
+    load = (rec.get("load_avg_end") or [None])[0]
+    ws = rec.get("world_size", 1)
+    return (f"The shipped weights took {rec['steps_run']} steps in {rec['wall_s'] / 60:.1f} min "
+            f"(`{rec['command']}`, {ws} process{'es' * (ws != 1)}, {rec['threads']} "
+            f"thread{'s' * (rec['threads'] != 1)}, 1-minute load "
+            + (f"{load:.0f} at the end" if load is not None else "not recorded")
+            + f", torch {rec['torch_version']}), plus {rec['calibration_wall_s']:.0f} s to "
+            f"calibrate the final step (`{rec['calibration_command']}`).")
+
+
 ONNX_LABELS = {"unrolled_tval3": "unrolled TVAL3 (K = 12)", "g2": "g2", "bp": "basis pursuit",
                "tval3": "TVAL3, fixed iterations", "dip": "DIP U-Net"}
 
@@ -601,6 +613,13 @@ SECTIONS: dict[str, Section] = {
         ("sh", "docs/learned/run.sh"),
         "the learned reconstructor on held-out scenes against TVAL3's defaults",
         render_only="about 80 min at load 12–16",
+    ),
+    "learned_recipe": Section(
+        "torchtof/weights/learned/recipe.json", render_learned_recipe,
+        ("torchtof", "train", "--model", "learned", "--steps", "1300", "--seed", "0", "--out",
+         "/tmp/learned_run", "--max-minutes", "40"),
+        "the shipped learned weights' training run",
+        render_only="a 29-min training run, then --calibrate-only; it rewrites the weights",
     ),
     "bad_inputs": Section(
         "docs/reliability/bad_inputs.json", render_bad_inputs,

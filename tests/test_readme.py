@@ -301,3 +301,15 @@ def test_export_time_is_dynamo_over_the_tracer_with_its_load():
     assert ("unrolled TVAL3 (K = 12) at n = 32, SR 25 %: 36.0 s to export with dynamo against "
             "1.5 s with the TorchScript tracer (24×)") in text
     assert "load 4.4–5.4 on 2 CPUs, 1 thread" in text and "`python x.py`" in text
+
+
+def test_learned_recipe_states_the_training_run_from_the_recipe():
+    build = _build()
+    rec = {"steps_run": 1300, "wall_s": 1712.0, "command": "torchtof train x", "world_size": 2,
+           "threads": 1, "load_avg_end": [10.6, 10.7, 10.8], "torch_version": "t",
+           "calibration_wall_s": 69.6, "calibration_command": "torchtof train y"}
+    text = build.render_learned_recipe(rec)
+    # 1712 s = 28.53 min; 69.6 s rounds to 70
+    assert text.startswith("The shipped weights took 1300 steps in 28.5 min (`torchtof train "
+                           "x`, 2 processes, 1 thread, 1-minute load 11 at the end, torch t)")
+    assert "plus 70 s to calibrate the final step (`torchtof train y`)" in text
