@@ -14,6 +14,10 @@ typed by hand. ``make docs`` reruns the commands and rewrites the blocks::
     python docs/build.py                  # rewrite README.md from the JSON already there
     python docs/build.py --check          # exit 1 if README.md differs from its JSON
 
+A target whose rerun takes far longer than ``make docs`` may (the fault sweep, the learned
+reconstructor's held-out evaluation) is render-only: ``--run NAME`` prints its command and
+measured duration instead of running it, and its block is still rendered from the JSON.
+
 ``--run`` prints how long each command took and records its seconds and the machine's load
 in ``docs/build_times.json``; every command writes its JSON under ``docs/`` with ``--out DIR``
 (and records the load itself where it reports seconds), so a rendered time always comes with
@@ -49,6 +53,9 @@ class Section:
     render: Callable[[object], str]
     command: tuple[str, ...]  # what regenerates the JSON (run from the repository root)
     note: str = ""
+    #: a rerun far longer than ``make docs`` may take: ``--run NAME`` prints the command and
+    #: this measured duration instead of running it (the block still renders from the JSON)
+    render_only: str = ""
 
 
 def _f(x: float, digits: int = 2) -> str:
@@ -345,6 +352,162 @@ def render_unrolled(res: dict) -> str:
     return "\n".join(out)
 
 
+def _int(k: int) -> str:
+    """12656 as "12 656"."""
+    return f"{k:,}".replace(",", " ")
+
+
+def render_bad_inputs(res: dict) -> str:
+    """The bad-input matrix of ``tests/reliability/`` summed over the modules it covers."""
+    tot = {c: sum(res["counts"][m][c] for m in res["modules"]) for c in res["classes"]}
+    return (f"`tests/reliability/` misuses {res['calls']} public calls of these modules as a "
+            "user would (a list, int64, NaN, Inf, wrong rank, float16/bfloat16/complex, B = 0, "
+            f"meta tensors, bad sizes and rates): of {_int(sum(tot.values()))} cases, "
+            f"{_int(tot['clear'])} are refused clearly and {_int(tot['correct'])} answered "
+            f"correctly — {tot['silent-wrong']} silent-wrong, {tot['cryptic']} cryptic, "
+            f"{tot['crash']} crash (torch {res['torch']}; `{res['command']}` prints the table "
+            "per module and writes this JSON).")
+
+
+FAULT_KINDS = {"drop": "lost", "extra": "spurious", "duplicate": "duplicated",
+               "frame_timeout": "missed-trigger", "corrupt": "short", "split": "split",
+               "stall": "stalled"}
+
+
+def render_fault_sweep(res: dict) -> str:
+    """The full fault sweep of ``benchmarks/fault_sweep.py``: counts, time and load."""
+    setup, modes = res["setup"], res["modes"]
+    kinds = setup["kinds"]
+    one = next(iter(modes.values()))
+    loads = (res["load_avg_start"][0], res["load_avg_end"][0])
+    return (f"Every single frame fault ({', '.join(FAULT_KINDS.get(k, k) for k in kinds)}: "
+            f"{len(kinds)} kinds × {setup['positions']} frames of one sequence) and every "
+            f"unordered pair of them ({_int(one['doubles'])}) on the simulated bench, with device "
+            f"frame numbers and with host counting: **{_int(res['runs'])} runs, "
+            f"{res['wrong_buckets']} wrong buckets, {res['failed_runs']} failed runs**, each "
+            "run's buckets read back from its own store and compared bit for bit with the clean "
+            "run's (`docs/reliability/fault_sweep.json`). To reproduce: `OMP_NUM_THREADS=1 "
+            f"{res['command']}` ({res['workers']} worker processes; one run of "
+            f"{res['wall_s'] / 60:.0f} min wall, {res['cpu_s'] / 60:.0f} min CPU on a shared "
+            f"{res['cores']}-core machine, 1-minute load average {min(loads):.0f}–"
+            f"{max(loads):.0f}, torch {res['torch']}, {res['date_utc'][:10]}).")
+
+
+def _sr(sr: float) -> str:
+    return f"{100 * sr:g} %"
+
+
+def render_learned(res: dict) -> str:
+    """The learned reconstructor on held-out scenes (``benchmarks/eval_learned.py``):
+    Δ = PSNR(learned) − PSNR(TVAL3 defaults) per noise level and n, its times, onnxruntime,
+    the automatic TV reconstructor and the paper's experiment."""
+    rows = [r for r in res["rows"] if "learned" in r and "tval3" in r
+            and not r.get("generalisation")]
+
+    def delta(r, ref="tval3"):
+        return r["learned"][0] - r[ref][0]
+
+    ns = sorted({r["n"] for r in rows})
+    levels = sorted({r["level"] for r in rows})
+    srs = {n: sorted({r["sr"] for r in rows if r["n"] == n}) for n in ns}
+    full = max(len(v) for v in srs.values())
+    head = [f"n = {n}" + ("" if len(srs[n]) == full else
+                          f" (SR ≤ {_sr(max(srs[n]))} only)") for n in ns]
+    out = ["| noise | " + " | ".join(head) + " |", "|---|" + "---|" * len(ns)]
+    for lev in levels:
+        cells = []
+        for n in ns:
+            d = [delta(r) for r in rows if r["n"] == n and r["level"] == lev]
+            cells.append(f"{sum(d) / len(d):+.2f} (min {min(d):+.2f})" if d else "-")
+        out.append(f"| {100 * lev:g} % | " + " | ".join(cells) + " |")
+    sp = {r["n"]: r for r in res["speed"]}
+    out.append("| time TVAL3 / learned (min of 3 interleaved, SR 12.5 %, 1 %) | " + " | ".join(
+        f"{sp[n]['ratio']:.1f}× ({sp[n]['learned_ms']:.0f} / {sp[n]['tval3_ms']:.0f} ms)"
+        if n in sp else "-" for n in ns) + " |")
+    loads = [r["load_avg"] for r in res["speed"]]
+    ox = res["onnx"]
+    text = (f"Times on the shared machine at 1-minute load {min(loads):.0f}–{max(loads):.0f}. "
+            f"onnxruntime (1 thread, batch {ox[0]['batch']}, SR 12.5 %): "
+            + ", ".join(f"{o['ort_ms']:.1f} ms per image at n = {o['n']}" for o in ox)
+            + " (eager PyTorch " + " / ".join(f"{o['torch_ms']:.1f}" for o in ox)
+            + " ms under the same load); max abs difference to PyTorch "
+            + " / ".join(f"{o['max_abs_err']:.1e}" for o in ox) + ".")
+    key = ("n", "sr", "level", "class")
+    auto = {tuple(r[k] for k in key): r for r in res["auto_rows"]}
+    low = [r for r in rows if r["sr"] <= 0.125 + 1e-9 and abs(r["level"] - 0.01) < 1e-9]
+    da = [r["learned"][0] - auto[tuple(r[k] for k in key)]["auto"][0] for r in low
+          if tuple(r[k] for k in key) in auto]
+    if da:
+        text += (" Against `auto` (`torchtof.recon.auto`, its defaults; ~20 TVAL3 solves per "
+                 f"image): {sum(da) / len(da):+.2f} dB at SR ≤ 12.5 %, 1 % noise ({len(da)} "
+                 f"cells, min {min(da):+.2f}).")
+    pp = res["paper"]
+    wins = sum(r["learned"][0] > r["tval3"][0] and r["learned"][1] > r["tval3"][1] for r in pp)
+    text += (" On the paper's experiment it scores a higher PSNR and SSIM than TVAL3's defaults "
+             + ("at every SR, with and without the 3 m gate" if wins == len(pp) else
+                f"in {wins} of {len(pp)} (SR, gate) cases") + ".")
+    small = [r for r in rows if r["n"] <= 128]
+    worse = sorted((r for r in small if delta(r) < -0.5), key=delta)
+    dl = [delta(r) for r in low]
+    w0 = worse[0] if worse else min(small, key=delta)
+
+    def ratio(r):
+        return r["t_tval3"] / r["t_learned"]
+
+    def median(xs):
+        xs = sorted(xs)
+        return (xs[(len(xs) - 1) // 2] + xs[len(xs) // 2]) / 2
+
+    med = {n: median([ratio(r) for r in rows if r["n"] == n]) for n in ns}
+    clean = [r for r in small if r["level"] == 0]
+    slow = [r for r in clean if ratio(r) < 10]
+    big = [r for r in rows if r["n"] > 128 and r["level"] == 0]
+    fmt = lambda r: (f"n = {r['n']}, SR {_sr(r['sr'])}, "  # noqa: E731
+                     + ("noise-free" if r["level"] == 0 else f"{100 * r['level']:g} % noise")
+                     + f" {r['class']}")
+    dl = [delta(r) for r in low if r["n"] <= 128]
+    text2 = (f"Measured against its targets: at SR ≤ 12.5 %, 1 % noise and n ≤ 128 it is "
+             f"{sum(dl) / len(dl):+.2f} dB from TVAL3's defaults on average ({len(dl)} cells; "
+             f"the target was +2 dB); it is more than 0.5 dB worse in {len(worse)} of "
+             f"{len(small)} (class, n, SR, noise) cells at n ≤ 128 (worst {delta(w0):+.2f} dB: "
+             f"{fmt(w0)}"
+             + (f"; then {delta(worse[1]):+.2f} dB: {fmt(worse[1])}" if len(worse) > 1 else "")
+             + "). Time TVAL3 / learned, median over each n's cells (target ≥ 10×): "
+             + ", ".join(f"{med[n]:.1f}× at n = {n}" for n in ns)
+             + f"; below 10× on {len(slow)} of {len(clean)} noise-free cells at n ≤ 128"
+             + (f" (down to {min(ratio(r) for r in slow):.1f}×)" if slow else "")
+             + (f", {min(ratio(r) for r in big):.1f}–{max(ratio(r) for r in big):.1f}× on the "
+                "noise-free cells above n = 128" if big else "") + ".")
+    return "\n".join(out + ["", text, "", text2])
+
+
+def render_export_time(res: dict) -> str:
+    """Seconds each exporter took per model (``export/export.py``'s own timer)."""
+    out = []
+    for model in dict.fromkeys(r["model"] for r in res["rows"]):
+        by = {r["exporter"]: r for r in res["rows"] if r["model"] == model}
+        r = next(iter(by.values()))
+        lab = ONNX_LABELS.get(model, f"`{model}`")
+        if "torchscript" in by and "dynamo" in by:
+            t, d = by["torchscript"]["export_s"], by["dynamo"]["export_s"]
+            out.append(f"{lab} at n = {r['n']}, SR {_sr(r['sr'])}: {d:.1f} s to export with "
+                       f"dynamo against {t:.1f} s with the TorchScript tracer ({d / t:.0f}×)")
+    return ("Export time, one run each (`" + res["command"] + "`, " + _load(res) + ", torch "
+            + res["torch"] + "): " + "; ".join(out) + ".")
+
+
+def render_learned_recipe(rec: dict) -> str:
+    """How the shipped learned weights were trained, from the ``recipe.json`` beside them."""
+    load = (rec.get("load_avg_end") or [None])[0]
+    ws = rec.get("world_size", 1)
+    return (f"The shipped weights took {rec['steps_run']} steps in {rec['wall_s'] / 60:.1f} min "
+            f"(`{rec['command']}`, {ws} process{'es' * (ws != 1)}, {rec['threads']} "
+            f"thread{'s' * (rec['threads'] != 1)}, 1-minute load "
+            + (f"{load:.0f} at the end" if load is not None else "not recorded")
+            + f", torch {rec['torch_version']}), plus {rec['calibration_wall_s']:.0f} s to "
+            f"calibrate the final step (`{rec['calibration_command']}`).")
+
+
 ONNX_LABELS = {"unrolled_tval3": "unrolled TVAL3 (K = 12)", "g2": "g2", "bp": "basis pursuit",
                "tval3": "TVAL3, fixed iterations", "dip": "DIP U-Net"}
 
@@ -429,6 +592,11 @@ SECTIONS: dict[str, Section] = {
          "unrolled_tval3,g2,bp,tval3,dip", "--no-compile", "--out", "docs/bench"),
         "onnxruntime against eager PyTorch for the reconstructors",
     ),
+    "export_time": Section(
+        "docs/export_time/export_time.json", render_export_time,
+        (sys.executable, "benchmarks/export_time.py", "--out", "docs/export_time"),
+        "seconds each ONNX exporter takes on the unrolled TVAL3",
+    ),
     "tval3": Section(
         "docs/bench/tval3.json", render_tval3,
         (sys.executable, "benchmarks/bench_tval3.py", "--threads", "1", "--seeds", "0-5",
@@ -439,6 +607,31 @@ SECTIONS: dict[str, Section] = {
         "docs/bench/bench_stability.json", render_stability,
         (sys.executable, "-m", "torchtof.cli", "bench", "stability", "--out", "docs/bench"),
         "the numerical stress matrix",
+    ),
+    "learned": Section(
+        "docs/learned/eval.json", render_learned,
+        ("sh", "docs/learned/run.sh"),
+        "the learned reconstructor on held-out scenes against TVAL3's defaults",
+        render_only="about 80 min at load 12–16",
+    ),
+    "learned_recipe": Section(
+        "torchtof/weights/learned/recipe.json", render_learned_recipe,
+        ("torchtof", "train", "--model", "learned", "--steps", "1300", "--seed", "0", "--out",
+         "/tmp/learned_run", "--max-minutes", "40"),
+        "the shipped learned weights' training run",
+        render_only="a 29-min training run, then --calibrate-only; it rewrites the weights",
+    ),
+    "bad_inputs": Section(
+        "docs/reliability/bad_inputs.json", render_bad_inputs,
+        (sys.executable, "-m", "tests.reliability.matrix", "--out",
+         "docs/reliability/bad_inputs.json"),
+        "the bad-input matrix: every misuse of the public calls, classified",
+    ),
+    "fault_sweep": Section(
+        "docs/reliability/fault_sweep.json", render_fault_sweep,
+        (sys.executable, "benchmarks/fault_sweep.py", "--workers", "2"),
+        "every single and double frame fault on the simulated bench",
+        render_only="37 min wall on 2 workers at load 7–18",
     ),
 }
 
@@ -514,6 +707,12 @@ def main(argv: list[str] | None = None) -> int:
 
         for name in names:
             cmd = SECTIONS[name].command
+            if SECTIONS[name].render_only:
+                shown = " ".join(["python" if cmd[0] == sys.executable else cmd[0], *cmd[1:]])
+                print(f"[docs] {name}: not rerun here ({SECTIONS[name].render_only}); to "
+                      f"regenerate {SECTIONS[name].json}: OMP_NUM_THREADS=1 {shown}",
+                      flush=True)
+                continue
             print(f"[docs] {name}: {' '.join(cmd)}", flush=True)
             t0, start = time.perf_counter(), machine_load()
             start.pop("threads")  # this process's, not the command's
@@ -527,7 +726,7 @@ def main(argv: list[str] | None = None) -> int:
             times = json.loads(TIMES.read_text(encoding="utf-8")) if TIMES.exists() else {}
             end = machine_load()
             end.pop("threads")
-            times[name] = {"seconds": round(took[name], 1), "start": start, "end": end,
+            times[name] = {"seconds": round(took[name], 3), "start": start, "end": end,
                            "command": " ".join(["python", *cmd[1:]])}
             TIMES.write_text(json.dumps(times, indent=1, sort_keys=True) + "\n", encoding="utf-8")
             print(f"[docs] {name}: {took[name]:.0f} s", flush=True)

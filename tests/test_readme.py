@@ -184,7 +184,9 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     import json
 
     build = _build()
-    ok = (sys.executable, "-c", "import json, os; open('ok.json', 'w').write(json.dumps("
+    # sleeps 0.2 s so that its time, recorded to 0.1 s, cannot round to 0
+    ok = (sys.executable, "-c", "import json, os, time; time.sleep(0.2); "
+          "open('ok.json', 'w').write(json.dumps("
           "{'v': 3, 'path': os.environ['PYTHONPATH']}))")
     sections = {"ok": build.Section("ok.json", lambda d: f"value {d['v']}", ok),
                 "bad": build.Section("bad.json", str, (sys.executable, "-c",
@@ -205,3 +207,109 @@ def test_run_times_each_target_records_its_load_and_survives_a_failing_one(
     path = json.loads((tmp_path / "ok.json").read_text())["path"]
     assert path.split(__import__("os").pathsep)[0] == str(tmp_path)
     assert times["ok"]["start"]["cpus"] >= 1 and "load_1min" in times["ok"]["end"]
+
+
+def test_bad_inputs_sums_only_the_modules_the_sentence_names():
+    build = _build()
+    zero = dict.fromkeys(("clear", "correct", "silent-wrong", "cryptic", "crash"), 0)
+    res = {"calls": 3, "modules": ["operators", "sensor"], "classes": list(zero),
+           "counts": {"operators": {**zero, "clear": 10, "correct": 4},
+                      "sensor": {**zero, "clear": 5, "cryptic": 1},
+                      "recon": {**zero, "clear": 100, "crash": 7}},  # outside: not counted
+           "torch": "t", "command": "python -m tests.reliability.matrix --out x.json"}
+    text = build.render_bad_inputs(res)
+    # 10 + 4 + 5 + 1 = 20 cases, 15 clear, 4 correct, 1 cryptic, recon left out
+    assert "misuses 3 public calls" in text and "of 20 cases, 15 are refused clearly and 4 " \
+        "answered correctly — 0 silent-wrong, 1 cryptic, 0 crash" in text
+
+
+def test_fault_sweep_states_counts_time_and_load_from_its_json():
+    build = _build()
+    mode = {"runs": 6328, "singles": 112, "doubles": 6216}
+    res = {"setup": {"kinds": ["drop", "stall"], "positions": 16}, "modes": {"device": mode},
+           "runs": 12656, "wrong_buckets": 1, "failed_runs": 2, "wall_s": 2220.6,
+           "cpu_s": 1570.2, "workers": 2, "cores": 2, "load_avg_start": [7.06, 3.6, 2.5],
+           "load_avg_end": [17.58, 14.9, 12.7], "torch": "t", "date_utc": "2026-11-25T15:38Z",
+           "command": "python benchmarks/fault_sweep.py --workers 2"}
+    text = build.render_fault_sweep(res)
+    assert "(lost, stalled: 2 kinds × 16 frames" in text and "pair of them (6 216)" in text
+    assert "**12 656 runs, 1 wrong buckets, 2 failed runs**" in text
+    # 2220.6 s = 37.0 min, 1570.2 s = 26.2 min; loads 7.06 and 17.58
+    assert "37 min wall, 26 min CPU" in text and "load average 7–18" in text
+
+
+def test_run_prints_a_render_only_command_instead_of_running_it(tmp_path, monkeypatch, capsys):
+    build = _build()
+    marker = tmp_path / "ran"
+    sec = build.Section("x.json", lambda d: f"v {d['v']}",
+                        (sys.executable, "-c", f"open({str(marker)!r}, 'w')"),
+                        render_only="2 h here")
+    (tmp_path / "x.json").write_text('{"v": 7}', encoding="utf-8")
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- generated:x -->\n<!-- /generated:x -->\n", encoding="utf-8")
+    for name, value in (("ROOT", tmp_path), ("README", readme), ("SECTIONS", {"x": sec}),
+                        ("TIMES", tmp_path / "times.json")):
+        monkeypatch.setattr(build, name, value)
+    assert build.main(["--run", "x"]) == 0
+    assert not marker.exists()
+    assert "x: not rerun here (2 h here)" in capsys.readouterr().out
+    assert "<!-- generated:x -->\nv 7\n" in readme.read_text()
+
+
+def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
+    build = _build()
+
+    def row(n, sr, level, cls, learned, tval3, t_l=0.01, t_t=0.2):
+        return {"n": n, "sr": sr, "level": level, "class": cls, "learned": [learned, 0.5],
+                "tval3": [tval3, 0.4], "t_learned": t_l, "t_tval3": t_t}
+
+    rows = [row(32, 0.125, 0.01, "depth", 20.0, 19.0),   # Δ +1.0, ratio 20
+            row(32, 0.125, 0.01, "natural", 18.0, 19.0),  # Δ -1.0, ratio 20
+            row(32, 0.25, 0.0, "depth", 25.0, 22.0, t_t=0.05),  # Δ +3.0, ratio 5
+            row(256, 0.125, 0.0, "depth", 30.0, 29.5, t_l=1.0, t_t=0.8)]  # Δ +0.5, ratio 0.8
+    res = {"rows": rows,
+           "auto_rows": [{"n": 32, "sr": 0.125, "level": 0.01, "class": "depth",
+                          "auto": [19.5, 0.4]}],
+           "speed": [{"n": 32, "learned_ms": 15.2, "tval3_ms": 220.8, "ratio": 14.56,
+                      "load_avg": 12.3}],
+           "onnx": [{"n": 32, "batch": 8, "ort_ms": 5.01, "torch_ms": 14.64,
+                     "max_abs_err": 6.6e-7}],
+           "paper": [{"sr": 0.125, "gate": False, "learned": [10.6, 0.2],
+                      "tval3": [9.9, 0.15]}]}
+    text = build.render_learned(res)
+    assert "| n = 32 | n = 256 (SR ≤ 12.5 % only) |" in text
+    assert "| 0 % | +3.00 (min +3.00) | +0.50 (min +0.50) |" in text
+    assert "| 1 % | +0.00 (min -1.00) | - |" in text  # (1 - 1) / 2
+    assert "| 14.6× (15 / 221 ms) | - |" in text
+    assert "+0.50 dB at SR ≤ 12.5 %, 1 % noise (1 cells, min +0.50)" in text  # 20 - 19.5
+    assert "at every SR, with and without the 3 m gate" in text
+    assert "it is +0.00 dB from TVAL3's defaults on average (2 cells" in text
+    assert "worse in 1 of 3 (class, n, SR, noise) cells at n ≤ 128 (worst -1.00 dB: n = 32, " \
+        "SR 12.5 %, 1 % noise natural)" in text
+    # medians: n = 32 over 20, 20, 5 -> 20; n = 256: 0.8
+    assert "20.0× at n = 32, 0.8× at n = 256" in text
+    assert "below 10× on 1 of 1 noise-free cells at n ≤ 128 (down to 5.0×), 0.8–0.8×" in text
+
+
+def test_export_time_is_dynamo_over_the_tracer_with_its_load():
+    build = _build()
+    rows = [{"model": "unrolled_tval3", "n": 32, "sr": 0.25, "n_iter": 12, "exporter": e,
+             "export_s": s} for e, s in (("torchscript", 1.5), ("dynamo", 36.0))]
+    text = build.render_export_time({"rows": rows, "machine": _machine(4.37, 5.37),
+                                     "torch": "t", "command": "python x.py"})
+    # 36.0 / 1.5 = 24
+    assert ("unrolled TVAL3 (K = 12) at n = 32, SR 25 %: 36.0 s to export with dynamo against "
+            "1.5 s with the TorchScript tracer (24×)") in text
+    assert "load 4.4–5.4 on 2 CPUs, 1 thread" in text and "`python x.py`" in text
+
+
+def test_learned_recipe_states_the_training_run_from_the_recipe():
+    build = _build()
+    rec = {"steps_run": 1300, "wall_s": 1712.0, "command": "torchtof train x", "world_size": 2,
+           "threads": 1, "load_avg_end": [10.6, 10.7, 10.8], "torch_version": "t",
+           "calibration_wall_s": 69.6, "calibration_command": "torchtof train y"}
+    text = build.render_learned_recipe(rec)
+    # 1712 s = 28.53 min; 69.6 s rounds to 70
+    assert text.startswith("The shipped weights took 1300 steps in 28.5 min (`torchtof train "
+                           "x`, 2 processes, 1 thread, 1-minute load 11 at the end, torch t)")
+    assert "plus 70 s to calibrate the final step (`torchtof train y`)" in text

@@ -19,7 +19,8 @@ zero sizes, floats for ints, strings, NaN, Inf). Every case is classified:
 - ``crash``: ``MemoryError``, ``RecursionError``, ``SystemError``.
 
 The oracles come from the definitions (linearity, dtype promotion, the empty sum), not from
-the library's own tolerances. Run ``python -m tests.reliability.matrix`` for the counts.
+the library's own tolerances. Run ``python -m tests.reliability.matrix`` for the counts
+(``--out FILE.json`` also writes them, per module, for the README).
 """
 
 from __future__ import annotations
@@ -245,12 +246,28 @@ def counts(rows) -> dict[str, dict[str, int]]:
     return table
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+    import json
+    from pathlib import Path
+
     from .specs import OUTSIDE, SPECS
 
+    p = argparse.ArgumentParser(description="Classify every misuse of the public calls.")
+    p.add_argument("--out", default=None, help="also write the counts per module to this JSON")
+    args = p.parse_args(argv)
     torch.manual_seed(0)
     rows = run_matrix(SPECS + OUTSIDE)
     table = counts(rows)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps({
+            "calls": len(SPECS), "modules": sorted({s.module for s in SPECS}),
+            "outside_calls": len(OUTSIDE),
+            "outside_modules": sorted({s.module for s in OUTSIDE} - {s.module for s in SPECS}),
+            "classes": list(CLASSES), "counts": table, "torch": torch.__version__,
+            "command": "python -m tests.reliability.matrix --out " + args.out},
+            indent=1) + "\n", encoding="utf-8")
     width = max(len(m) for m in table) + 2
     print("module".ljust(width) + "".join(c.rjust(14) for c in CLASSES) + "total".rjust(8))
     for mod, row in sorted(table.items()):
