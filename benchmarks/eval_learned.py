@@ -16,7 +16,7 @@ Buckets: ``Hadamard(n, sr, order)`` with Gaussian noise of ``level × (max y −
 MAX = 1, no quantisation) and SSIM of the reconstruction clipped to [0, 1] against the scene.
 Time: wall time of one batched call over the class's scenes divided by their number, one
 thread, after a warm-up call, TVAL3 and the learned model interleaved (same machine load);
-``auto`` is scored, and timed without a warm-up (it is ~20 TVAL3 solves).
+``auto`` is scored, and timed without a warm-up (it costs about 5–9× a default TVAL3 solve, docs/auto.md).
 
 usage: python benchmarks/eval_learned.py [--sizes 32 64 128] [--srs 0.0625 0.125 0.25 0.375]
        [--levels 0 0.01 0.05] [--out main.json] [--generalisation] [--methods ...]

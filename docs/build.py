@@ -438,7 +438,7 @@ def render_learned(res: dict) -> str:
     da = [r["learned"][0] - auto[tuple(r[k] for k in key)]["auto"][0] for r in low
           if tuple(r[k] for k in key) in auto]
     if da:
-        text += (" Against `auto` (`torchtof.recon.auto`, its defaults; ~20 TVAL3 solves per "
+        text += (" Against `auto` (`torchtof.recon.auto`, its defaults; about 5–9× a default TVAL3 solve per "
                  f"image): {sum(da) / len(da):+.2f} dB at SR ≤ 12.5 %, 1 % noise ({len(da)} "
                  f"cells, min {min(da):+.2f}).")
     pp = res["paper"]

@@ -8,6 +8,8 @@ the extra, e.g. ``pip install 'torchtof[onnx]'``.
 from __future__ import annotations
 
 import importlib
+import platform
+import sys
 from types import ModuleType
 
 __all__ = ["EXTRAS", "require", "progress_bar"]
@@ -40,8 +42,13 @@ def require(module: str, feature: str) -> ModuleType:
         return importlib.import_module(module)
     except ImportError as exc:
         extra = EXTRAS.get(module.split(".")[0], "all")
+        hint = ""
+        if module.split(".")[0] == "zarr" and sys.version_info < (3, 11):
+            # the hardware extra pins zarr >= 3.1.6, which exists for Python >= 3.11 only
+            hint = " (zarr >= 3.1.6 needs Python >= 3.11; this is " + platform.python_version() + ")"
         raise ImportError(
             f"{feature} needs the optional package {module!r}: pip install 'torchtof[{extra}]'"
+            + hint
         ) from exc
 
 
