@@ -313,3 +313,25 @@ def test_learned_recipe_states_the_training_run_from_the_recipe():
     assert text.startswith("The shipped weights took 1300 steps in 28.5 min (`torchtof train "
                            "x`, 2 processes, 1 thread, 1-minute load 11 at the end, torch t)")
     assert "plus 70 s to calibrate the final step (`torchtof train y`)" in text
+
+
+def test_depth_joint_counts_wins_below_12_5_percent_and_lists_where_tval3_wins():
+    build = _build()
+
+    def row(scene, mp, sr, pinv, tval3, sep, joint, wins):
+        return {"scene": scene, "multipath": mp, "sr": sr, "wins": wins, "realisations": 5,
+                "pinv": pinv, "TVAL3": tval3, "vTV-sep": sep, "joint": joint}
+
+    rows = [row("sky", "off", 0.0625, 0.08, 0.14, 0.105, 0.057, 5),
+            row("slanted", "off", 0.125, 0.038, 0.045, 0.051, 0.047, 4),
+            row("steps", "off", 0.25, 0.12, 0.083, 0.095, 0.093, 1)]  # SR 25 %: not counted
+    res = {"command": "python b.py", "realisations": 5, "scenes": ["sky", "slanted", "steps"],
+           "rows": rows, "summary": {"on": {"ratio": 0.9581}, "off": {"ratio": 0.8576}},
+           "machine": _machine(0.9, 1.1)}
+    text = build.render_depth_joint(res)
+    assert "in 9 of 10 paired realisations" in text  # 5 + 4 of 5 + 5; the 25 % row left out
+    assert "ratio 0.958 with multipath, 0.858 without" in text
+    assert "joint 0.057 vs separate 0.105 m" in text
+    assert "pseudo-inverse 0.038 vs joint 0.047 m" in text
+    assert "beats joint at 25 % with multipath off (0.083 vs 0.093 m)." in text
+    assert "load 0.9–1.1 on 2 CPUs, 1 thread" in text
