@@ -575,6 +575,63 @@ def render_depth_joint(res: dict) -> str:
             f"image beats joint at {where}.")
 
 
+def render_dip_time(res: dict) -> str:
+    rows = res["rows"]
+    meds = [r["median_s"] for r in rows]
+    walls = [w for r in rows for w in r["walls_s"]]
+    span = (f"{min(meds):.2f}–{max(meds):.2f} s" if f"{min(meds):.2f}" != f"{max(meds):.2f}"
+            else f"{meds[0]:.2f} s")
+    return (f"{res['iters']} steps at {res['n']}×{res['n']} take {span} (median of "
+            f"{res['repeats']} per SR, {', '.join(_sr(r['sr']) for r in rows)}; range "
+            f"{min(walls):.2f}–{max(walls):.2f} s; {_load(res)}) with `early_stop=None` "
+            f"(`{res['command']} --out docs/bench`; generated from `docs/bench/time_dip.json`).")
+
+
+#: TVAL3's defaults timed with 1 and 2 torch threads (two runs of ``time_call`` each, median
+#: of 5): sky character 32×32, Hadamard SR 25 %, Gaussian noise 1 % of the measurement spread
+THREADS_CMD = (
+    "import json, pathlib, torch; from torchtof.apps.bench.timing import machine_load, "
+    "time_call; from torchtof.operators import Hadamard; from torchtof.recon.tval3 import "
+    "tval3; from torchtof.scenes import sky_character; A = Hadamard(32, sr=0.25); "
+    "y0 = A(sky_character(32)); g = torch.Generator().manual_seed(0); "
+    "y = y0 + 0.01 * (y0.max() - y0.min()) * torch.randn(y0.shape, generator=g); "
+    "start = machine_load(); runs = {}\n"
+    "for t in (1, 2):\n"
+    "    torch.set_num_threads(t); runs[t] = [time_call(lambda: tval3(y, A), repeat=5) "
+    "for _ in range(2)]\n"
+    "torch.set_num_threads(1); out = pathlib.Path('docs/bench'); "
+    "out.mkdir(parents=True, exist_ok=True); (out / 'threads.json').write_text(json.dumps("
+    "{'n': 32, 'sr': 0.25, 'noise': 0.01, 'repeat': 5, 'runs_s': {str(k): v for k, v in "
+    "runs.items()}, 'machine': {'start': start, 'end': machine_load()}}, indent=1) + '\\n')")
+
+
+def _span_s(xs: list[float]) -> str:
+    """"190–240 ms" below a second, "2.1–13.6 s" above."""
+    lo, hi = min(xs), max(xs)
+    if hi < 1:
+        a, b, unit = _ms(lo), _ms(hi), "ms"
+    else:
+        a, b, unit = f"{lo:.2f}" if lo < 1 else f"{lo:.1f}", f"{hi:.1f}", "s"
+    return f"{a}–{b} {unit}" if a != b else f"{a} {unit}"
+
+
+def render_threads(res: dict) -> str:
+    m = res["machine"]
+    loads = sorted(x for x in (m["start"]["load_1min"], m["end"]["load_1min"]) if x is not None)
+    if not loads:
+        load = "load not recorded"
+    else:
+        lo, hi = f"{loads[0]:.1f}", f"{loads[-1]:.1f}"
+        load = f"load {lo}" if lo == hi else f"load {lo}–{hi}"
+    r = res["runs_s"]
+    return (f"Measured on the {m['start']['cpus']}-core machine at {load}, TVAL3 defaults on "
+            f"n = {res['n']}, SR {_sr(res['sr'])}, median of {res['repeat']}: "
+            f"**{_span_s(r['1'])} with one thread, {_span_s(r['2'])} with two** "
+            f"({len(r['1'])} runs each, `torch.set_num_threads(t)`, "
+            "`torchtof.apps.bench.timing.time_call`; generated from `docs/bench/threads.json`, "
+            "`python docs/build.py --run threads`).")
+
+
 SECTIONS: dict[str, Section] = {
     "demo": Section(
         "docs/demo/demo.json", render_demo,
@@ -638,6 +695,16 @@ SECTIONS: dict[str, Section] = {
         (sys.executable, "benchmarks/bench_tval3.py", "--threads", "1", "--seeds", "0-5",
          "--no-baseline", "--out", "docs/bench"),
         "TVAL3's defaults against an oracle-tuned ADMM-TV",
+    ),
+    "dip_time": Section(
+        "docs/bench/time_dip.json", render_dip_time,
+        (sys.executable, "benchmarks/time_dip.py", "--out", "docs/bench"),
+        "wall time of 300 DIP iterations at 32×32 without early stopping",
+    ),
+    "threads": Section(
+        "docs/bench/threads.json", render_threads,
+        (sys.executable, "-c", THREADS_CMD),
+        "TVAL3's defaults with one and two threads, and the load they ran under",
     ),
     "stability": Section(
         "docs/bench/bench_stability.json", render_stability,

@@ -335,3 +335,25 @@ def test_depth_joint_counts_wins_below_12_5_percent_and_lists_where_tval3_wins()
     assert "pseudo-inverse 0.038 vs joint 0.047 m" in text
     assert "beats joint at 25 % with multipath off (0.083 vs 0.093 m)." in text
     assert "load 0.9–1.1 on 2 CPUs, 1 thread" in text
+
+
+def test_dip_time_states_the_median_span_the_range_and_the_load():
+    build = _build()
+    res = {"command": "python benchmarks/time_dip.py --iters 300 --repeats 3 --threads 2",
+           "n": 32, "iters": 300, "repeats": 3,
+           "rows": [{"sr": 0.0625, "iterations": 300, "walls_s": [2.3, 2.1, 2.5], "median_s": 2.3},
+                    {"sr": 0.125, "iterations": 300, "walls_s": [2.4, 3.0, 2.2], "median_s": 2.4}],
+           "machine": _machine(1.0, 1.2, threads=2)}
+    text = build.render_dip_time(res)
+    assert text.startswith("300 steps at 32×32 take 2.30–2.40 s (median of 3 per SR, "
+                           "6.25 %, 12.5 %; range 2.10–3.00 s; load 1.0–1.2 on 2 CPUs, 2 threads)")
+
+
+def test_threads_states_both_spans_in_their_units_and_the_load():
+    build = _build()
+    res = {"n": 32, "sr": 0.25, "noise": 0.01, "repeat": 5,
+           "runs_s": {"1": [0.19, 0.24], "2": [2.1, 13.6]}, "machine": _machine(14.0, 14.04)}
+    text = build.render_threads(res)
+    assert "at load 14.0, TVAL3 defaults on n = 32, SR 25 %, median of 5" in text
+    assert "**190–240 ms with one thread, 2.1–13.6 s with two**" in text
+    assert "(2 runs each" in text
