@@ -438,9 +438,9 @@ def render_learned(res: dict) -> str:
     da = [r["learned"][0] - auto[tuple(r[k] for k in key)]["auto"][0] for r in low
           if tuple(r[k] for k in key) in auto]
     if da:
-        text += (" Against `auto` (`torchtof.recon.auto`, its defaults; about 5–9× a default TVAL3 solve per "
-                 f"image): {sum(da) / len(da):+.2f} dB at SR ≤ 12.5 %, 1 % noise ({len(da)} "
-                 f"cells, min {min(da):+.2f}).")
+        text += (" Against `auto` (`torchtof.recon.auto`, its defaults; about 5–9× a default "
+                 f"TVAL3 solve per image): {sum(da) / len(da):+.2f} dB at SR ≤ 12.5 %, 1 % noise "
+                 f"({len(da)} cells, min {min(da):+.2f}).")
     pp = res["paper"]
     wins = sum(r["learned"][0] > r["tval3"][0] and r["learned"][1] > r["tval3"][1] for r in pp)
     text += (" On the paper's experiment it scores a higher PSNR and SSIM than TVAL3's defaults "

@@ -45,7 +45,7 @@ def require(module: str, feature: str) -> ModuleType:
         hint = ""
         if module.split(".")[0] == "zarr" and sys.version_info < (3, 11):
             # the hardware extra pins zarr >= 3.1.6, which exists for Python >= 3.11 only
-            hint = " (zarr >= 3.1.6 needs Python >= 3.11; this is " + platform.python_version() + ")"
+            hint = f" (zarr >= 3.1.6 needs Python >= 3.11; this is {platform.python_version()})"
         raise ImportError(
             f"{feature} needs the optional package {module!r}: pip install 'torchtof[{extra}]'"
             + hint
