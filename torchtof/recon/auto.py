@@ -71,7 +71,7 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
-from .tv import largest_eig_normal
+from .tv import largest_eig_normal, project_box
 from .tval3 import (
     STOP_REASONS,
     MaskedRows,
@@ -204,7 +204,7 @@ def _box_ls(y: torch.Tensor, A: LinearOperator, lo: float, hi: float, iters: int
     x = y.new_full((*y.shape[:2], A.n, A.n), 0.5 * (float(lo) + float(hi))) if x0 is None else x0
     z, t = x, 1.0
     for _ in range(iters):
-        xn = (z - A.adjoint(A(z) - y) / lip).clamp(float(lo), float(hi))
+        xn = project_box(z - A.adjoint(A(z) - y) / lip, float(lo), float(hi))
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         z = xn + ((t - 1.0) / tn) * (xn - x)
         x, t = xn, tn
