@@ -172,11 +172,10 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.report:
         runs = [json.loads(f.read_text()) for f in a.report]
-        print(report([r for r in runs if not r["args"].get("ratios")]))
+        main_runs = [r for r in runs if not r["args"].get("ratios")]
         sweeps = [r for r in runs if r["args"].get("ratios")]
-        if sweeps:
-            print()
-            print(sweep_report(sweeps))
+        print("\n\n".join(([report(main_runs)] if main_runs else [])
+                           + ([sweep_report(sweeps)] if sweeps else [])))
         return 0
     torch.set_num_threads(1)
     cells = [(s, n, sr) for s in a.scenes for n, sr in PLANES_CELLS
@@ -224,8 +223,8 @@ def report(runs: list[dict]) -> str:
     """Markdown table of one or more JSON outputs."""
     lines = ["| scene | n | SR % | TGV oracle dB (prior, μ) | s/solve | TGV CV dB (choice) | "
              "CV+refit s | auto dB | auto s | auto+TGV CV dB | pylops SB-TV dB (stored) | "
-             "TGV CV − SB-TV | auto+TGV − auto |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "best peer dB (stored) | TGV CV − SB-TV | TGV CV − best peer | auto+TGV − auto |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def fmt_c(c):
         w = "constr." if c["mu"] is None else "2^" + _log2(c["mu"])
@@ -234,13 +233,15 @@ def report(runs: list[dict]) -> str:
     for run in runs:
         for c in run["cells"]:
             o, v, u, s = c["oracle"]["best"], c["cv"], c["auto"], c["stored"]
-            sb = s.get("sb_psnr")
+            sb, bp = s.get("sb_psnr"), s.get("best_peer_psnr")
+            peer = "" if bp is None else f"{bp:.2f} ({s['best_peer']})"
             lines.append(
                 f"| {c['scene']} | {c['n']} | {100 * c['sr']:g} | {o['psnr']:.2f} ({fmt_c(o)}) | "
                 f"{o['time_s']:.2f} | {v['psnr']:.2f} ({fmt_c(v['choice'])}) | "
                 f"{v['time_s']:.1f} | {u['psnr']:.2f} | {u['time_s']:.1f} | "
-                f"{c['auto_tgv']['psnr']:.2f} | {'' if sb is None else f'{sb:.2f}'} | "
+                f"{c['auto_tgv']['psnr']:.2f} | {'' if sb is None else f'{sb:.2f}'} | {peer} | "
                 f"{'' if sb is None else format(v['psnr'] - sb, '+.2f')} | "
+                f"{'' if bp is None else format(v['psnr'] - bp, '+.2f')} | "
                 f"{c['auto_tgv']['psnr'] - u['psnr']:+.2f} |")
     return "\n".join(lines)
 

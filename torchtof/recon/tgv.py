@@ -68,10 +68,11 @@ against ``α₁ = 1``; ``tgv(c·y) = c·tgv(y)`` for orthonormal rows and any ``
 costs as much as a jump of height ``s·α₀/α₁``. ``alpha="auto"`` sets it to ``n/√M``, the
 size in pixels of a cell of the ``√M × √M`` grid that ``M`` low-order rows resolve: ``2`` at
 25 % sampling (the common choice ``α₀ = 2α₁`` on a unit grid), larger at lower sampling,
-where the measured resolution is coarser. On the 32×32 piecewise-planar scene (1 % noise,
+where the measured resolution is coarser. On the piecewise-planar scene (1 % noise,
 cake-cutting rows, best weight and prior per ratio, ``docs/tgv.md``) ``n/√M`` was the best
-of the ratios tried (0.5–8) at SR 6.25, 12.5, 25 and 37.5 %, 2.2 dB above the fixed ratio 2
-at SR 6.25 % and equal to it within 0.1 dB at 37.5 %.
+of the ratios tried (1–8) at n = 32 and SR 6.25, 12.5, 25 and 37.5 %, and within 0.1 dB of
+the best at n = 64 (SR 25, 37.5 %); against the fixed ratio 2 it gained 2.2 dB at n = 32,
+SR 6.25 % and was within 0.11 dB elsewhere.
 
 **Stopping**: a sample stops when the relative change ``‖x_k − x_{k−1}‖ ≤ tol ‖x_{k−1}‖``;
 the test is read on the host only every ``check_every`` iterations (``adaptive=True``) or
