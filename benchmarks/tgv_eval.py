@@ -84,13 +84,14 @@ def oracle(P, ratio: float) -> dict:
 
 
 def _solve(y, A, cand, ratio, max_iter=2000):
+    nonneg = bool(cand.get("nonneg", False))
     if cand["mu"] is None:
-        return tt.recon.tgv(y, A, alpha=ratio, tv=cand["tv"], max_iter=max_iter)
+        return tt.recon.tgv(y, A, alpha=ratio, tv=cand["tv"], max_iter=max_iter, nonneg=nonneg)
     return tt.recon.tgv(y, A, mu=cand["mu"], tvl2=True, alpha=ratio, tv=cand["tv"],
-                        max_iter=max_iter)
+                        max_iter=max_iter, nonneg=nonneg)
 
 
-def cv_choice(P, ratio: float) -> dict:
+def cv_choice(P, ratio: float, cv_iter: int = CV_ITER, nonneg: tuple = (False,)) -> dict:
     """auto's tail cross-validation over the TGV candidates (module doc)."""
     y, A = P.y, P.A
     held, train = holdout_split(A, 3, y, 0, default_split(A))
@@ -101,36 +102,39 @@ def cv_choice(P, ratio: float) -> dict:
     t0 = time.perf_counter()
     scores = {}
 
-    def run(tv, wts):
+    def run(tv, wts, nn=False):
         nw = len(wts)
         mask = train.repeat_interleave(nw, dim=0)  # (F·W, M), fold-major
         mu, l2 = _mu_args(wts, y)
         yt = y.reshape(1, 1, -1) * mask.to(y.dtype)[None]
         r = tt.recon.tgv(yt, MaskedRows(A, mask), mu=mu.repeat(nf)[None],
-                         tvl2=l2.repeat(nf)[None], alpha=ratio, tv=tv, max_iter=CV_ITER)
+                         tvl2=l2.repeat(nf)[None], alpha=ratio, tv=tv, max_iter=cv_iter,
+                         nonneg=nn)
         r2 = (A(r.x) - y).square()[0]  # (F·W, M)
         cv = (r2 * hm.repeat_interleave(nw, 0)).sum(-1).reshape(nf, nw).sum(0)
         fit = (r2 * tm.repeat_interleave(nw, 0)).sum(-1).reshape(nf, nw).sum(0)
         for k, w in enumerate(wts):
-            scores[(tv, w)] = (float(cv[k]), float(fit[k]))
+            scores[(tv, nn, w)] = (float(cv[k]), float(fit[k]))
 
     def pick():
         ok = {k: v for k, v in scores.items() if v[1] <= fit_max} or scores
         return min(ok, key=lambda k: ok[k][0])
 
     for tv in TVS:
-        run(tv, AUTO_WEIGHTS)
-    tv, w = pick()
+        for nn in nonneg:
+            run(tv, AUTO_WEIGHTS, nn)
+    tv, nn, w = pick()
     if w != INF:  # stage 2: the neighbours of the first-stage TV-L2 weight
-        run(tv, (w * REFINE, w / REFINE))
-        tv, w = pick()
-    cand = dict(tv=tv, mu=None if w == INF else w)
+        run(tv, (w * REFINE, w / REFINE), nn)
+        tv, nn, w = pick()
+    cand = dict(tv=tv, mu=None if w == INF else w, nonneg=nn)
     t1 = time.perf_counter()
     r = _solve(y, A, cand, ratio)
     t2 = time.perf_counter()
-    return dict(choice=cand, cv=scores[(tv, w)][0], psnr=ps.score(r.x, P.x),
+    return dict(choice=cand, cv=scores[(tv, nn, w)][0], psnr=ps.score(r.x, P.x),
                 n_iter=int(r.n_iter), time_s=t2 - t0, refit_s=t2 - t1,
-                scores={f"{k[0]}:{k[1]}": v for k, v in scores.items()})
+                scores={f"{k[0]}:{'nonneg' if k[1] else 'free'}:{k[2]}": v
+                        for k, v in scores.items()})
 
 
 def run_auto(P) -> dict:
@@ -167,6 +171,10 @@ def main(argv=None) -> int:
     p.add_argument("--ratio", default="auto", type=lambda v: v if v == "auto" else float(v))
     p.add_argument("--ratios", type=float, nargs="+", default=None,
                    help="only the oracle, at each of these α0/α1 (and at 'auto')")
+    p.add_argument("--cv-iter", type=int, default=CV_ITER)
+    p.add_argument("--nonneg", action="store_true",
+                   help="add x >= 0 candidates to the cross-validation")
+    p.add_argument("--no-oracle", action="store_true", help="skip the oracle grid")
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--report", type=Path, nargs="+", default=None)
     a = p.parse_args(argv)
@@ -183,7 +191,7 @@ def main(argv=None) -> int:
     out = dict(args=vars(a) | {"out": str(a.out), "report": None},
                machine=dict(python=platform.python_version(), torch=torch.__version__,
                             threads=torch.get_num_threads(), loadavg_start=os.getloadavg()),
-               cv_iter=CV_ITER, cells=[])
+               cv_iter=a.cv_iter, cells=[])
     for scene, n, sr in cells:
         x, A, y, sigma = ps.make_problem(scene, n, sr, "cake_cutting", 0.01, 0)
         prob = argparse.Namespace(x=x, A=A, y=y)
@@ -200,17 +208,20 @@ def main(argv=None) -> int:
             continue
         t0 = time.perf_counter()
         cell = dict(scene=scene, n=n, sr=sr, m=A.m, level=0.01, order="cake_cutting",
-                    oracle=oracle(prob, a.ratio), cv=cv_choice(prob, a.ratio),
+                    oracle=None if a.no_oracle else oracle(prob, a.ratio),
+                    cv=cv_choice(prob, a.ratio, a.cv_iter, (False, True) if a.nonneg else (False,)),
                     auto=run_auto(prob), stored=stored(scene, n, sr),
                     loadavg=os.getloadavg())
         both = cell["cv"] if cell["cv"]["cv"] < cell["auto"]["cv"] else cell["auto"]
         cell["auto_tgv"] = dict(psnr=both["psnr"], tgv=both is cell["cv"])
         cell["cell_time_s"] = time.perf_counter() - t0
         out["cells"].append(cell)
-        o, c, u, s = cell["oracle"]["best"], cell["cv"], cell["auto"], cell["stored"]
+        o = cell["oracle"]["best"] if cell["oracle"] else dict(psnr=float("nan"), tv="-", mu=None,
+                                                                time_s=float("nan"))
+        c, u, s = cell["cv"], cell["auto"], cell["stored"]
         print(f"{scene} n={n} sr={sr}: tgv oracle {o['psnr']:.2f} ({o['tv'][:3]} {o['mu']}) "
               f"{o['time_s']:.2f}s | tgv cv {c['psnr']:.2f} ({c['choice']['tv'][:3]} "
-              f"{c['choice']['mu']}) {c['time_s']:.1f}s | auto {u['psnr']:.2f} {u['time_s']:.1f}s"
+              f"{c['choice']['mu']}{' nn' if c['choice']['nonneg'] else ''}) {c['time_s']:.1f}s | auto {u['psnr']:.2f} {u['time_s']:.1f}s"
               f" | auto+tgv {cell['auto_tgv']['psnr']:.2f} | SB-TV {s.get('sb_psnr')}",
               flush=True)
         if a.out:
@@ -228,10 +239,12 @@ def report(runs: list[dict]) -> str:
 
     def fmt_c(c):
         w = "constr." if c["mu"] is None else "2^" + _log2(c["mu"])
-        return f"{c['tv'][:5]}, {w}"
+        return f"{c['tv'][:5]}, {w}" + (", x≥0" if c.get("nonneg") else "")
 
     for run in runs:
         for c in run["cells"]:
+            if c["oracle"] is None:
+                continue
             o, v, u, s = c["oracle"]["best"], c["cv"], c["auto"], c["stored"]
             sb, bp = s.get("sb_psnr"), s.get("best_peer_psnr")
             peer = "" if bp is None else f"{bp:.2f} ({s['best_peer']})"
