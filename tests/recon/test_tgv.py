@@ -195,7 +195,8 @@ def test_alpha_auto_is_n_over_sqrt_m():
 # -- batching per-sample weights (what cross-validation needs) ----------------------------------
 
 
-def test_per_sample_weights_equal_separate_calls():
+@pytest.mark.parametrize("nonneg", [False, True])  # closed-form / dualised data term
+def test_per_sample_weights_equal_separate_calls(nonneg):
     n = 16
     A = Hadamard(n, sr=0.25)
     g = torch.Generator().manual_seed(3)
@@ -209,10 +210,11 @@ def test_per_sample_weights_equal_separate_calls():
     mask[2, -16:] = False
     Am = MaskedRows(A, mask)
     yb = (y * mask.to(y.dtype)).reshape(1, 3, A.m)
-    r = tgv(yb, Am, mu=torch.tensor([mus]), tvl2=torch.tensor([tvl2]), max_iter=400)
+    r = tgv(yb, Am, mu=torch.tensor([mus]), tvl2=torch.tensor([tvl2]), max_iter=400,
+            nonneg=nonneg)
     for c in range(3):
         Ac = MaskedRows(A, mask[c : c + 1])
-        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400)
+        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400, nonneg=nonneg)
         torch.testing.assert_close(r.x[:, c : c + 1], s.x, rtol=1e-10, atol=1e-12)
         assert int(r.n_iter[0, c]) == int(s.n_iter)
 
