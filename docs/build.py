@@ -656,6 +656,35 @@ def render_peers(res: dict) -> str:
             f"docs/peers.json`).")
 
 
+def render_memory(res: dict) -> str:
+    """Peak memory (growth of the maximum resident set) and time of the dense entry points,
+    each in a fresh process (``tests/reliability/measure_memory.py``)."""
+    c = res["cases"]
+
+    def mib(k: str) -> str:
+        return f"+{c[k]['peak_mib']:.0f} MiB"
+
+    def gib(k: str) -> str:
+        return f"+{c[k]['peak_mib'] / 1024:.2f} GiB"
+
+    est = ", ".join(f"{b / 2**30:.2g} GiB at n = {n}"
+                    for n, b in res["exact_factors_estimate_bytes_sr25"].items())
+
+    return (f"Measured peaks (growth of the maximum resident set over `import torchtof`, each "
+            f"case in a fresh process; {_load(res)}): `DMDSplit(Hadamard(128, sr=0.25))` "
+            f"{mib('split_stream_128')} streamed with `iter_patterns(256)`, "
+            f"{mib('split_patterns_128')} for the whole stack; the exact u-step's factors "
+            f"(estimated {est}) {mib('exact_factors_64')} at n = 64 and "
+            f"{gib('exact_factors_128')} at n = 128 (SR 25 %); the paper's experiment at "
+            f"n = 64 with a 128-pixel region "
+            f"{mib('experiment_64_roi128_c64')} in chunks of 64 frames, "
+            f"{mib('experiment_64_roi128_c256')} in chunks of 256. Times at n = 64, SR 25 %, "
+            f"the sky character: `tval3(u_step=\"exact\")` {c['exact_tval3_64']['time_s']:.1f} s, "
+            f"`JointTV` (two channels) {c['jointtv_64']['time_s']:.1f} s (factors included; "
+            f"`{res['command']} --out docs/reliability/memory.json`; generated from "
+            f"`docs/reliability/memory.json`).")
+
+
 #: TVAL3's defaults timed with 1 and 2 torch threads (two runs of ``time_call`` each, median
 #: of 5): sky character 32×32, Hadamard SR 25 %, Gaussian noise 1 % of the measurement spread
 THREADS_CMD = (
@@ -780,6 +809,12 @@ SECTIONS: dict[str, Section] = {
         (sys.executable, "benchmarks/peers.py", "--out", "docs/peers_run.json"),
         "torchtof's one-call reconstructors against the oracle-tuned peer libraries",
         render_only="hours: the runs listed in docs/peers.md, merged with --report",
+    ),
+    "memory": Section(
+        "docs/reliability/memory.json", render_memory,
+        (sys.executable, "tests/reliability/measure_memory.py", "--out",
+         "docs/reliability/memory.json"),
+        "peak memory and time of the dense entry points, each in a fresh process",
     ),
     "threads": Section(
         "docs/bench/threads.json", render_threads,

@@ -1,12 +1,13 @@
-"""Automatic TV reconstruction: prior, bounds and weight chosen from the buckets alone.
+"""Automatic TV/TGV reconstruction: prior, bounds and weight chosen from the buckets alone.
 
 No single TV model wins everywhere: anisotropic TV suits binary, pixel-grid silhouettes,
-isotropic TV natural grey images, a non-negativity or box constraint helps where the image
-is known to obey it, and the data weight depends on the noise. :func:`auto` chooses among
-these candidates by **cross-validation on the buckets** (Stone 1974, J. R. Stat. Soc. B 36;
-for regularisation weights Golub, Heath & Wahba 1979, Technometrics 21): every candidate is
-fitted on a training subset of the measurements with a reduced iteration budget and scored
-by the squared prediction error on held-out measurements, fold by fold,
+isotropic TV natural grey images, second-order TGV² piecewise-planar depth maps, a
+non-negativity or box constraint helps where the image is known to obey it, and the data
+weight depends on the noise. :func:`auto` chooses among these candidates by
+**cross-validation on the buckets** (Stone 1974, J. R. Stat. Soc. B 36; for regularisation
+weights Golub, Heath & Wahba 1979, Technometrics 21): every candidate is fitted on a
+training subset of the measurements with a reduced iteration budget and scored by the
+squared prediction error on held-out measurements, fold by fold,
 
 .. math::
     \\mathrm{CV}_k(c) = \\big\\|P_{k}\\,(A\\,\\hat x_c^{(k)} - y)\\big\\|^2, \\qquad
@@ -46,12 +47,15 @@ discrepancy principle, Morozov 1966, Soviet Math. Dokl. 7, as a bound, not as th
 signal in the tail rows as noise), so the bound errs towards keeping candidates. If every
 candidate exceeds it, none is dropped.
 
-Candidates (per sample): TV ``{"isotropic", "anisotropic"}`` with Neumann boundaries (no
-difference across the image border, the discrete gradient of Chambolle 2004, J. Math.
-Imaging Vis. 20) × bounds ``{none, x ≥ 0}`` (plus the caller's ``bounds`` box) × weights: the
-published equality-constrained TVAL3 (``μ = 2⁸``) and the TV-L2 model with
-``μ ∈ 2^{12, 10, 8, 6, 4, 2}`` on the scaled buckets (stage 1: 28 candidates, 42 with a box);
-then (stage 2) the stage-1 TV-L2 choice is compared with its neighbours ``μ·2`` and
+Candidates (per sample): two priors, first-order TV (:func:`~torchtof.recon.tval3.tval3`)
+and second-order TGV² (:func:`~torchtof.recon.tgv.tgv`, Bredies, Kunisch & Pock 2010, SIAM
+J. Imaging Sci. 3: piecewise-affine images such as depth maps of tilted planes, which TV
+turns into staircases), each with the norms ``{"isotropic", "anisotropic"}`` and Neumann
+boundaries (no difference across the image border, the discrete gradient of Chambolle 2004,
+J. Math. Imaging Vis. 20) × bounds ``{none, x ≥ 0}`` (plus the caller's ``bounds`` box) ×
+weights: the equality-constrained model (TVAL3 as published, ``μ = 2⁸``) and the TV-L2 model
+with ``μ ∈ 2^{12, 10, 8, 6, 4, 2}`` on the scaled buckets (stage 1: 56 candidates, 84 with a
+box); then (stage 2) the stage-1 TV-L2 choice is compared with its neighbours ``μ·2`` and
 ``μ/2`` on the same folds.
 
 **The box alone.** Given a finite box ``(lo, hi)``, the image may be determined by the box
@@ -62,16 +66,17 @@ Res. 214). Cross-validation cannot see this (with a quarter of the rows held out
 longer determines the image: ``docs/auto.md``), so it is tested directly: box-constrained
 least squares is solved from two starts that differ only in the null space of ``A``; if the
 two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
-leave no freedom and that solution is returned (``choice["tv"] is None``).
+leave no freedom and that solution is returned (``choice["prior"] == "box"``).
 
-Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched
-:func:`~torchtof.recon.tval3` call per (TV, bounds) pair — 4 calls (6 with a box) of
-3 folds × 7 weights = 21 channels × 100 iterations; stage 2 one call of 6 channels for the
-chosen pair; with a finite box two projected-gradient solves of ``BOX_ITER = 100`` steps
-(``A`` and ``Aᵀ`` only); then one refit. That is 9,000 (13,200 with a box) single-channel
-TVAL3 iterations besides the refit, bounded and independent of the data (1.5× the
-quarter-fold rule's 6,000 / 8,800; a random split also has 3 folds); the measured time
-against one default TVAL3 solve is in ``docs/auto.md``.
+Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
+(prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
+100 iterations; stage 2 one call of 6 channels for the chosen group; with a finite box two
+projected-gradient solves of ``BOX_ITER = 100`` steps (``A`` and ``Aᵀ`` only); then one
+refit. That is 17,400 (25,800 with a box) single-channel iterations (TVAL3 or TGV
+primal-dual, each one ``A``, one ``Aᵀ`` and a few differences) besides the refit, bounded
+and independent of the data (3/4 of the same candidates on 4 eighth-folds; a random split
+also has 3 folds); the measured time against one default TVAL3 solve is in
+``docs/auto.md``.
 """
 
 from __future__ import annotations
@@ -84,6 +89,7 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
+from .tgv import TGV_STOP_REASONS, tgv
 from .tv import largest_eig_normal, project_box
 from .tval3 import (
     STOP_REASONS,
@@ -96,7 +102,8 @@ from .tval3 import (
 )
 
 __all__ = [
-    "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_TVS", "AUTO_BOUNDARIES", "candidates",
+    "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_PRIORS", "AUTO_TVS", "AUTO_BOUNDARIES",
+    "candidates",
 ]
 
 #: First-stage TV-L2 weights (on the buckets scaled as TVAL3's ``Scaleb``), a factor 4 apart;
@@ -104,7 +111,10 @@ __all__ = [
 AUTO_WEIGHTS = (float("inf"), 2.0**12, 2.0**10, 2.0**8, 2.0**6, 2.0**4, 2.0**2)
 #: Second stage: the first stage's TV-L2 choice is compared with ``μ·REFINE`` and ``μ/REFINE``.
 REFINE = 2.0
-#: TV priors and boundary conditions tried.
+#: Priors tried: first-order TV (:func:`~torchtof.recon.tval3.tval3`) and second-order TGV²
+#: (:func:`~torchtof.recon.tgv.tgv`, piecewise-affine images such as depth maps of planes).
+AUTO_PRIORS = ("tv", "tgv")
+#: Norms (of both TGV terms) and boundary conditions tried with each prior.
 AUTO_TVS = ("isotropic", "anisotropic")
 AUTO_BOUNDARIES = ("neumann",)
 #: Discrepancy bound: a candidate whose misfit of its own training rows exceeds
@@ -135,9 +145,10 @@ class AutoResult(NamedTuple):
         residual: ``‖A x − y‖ / ‖y‖`` per sample ``(B, C)``.
         converged: ``(B, C)`` bool.
         stop_reason: names ``[b][c]`` (see :data:`~torchtof.recon.tval3.STOP_REASONS`).
-        choice: the chosen candidate per sample ``[b][c]``, a dict ``tv`` (``None``: the
-            box-only candidate), ``boundary``, ``bounds``, ``mu`` (``None``: the constrained
-            model or the box-only candidate), ``cv``, ``score``.
+        choice: the chosen candidate per sample ``[b][c]``, a dict ``prior`` (``"tv"``,
+            ``"tgv"`` or ``"box"``: the box-only candidate), ``tv`` (the norm; ``None`` for
+            the box-only candidate), ``boundary``, ``bounds``, ``mu`` (``None``: the
+            constrained model or the box-only candidate), ``cv``, ``score``.
         cv_error: ``(B, C, len(candidates))`` cross-validation error of every candidate, in
             the squared units of ``y``; ``nan`` for a second-stage weight that was not fitted
             for that sample (only the neighbours of its first-stage choice are).
@@ -176,7 +187,20 @@ def _boxes(bounds) -> list:
 
 
 def _groups(bounds) -> list:
-    return [(tv, bd, box) for tv in AUTO_TVS for bd in AUTO_BOUNDARIES for box in _boxes(bounds)]
+    return [(pr, tv, bd, box) for pr in AUTO_PRIORS for tv in AUTO_TVS for bd in AUTO_BOUNDARIES
+            for box in _boxes(bounds)]
+
+
+def _fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int):
+    """One batched solve of a candidate group ``(prior, tv, boundary, bounds)``: ``(x, n_iter,
+    converged, stop code in STOP_REASONS)``; ``mu`` per sample (constrained: ignored)."""
+    prior, tv, bd, box = group
+    if prior == "tgv":
+        r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box)
+        to = torch.tensor([STOP_REASONS.index(k) for k in TGV_STOP_REASONS], device=y.device)
+        return r.x, r.n_iter, r.converged, to[r.stop_code]
+    r = tval3(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box)
+    return r.x, r.n_iter, r.converged, r.stop_code
 
 
 def _fine(w: float) -> tuple:
@@ -184,23 +208,25 @@ def _fine(w: float) -> tuple:
 
 
 def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
-    """The candidate list of :func:`auto`: dicts ``tv``, ``boundary``, ``bounds``, ``mu``
+    """The candidate list of :func:`auto`: dicts ``prior`` (``"tv"``, ``"tgv"``; ``"box"``
+    for the box-only candidate), ``tv`` (the norm), ``boundary``, ``bounds``, ``mu``
     (``None``: the constrained model with ``μ = 2⁸``) and ``stage`` (1: fitted for every
     sample; 2: a factor-``REFINE`` neighbour of a first-stage weight, fitted only around a
     sample's first-stage choice). Given a finite box, one more candidate ``tv=None``: least
     squares on the box alone, no TV (projected gradient); it is not cross-validated (its
     ``cv_error`` is ``nan``) but chosen when the box alone determines the image (module doc)."""
     out = []
-    for tv, bd, box in _groups(bounds):
+    for pr, tv, bd, box in _groups(bounds):
         for mu in AUTO_WEIGHTS:
-            out.append(dict(tv=tv, boundary=bd, bounds=box,
+            out.append(dict(prior=pr, tv=tv, boundary=bd, bounds=box,
                             mu=None if mu == _INF else mu, stage=1))
         fine = sorted({f for w in AUTO_WEIGHTS for f in _fine(w)} - set(AUTO_WEIGHTS),
                       reverse=True)
         for mu in fine:
-            out.append(dict(tv=tv, boundary=bd, bounds=box, mu=mu, stage=2))
+            out.append(dict(prior=pr, tv=tv, boundary=bd, bounds=box, mu=mu, stage=2))
     if _finite_box(bounds):
-        out.append(dict(tv=None, boundary=None, bounds=tuple(bounds), mu=None, stage=1))
+        out.append(dict(prior="box", tv=None, boundary=None, bounds=tuple(bounds), mu=None,
+                        stage=1))
     return tuple(out)
 
 
@@ -256,6 +282,10 @@ def _box_alone(ys: torch.Tensor, A: LinearOperator, lo: float, hi: float, lip: f
     return xs.mean(dim=1, keepdim=True), gap <= BOX_UNIQUE
 
 
+def _group_of(cand: dict) -> tuple:
+    return cand["prior"], cand["tv"], cand["boundary"], cand["bounds"]
+
+
 def _rank(cands: tuple, like: torch.Tensor) -> torch.Tensor:
     """Least-regularised first: the weight, ``inf`` for the constrained and box-only models."""
     return torch.tensor([_INF if c["mu"] is None else c["mu"] for c in cands], dtype=like.dtype,
@@ -298,7 +328,8 @@ def auto(
     seed: int = 0,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
-    """TV reconstruction with prior, bounds and weight chosen by cross-validation (module doc).
+    """TV or TGV² reconstruction with prior, bounds and weight chosen by cross-validation (module
+    doc).
 
     Choice: the candidate with the smallest score (each fold's held-out error over that
     fold's smallest, summed over the folds); with ``slack > 0`` the least
@@ -365,7 +396,8 @@ def auto(
         return res if return_result else x
     bc = b * c
     ys = y.reshape(bc, 1, m)
-    index = {(k["tv"], k["boundary"], k["bounds"], k["mu"]): i for i, k in enumerate(cands)}
+    index = {(k["prior"], k["tv"], k["boundary"], k["bounds"], k["mu"]): i
+             for i, k in enumerate(cands)}
     held, train = holdout_split(A, folds, y, seed, split)  # (F, M), latest fold first
     if use is not None:
         held, train = held[:use], train[:use]
@@ -385,12 +417,10 @@ def auto(
     yt1 = ys * mask1.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
     hm1, tm1 = hm.repeat_interleave(len(wts), dim=0), tm.repeat_interleave(len(wts), dim=0)
     for g in _groups(bounds):
-        tv, bd, box = g
-        r = tval3(yt1, MaskedRows(A, mask1), mu=mus1.repeat(nf).expand(bc, -1),
-                  tvl2=tvl2_1.repeat(nf).expand(bc, -1), max_iter=cv_iter, tv=tv, boundary=bd,
-                  bounds=box)
-        r2 = (A(r.x) - ys).square()
-        cols = [index[(tv, bd, box, None if w == _INF else w)] for w in AUTO_WEIGHTS]
+        xg = _fit(g, yt1, MaskedRows(A, mask1), mus1.repeat(nf).expand(bc, -1),
+                  tvl2_1.repeat(nf).expand(bc, -1), cv_iter)[0]
+        r2 = (A(xg) - ys).square()
+        cols = [index[(*g, None if w == _INF else w)] for w in AUTO_WEIGHTS]
         cv_err[:, :, cols] = (r2 * hm1).sum(-1).reshape(bc, nf, len(wts))  # (BC, F, W)
         fit_err[:, cols] = (r2 * tm1).sum(-1).reshape(bc, nf, len(wts)).sum(1)
     lip, unique = 1.0, None
@@ -403,29 +433,27 @@ def auto(
 
     # -- stage 2: the factor-REFINE neighbours of each sample's first-stage TV-L2 weight
     for g in _groups(bounds):
-        tv, bd, box = g
-        rows = [i for i, k in enumerate(first)
-                if cands[k]["tv"] == tv and cands[k]["boundary"] == bd
-                and cands[k]["bounds"] == box and cands[k]["mu"] is not None]
+        rows = [i for i, k in enumerate(first) if _group_of(cands[k]) == g
+                and cands[k]["mu"] is not None]
         if not rows:
             continue
         fine = [_fine(cands[first[i]]["mu"]) for i in rows]
         mus2 = torch.tensor(fine, dtype=y.dtype, device=y.device)  # (R, 2)
         mask2 = train.repeat_interleave(2, dim=0)
         idx = torch.tensor(rows, device=y.device)
-        r = tval3(ys[idx] * mask2.to(y.dtype), MaskedRows(A, mask2), mu=mus2.repeat(1, nf),
-                  tvl2=True, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
-        r2 = (A(r.x) - ys[idx]).square()
+        xg = _fit(g, ys[idx] * mask2.to(y.dtype), MaskedRows(A, mask2), mus2.repeat(1, nf),
+                  True, cv_iter)[0]
+        r2 = (A(xg) - ys[idx]).square()
         e = (r2 * hm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2)
         f = (r2 * tm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2).sum(1)
         for j, i in enumerate(rows):
             for q, w in enumerate(fine[j]):
-                cv_err[i, :, index[(tv, bd, box, w)]] = e[j, :, q]
-                fit_err[i, index[(tv, bd, box, w)]] = f[j, q]
+                cv_err[i, :, index[(*g, w)]] = e[j, :, q]
+                fit_err[i, index[(*g, w)]] = f[j, q]
     score = _score(cv_err, fit_err, fit_max)
     best_l = _pick(score, rank, slack).tolist()
     if unique is not None:
-        k_box = index[(None, None, tuple(bounds), None)]
+        k_box = index[("box", None, None, tuple(bounds), None)]
         best_l = [k_box if u else k for k, u in zip(best_l, unique.tolist())]
 
     # -- refit the choice on every row: one call per (group, model)
@@ -434,24 +462,20 @@ def auto(
     conv = torch.zeros(bc, 1, dtype=torch.bool, device=y.device)
     codes = torch.zeros(bc, 1, dtype=torch.int64, device=y.device)
     for g in _groups(bounds):
-        tv, bd, box = g
         for constrained in (True, False):
             rows = [i for i, k in enumerate(best_l)
-                    if (cands[k]["tv"], cands[k]["boundary"], cands[k]["bounds"]) == g
-                    and (cands[k]["mu"] is None) == constrained]
+                    if _group_of(cands[k]) == g and (cands[k]["mu"] is None) == constrained]
             if not rows:
                 continue
             idx = torch.tensor(rows, device=y.device)
             if constrained:
-                r = tval3(ys[idx], A, mu=_CONSTRAINED_MU, max_iter=cv_iter, tv=tv, boundary=bd,
-                          bounds=box)
+                out = _fit(g, ys[idx], A, _CONSTRAINED_MU, False, cv_iter)
             else:
                 w = torch.tensor([cands[best_l[i]]["mu"] for i in rows], dtype=y.dtype,
                                  device=y.device)
-                r = tval3(ys[idx], A, mu=w[:, None], tvl2=True, max_iter=max_iter, tv=tv,
-                          boundary=bd, bounds=box)
-            x[idx], n_iter[idx], conv[idx], codes[idx] = r.x, r.n_iter, r.converged, r.stop_code
-    rows = [i for i, k in enumerate(best_l) if cands[k]["tv"] is None]
+                out = _fit(g, ys[idx], A, w[:, None], True, max_iter)
+            x[idx], n_iter[idx], conv[idx], codes[idx] = out
+    rows = [i for i, k in enumerate(best_l) if cands[k]["prior"] == "box"]
     if rows:
         idx = torch.tensor(rows, device=y.device)
         x[idx] = xb[idx]
