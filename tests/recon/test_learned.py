@@ -134,7 +134,8 @@ def test_final_step_noise_free_is_the_exact_projection():
 def _conditioning(net, y):
     """The first prior call's input ``z`` and conditioning ``c`` (a forward pre-hook)."""
     seen = []
-    h = net.prior.register_forward_pre_hook(lambda mod, args: seen.append(args) if not seen else None)
+    h = net.prior.register_forward_pre_hook(
+        lambda mod, args: seen.append(args) if not seen else None)
     try:
         with torch.no_grad():
             net(y)
