@@ -363,6 +363,7 @@ def train_learned(
             bar.close()
         wall = wall0 + time.perf_counter() - t0
         model.log_tau.requires_grad_(True)
+        t_cal = time.perf_counter()
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
                               orders=orders, noise_ref=noise_ref,
                               p_clean=p_clean) if calibrate else None
@@ -390,6 +391,7 @@ def train_learned(
                               "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
                 },
                 "final_step_calibration": calib,
+                "calibration_wall_s": round(time.perf_counter() - t_cal, 1),
                 "final_loss": (float(np.mean(losses[-max(1, len(losses) // 10):]))
                                if losses else None),
                 "torch_version": str(torch.__version__),
