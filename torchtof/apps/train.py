@@ -24,7 +24,7 @@ __all__ = ["add_arguments", "main"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=positive_int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--steps", type=positive_int, default=2000, help="optimiser steps" + d)
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)
@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-ref", type=nonneg_int, default=0,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
-    p.add_argument("--p-clean", type=_probability, default=0.2,
+    p.add_argument("--p-clean", type=_probability, default=0.3,
                    help="probability of a noise-free training sample" + d)
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)

@@ -63,8 +63,9 @@ __all__ = [
 TAU_GRID = (0.02, 0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.3, 0.5)
 #: First step of the calibration batches (beyond any training run).
 CALIBRATION_STEP0 = 1_000_000
-#: Default probability of a noise-free sample (:func:`~torchtof.data.training_noise`).
-P_CLEAN = 0.2
+#: Default probability of a noise-free sample (:func:`~torchtof.data.training_noise`; the
+#: shipped run's).
+P_CLEAN = 0.3
 
 
 class LearnedTrainResult(NamedTuple):
@@ -196,7 +197,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 1300,
+    steps: int = 2000,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
