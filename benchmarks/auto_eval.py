@@ -24,7 +24,7 @@ import torch
 
 import torchtof as tt
 from torchtof.data import planar_depth
-from torchtof.recon import auto, tval3
+from torchtof.recon import auto, tgv, tval3
 from torchtof.recon.auto import AUTO_WEIGHTS
 
 SRS = (0.0625, 0.125, 0.25, 0.375)
@@ -55,20 +55,22 @@ def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
     out = {}
     groups = []
     for c in cands:
-        if c["stage"] == 1 and c["tv"] is not None and (
-                c["tv"], c["boundary"], c["bounds"]) not in groups:
-            groups.append((c["tv"], c["boundary"], c["bounds"]))
+        g = (c["prior"], c["tv"], c["boundary"], c["bounds"])
+        if c["stage"] == 1 and c["prior"] != "box" and g not in groups:
+            groups.append(g)
     finite = [w for w in AUTO_WEIGHTS if w != float("inf")]
-    for tv, bd, box in groups:
-        r = tval3(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
-        out[(tv, bd, box, None)] = psnr(r.x, x)[0]
+    for g in groups:
+        prior, tv, bd, box = g
+        solve = tgv if prior == "tgv" else tval3
+        r = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        out[(*g, None)] = psnr(r.x, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
-        r = tval3(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
+        r = solve(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
                   boundary=bd, bounds=box)
         for j, p in enumerate(psnr(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
-            out[(tv, bd, box, finite[j])] = p
-    return [out[(c["tv"], c["boundary"], c["bounds"], c["mu"])] for c in cands
-            if (c["tv"], c["boundary"], c["bounds"], c["mu"]) in out]
+            out[(*g, finite[j])] = p
+    key = [(c["prior"], c["tv"], c["boundary"], c["bounds"], c["mu"]) for c in cands]
+    return [out[k] for k in key if k in out]
 
 
 def noise_table(ns, srs, scenes, levels=(0.0, 0.01, 0.03)) -> list[dict]:
@@ -169,7 +171,8 @@ def main(argv=None) -> list[dict]:
                 ch = r.choice[0][0]
                 row = dict(scene=name, n=n, sr=sr, default=psnr(d.x, x)[0],
                            auto=psnr(r.x, x)[0], best=max(cp), median=statistics.median(cp),
-                           chosen=dict(tv=ch["tv"], bounds=ch["bounds"], mu=ch["mu"]),
+                           chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
+                                       mu=ch["mu"]),
                            t_default=t_def, t_auto=t_auto)
                 rows.append(row)
                 mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
@@ -177,7 +180,8 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
                       f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
-                      f"{(ch['tv'] or 'box')[:3]} {bd} {mu} | {t_def:.2f} | {t_auto:.1f} |", flush=True)
+                      f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | {t_def:.2f} | "
+                      f"{t_auto:.1f} |", flush=True)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)

@@ -34,6 +34,7 @@ import json
 import math
 import os
 import re
+import statistics
 import subprocess
 import sys
 import time
@@ -589,6 +590,103 @@ def render_dip_time(res: dict) -> str:
             f"(`{res['command']} --out docs/bench`; generated from `docs/bench/time_dip.json`).")
 
 
+def render_dip_quality(res: dict) -> str:
+    cells = res["cells"]
+    lvls = sorted({c["level"] for c in cells})
+    srs = sorted({c["sr"] for c in cells})
+    scenes = list(dict.fromkeys(c["scene"] for c in cells))
+
+    def versus(other: str) -> str:
+        d = [c["dip"] - c[other] for c in cells]
+        wins = sum(v > 0 for v in d)
+        return (f"{wins} of {len(d)} cells (mean {statistics.mean(d):+.2f} dB, from "
+                f"{min(d):+.2f} to {max(d):+.2f})")
+
+    sky = [c for c in cells if c["scene"] == "sky" and c["level"] == lvls[0]]
+    pairs = "; ".join(f"{c['dip']:.2f} vs {c['tval3']:.2f} dB at {_sr(c['sr'])}" for c in sky)
+    t = {m: statistics.median(c[f"t_{m}"] for c in cells) for m in ("dip", "tval3", "auto")}
+    return (f"On the {res['n']}×{res['n']} proxy ({', '.join(scenes)}; cake-cutting Hadamard, "
+            f"SR {', '.join(_sr(s) for s in srs)}; Gaussian noise "
+            f"{', '.join(f'{100 * v:g} %' for v in lvls)} of the bucket spread; "
+            f"{res['repeats']} noise draws per cell, mean PSNR) DIP beats TVAL3's defaults in "
+            f"{versus('tval3')} and `auto` in {versus('auto')}; on 天 at {100 * lvls[0]:g} % "
+            f"noise DIP vs TVAL3: {pairs}. Median time per image: DIP {t['dip']:.1f} s, TVAL3 "
+            f"{t['tval3']:.2f} s, `auto` {t['auto']:.2f} s ({_load(res)}; "
+            f"`{res['command'].strip()}`, generated from "
+            f"`docs/bench/dip_vs_tval3.json`).")
+
+
+def render_peers(res: dict) -> str:
+    """torchtof's one-call reconstructors against the best oracle-tuned peer of each cell
+    (``benchmarks/peers.py``, merged runs in ``docs/peers.json``)."""
+    cells = [c for c in res["cells"] if c["headline"]["best_peer"]]
+    ours = sorted({k for c in cells for k, v in c["results"].items() if v["peer"] == "torchtof"
+                   and k != "torchtof pinv"})
+    names = sorted({k for c in cells for k in c["results"]})
+
+    def gaps(k: str, sub=None) -> list[float]:
+        return [c["results"][k]["psnr"] - c["headline"]["best_peer_psnr"] for c in cells
+                if k in c["results"] and (sub is None or sub(c))]
+
+    parts = []
+    for k in sorted(ours, key=lambda k: -statistics.mean(gaps(k))):
+        g = gaps(k)
+        parts.append(f"`{k.replace('torchtof ', '')}` {statistics.mean(g):+.2f} dB (≥ 0 in "
+                     f"{sum(v >= 0 for v in g)} of {len(g)})")
+    mean = {k: statistics.mean(c["results"][k]["psnr"] for c in cells) for k in names
+            if all(k in c["results"] for c in cells)}
+    top = sorted(mean, key=mean.get, reverse=True)[:5]
+    small = [c for c in cells if c["n"] == 32]
+    best32 = max(ours, key=lambda k: statistics.mean(gaps(k, lambda c: c["n"] == 32)))
+    lose = sorted((c for c in cells if c["results"]["torchtof auto"]["psnr"]
+                   - c["headline"]["best_peer_psnr"] < -1.0), key=lambda c: (
+        c["results"]["torchtof auto"]["psnr"] - c["headline"]["best_peer_psnr"]))
+    worst = "; ".join(
+        f"{c['scene']} n = {c['n']} SR {_sr(c['sr'])} {c['order'].replace('_', '-')} "
+        f"{100 * c['level']:g} %: "
+        f"{c['results']['torchtof auto']['psnr'] - c['headline']['best_peer_psnr']:+.1f} dB "
+        f"({c['headline']['best_peer']})" for c in lose[:8])
+    more = f" and {len(lose) - 8} more" if len(lose) > 8 else ""
+    ranked = ", ".join(f"{k} {mean[k]:.2f}" for k in top)
+    return (f"Over the {len(cells)} stored cells, the mean gap to the best tuned peer of the "
+            f"same cell: {', '.join(parts)}. Mean PSNR, the five best: {ranked} dB. "
+            f"At n = 32 ({len(small)} cells) the best torchtof call on average is "
+            f"`{best32.replace('torchtof ', '')}`, "
+            f"{statistics.mean(gaps(best32, lambda c: c['n'] == 32)):+.2f} dB. "
+            f"`auto` loses by more than 1 dB in {len(lose)} cells: {worst}{more} "
+            f"(generated from `docs/peers.json`; `python benchmarks/peers.py --report "
+            f"docs/peers.json`).")
+
+
+def render_memory(res: dict) -> str:
+    """Peak memory (growth of the maximum resident set) and time of the dense entry points,
+    each in a fresh process (``tests/reliability/measure_memory.py``)."""
+    c = res["cases"]
+
+    def mib(k: str) -> str:
+        return f"+{c[k]['peak_mib']:.0f} MiB"
+
+    def gib(k: str) -> str:
+        return f"+{c[k]['peak_mib'] / 1024:.2f} GiB"
+
+    est = ", ".join(f"{b / 2**30:.2g} GiB at n = {n}"
+                    for n, b in res["exact_factors_estimate_bytes_sr25"].items())
+
+    return (f"Measured peaks (growth of the maximum resident set over `import torchtof`, each "
+            f"case in a fresh process; {_load(res)}): `DMDSplit(Hadamard(128, sr=0.25))` "
+            f"{mib('split_stream_128')} streamed with `iter_patterns(256)`, "
+            f"{mib('split_patterns_128')} for the whole stack; the exact u-step's factors "
+            f"(estimated {est}) {mib('exact_factors_64')} at n = 64 and "
+            f"{gib('exact_factors_128')} at n = 128 (SR 25 %); the paper's experiment at "
+            f"n = 64 with a 128-pixel region "
+            f"{mib('experiment_64_roi128_c64')} in chunks of 64 frames, "
+            f"{mib('experiment_64_roi128_c256')} in chunks of 256. Times at n = 64, SR 25 %, "
+            f"the sky character: `tval3(u_step=\"exact\")` {c['exact_tval3_64']['time_s']:.1f} s, "
+            f"`JointTV` (two channels) {c['jointtv_64']['time_s']:.1f} s (factors included; "
+            f"`{res['command']} --out docs/reliability/memory.json`; generated from "
+            f"`docs/reliability/memory.json`).")
+
+
 #: TVAL3's defaults timed with 1 and 2 torch threads (two runs of ``time_call`` each, median
 #: of 5): sky character 32×32, Hadamard SR 25 %, Gaussian noise 1 % of the measurement spread
 THREADS_CMD = (
@@ -702,6 +800,23 @@ SECTIONS: dict[str, Section] = {
         "docs/bench/time_dip.json", render_dip_time,
         (sys.executable, "benchmarks/time_dip.py", "--out", "docs/bench"),
         "wall time of 300 DIP iterations at 32×32 without early stopping",
+    ),
+    "dip_quality": Section(
+        "docs/bench/dip_vs_tval3.json", render_dip_quality,
+        (sys.executable, "benchmarks/dip_vs_tval3.py", "--out", "docs/bench"),
+        "DIP against TVAL3's defaults and auto at 32×32 (PSNR, time per image)",
+    ),
+    "peers": Section(
+        "docs/peers.json", render_peers,
+        (sys.executable, "benchmarks/peers.py", "--out", "docs/peers_run.json"),
+        "torchtof's one-call reconstructors against the oracle-tuned peer libraries",
+        render_only="hours: the runs listed in docs/peers.md, merged with --report",
+    ),
+    "memory": Section(
+        "docs/reliability/memory.json", render_memory,
+        (sys.executable, "tests/reliability/measure_memory.py", "--out",
+         "docs/reliability/memory.json"),
+        "peak memory and time of the dense entry points, each in a fresh process",
     ),
     "threads": Section(
         "docs/bench/threads.json", render_threads,

@@ -578,16 +578,19 @@ def test_errors():
 def test_box_known_answer_is_the_clipped_image(u_step):
     # Full orthonormal Hadamard: ‖Au − b‖ = ‖u − x‖, so min TV/μ + ½‖u − x‖² over the box is
     # clip(x, lo, hi) up to the TV term's O(1/μ) pull (here μ = 2¹⁶ on the scaled buckets).
+    # The exact u-step projects its minimiser onto the box, a fixed point biased by O(1/β):
+    # β = 2³ (the TV-L2 model runs at 4β = 2⁵) keeps that bias below the tolerance too.
     n = 8
     A = Hadamard(n, sr=1.0)
     g = torch.Generator().manual_seed(3)
     x = torch.rand(1, 1, n, n, dtype=torch.float64, generator=g) * 2 - 0.5  # in [-0.5, 1.5)
-    r = tval3(A(x), A, mu=2.0**16, tvl2=True, bounds=(0.0, 1.0), u_step=u_step, max_iter=3000)
+    kw = dict(mu=2.0**16, tvl2=True, beta=2.0**3, u_step=u_step, max_iter=3000)
+    r = tval3(A(x), A, bounds=(0.0, 1.0), **kw)
     assert r.x.min() >= 0 and r.x.max() <= 1
     assert (r.x - x.clamp(0, 1)).abs().max() < 2e-3
-    free = tval3(A(x), A, mu=2.0**16, tvl2=True, u_step=u_step, max_iter=3000)
+    free = tval3(A(x), A, **kw)
     assert (free.x - x).abs().max() < 2e-3  # without the box: x itself (it is the box at work)
-    nn_ = tval3(A(x), A, mu=2.0**16, tvl2=True, nonneg=True, u_step=u_step, max_iter=3000)
+    nn_ = tval3(A(x), A, nonneg=True, **kw)
     assert (nn_.x - x.clamp_min(0)).abs().max() < 2e-3
 
 
@@ -655,3 +658,17 @@ def test_adaptive_mode_reads_the_host_once_per_iteration():
 
     syncs(5)  # warm caches
     assert syncs(20) - syncs(10) == 10
+
+
+@pytest.mark.parametrize("tvl2", [False, True])
+def test_float_and_tensor_mu_solve_alike(tvl2):
+    # A weight given as a float and the same weight as a (B, C) tensor are one model: they
+    # must run the same iteration (the TV-L2 model once used β for a float and 4β for a tensor,
+    # 34.9 vs 38.1 dB on a planar depth map after 100 iterations).
+    A = Hadamard(16, sr=0.25)
+    g = torch.Generator().manual_seed(3)
+    y = A(torch.rand(1, 1, 16, 16, generator=g, dtype=torch.float64))
+    a = tval3(y, A, mu=2.0**10, tvl2=tvl2, max_iter=60)
+    b = tval3(y, A, mu=torch.full((1, 1), 2.0**10, dtype=torch.float64), tvl2=tvl2, max_iter=60)
+    torch.testing.assert_close(a.x, b.x, rtol=0, atol=1e-12)
+    assert a.n_iter.tolist() == b.n_iter.tolist()

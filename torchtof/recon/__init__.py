@@ -26,6 +26,7 @@ from .dip import DIP, DIPResult, auto_zeta, default_unet, dip, dip_input, fit_di
 from .learned import Learned, LearnedResult, learned
 from .pinv import PseudoInverse, pseudo_inverse
 from .registry import REGISTRY, ReconSpec, get, names
+from .tgv import TGV, TGVResult, tgv
 from .train import TrainResult, train_unrolled
 from .tval3 import TVAL3, TVAL3Result, bucket_noise_sigma, tval3
 from .unet import UNet
@@ -57,6 +58,9 @@ __all__ = [
     "LearnedResult",
     "learned",
     "TVAL3Result",
+    "TGV",
+    "TGVResult",
+    "tgv",
     "tval3",
     "bucket_noise_sigma",
     "UnrolledTVAL3",

@@ -37,6 +37,7 @@ from .depth import JointTV, joint_tv
 from .dip import DIP, dip
 from .learned import Learned, learned
 from .pinv import PseudoInverse, pseudo_inverse
+from .tgv import TGV, tgv
 from .tval3 import TVAL3, tval3
 from .unrolled import UnrolledTVAL3, unrolled_tval3
 
@@ -99,6 +100,10 @@ _SPECS = (
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
     _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
           summary="TV with prior, bounds and weight chosen by cross-validation on the buckets"),
+    # not exportable: the adaptive stop reads the host; ONNX export is not provided for TGV
+    _spec("tgv", "TGV", tgv, TGV, iterative=True, budget="max_iter",
+          fixed_budget={"adaptive": False},
+          summary="second-order TGV (Bredies et al. 2010) by primal-dual: planes, no staircase"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
           differentiable=True, exportable=True, budget="n_layers",
           summary="unrolled TVAL3, K layers with learned per-layer scalars"),

@@ -14,6 +14,14 @@ u[i, :]`` with one of two boundary rules:
 
 ``Dᵀ`` is the exact adjoint (minus the discrete divergence) in both cases.
 
+**Symmetrised gradient.** :func:`sym_grad2` ``E w = ½(∇w + (∇w)ᵀ)`` of a 2-vector field
+``w = (w_x, w_y)``, the second-order operator of total generalised variation (Bredies, Kunisch
+& Pock 2010, SIAM J. Imaging Sci. 3, "Total generalized variation"): each component
+differenced by :func:`grad2` with the same boundary rule, the 2 × 2 matrix stored as four
+channels ``(∂_x w_x, e, e, ∂_y w_y)``, ``e = ½(∂_y w_x + ∂_x w_y)``, so the Euclidean norm
+over the channels is the Frobenius norm. :func:`sym_grad2_adjoint` is its exact adjoint;
+``‖E‖² ≤ ‖D‖² ≤ 8`` (the symmetrisation is an orthogonal projection).
+
 **Norms.** Isotropic ``Σ_i ‖D_i u‖₂`` (TVAL3 ``TVnorm = 2``) or anisotropic
 ``Σ_i |D_x u|_i + |D_y u|_i`` (``TVnorm = 1``); their proximal maps are :func:`shrink`.
 
@@ -43,6 +51,8 @@ __all__ = [
     "TV_NORMS",
     "grad2",
     "grad2_adjoint",
+    "sym_grad2",
+    "sym_grad2_adjoint",
     "tv_norm",
     "shrink",
     "group_shrink",
@@ -104,6 +114,34 @@ def grad2_adjoint(w: torch.Tensor, boundary: str = "periodic") -> torch.Tensor:
     ax = pad(px, (1, 0)) - pad(px, (0, 1))
     ay = pad(py, (0, 0, 1, 0)) - pad(py, (0, 0, 0, 1))
     return ax + ay
+
+
+def sym_grad2(w: torch.Tensor, boundary: str = "periodic") -> torch.Tensor:
+    """Symmetrised gradient ``E w`` of a vector field ``(…, 2, H, W) -> (…, 4, H, W)``.
+
+    Channels ``(∂_x w_x, e, e, ∂_y w_y)`` with ``e = ½(∂_y w_x + ∂_x w_y)`` (the symmetric
+    2 × 2 matrix row by row; Bredies, Kunisch & Pock 2010), differences of
+    :func:`grad2` with its ``boundary`` rule. A constant field has ``E w = 0`` under either
+    rule.
+
+    Example:
+        >>> w = torch.zeros(2, 3, 3); w[0] = torch.arange(3.0)   # w_x = column index
+        >>> sym_grad2(w, "neumann")[:, 0].tolist()
+        [[1.0, 1.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    """
+    gx = grad2(w[..., 0, :, :], boundary)  # (∂_x w_x, ∂_y w_x)
+    gy = grad2(w[..., 1, :, :], boundary)  # (∂_x w_y, ∂_y w_y)
+    e = 0.5 * (gx[..., 1, :, :] + gy[..., 0, :, :])
+    return torch.stack((gx[..., 0, :, :], e, e, gy[..., 1, :, :]), dim=-3)
+
+
+def sym_grad2_adjoint(q: torch.Tensor, boundary: str = "periodic") -> torch.Tensor:
+    """``Eᵀ q`` for ``q (…, 4, H, W) -> (…, 2, H, W)``: the exact adjoint of :func:`sym_grad2`
+    (``⟨E w, q⟩ = ⟨w, Eᵀ q⟩``; the two off-diagonal channels enter through their mean)."""
+    s = 0.5 * (q[..., 1, :, :] + q[..., 2, :, :])
+    wx = grad2_adjoint(torch.stack((q[..., 0, :, :], s), dim=-3), boundary)
+    wy = grad2_adjoint(torch.stack((s, q[..., 3, :, :]), dim=-3), boundary)
+    return torch.stack((wx, wy), dim=-3)
 
 
 def tv_norm(
