@@ -363,7 +363,7 @@ class Learned(nn.Module):
             high-order tail of ``y``, :func:`~torchtof.recon.tval3.bucket_noise_sigma`; meant
             for low-to-high orders such as cake-cutting). The shipped weights were trained with
             the estimate on every sample, the noise-free ones too (it is never 0): keep
-            ``"auto"`` for noise-free buckets (``0`` scored 2–4 dB lower on the held-out
+            ``"auto"`` for noise-free buckets (``0`` scored 1.2–2.8 dB lower on the held-out
             evaluation, ``docs/learned.md``).
         pretrained: ``True`` loads the shipped weights (:data:`WEIGHTS_FILE`), ``False``
             keeps the random initialisation, a path loads that file.
