@@ -26,7 +26,7 @@ Usage::
     python benchmarks/tgv_eval.py --out docs/tgv/planes.json              # planes cells
     python benchmarks/tgv_eval.py --scenes camera sky --out docs/tgv/other.json
     python benchmarks/tgv_eval.py --report docs/tgv/planes.json docs/tgv/other.json
-    python benchmarks/tgv_eval.py --n 32 64 --ratios 1 2 4 8 --out docs/tgv/ratio_sweep.json
+    python benchmarks/tgv_eval.py --n 32 64 --ratios 1 1.633 2 2.828 4 8 --out docs/tgv/ratio_sweep.json
 """
 
 from __future__ import annotations
