@@ -21,6 +21,7 @@ thread, after a warm-up call, TVAL3 and the learned model interleaved (same mach
 usage: python benchmarks/eval_learned.py [--sizes 32 64 128] [--srs 0.0625 0.125 0.25 0.375]
        [--levels 0 0.01 0.05] [--out main.json] [--generalisation] [--methods ...]
        python benchmarks/eval_learned.py --table main.json auto.json
+       python benchmarks/eval_learned.py --compare with_tval3.json other_weights.json
 """
 
 from __future__ import annotations
@@ -234,6 +235,36 @@ def summary_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def compare(files: list[str]) -> str:
+    """The acceptance criteria of several weights on the same cells: the learned rows of each
+    file against the TVAL3 rows of the first (n <= 128, cake-cutting): mean Δ at SR <= 12.5 %,
+    1 % noise, the cells more than 0.5 dB worse, the worst cell, and mean Δ per (noise, n)."""
+    def key(r):
+        return (r["n"], r["sr"], r["level"], r["class"])
+
+    def rows(f):
+        return [r for r in json.load(open(f))["rows"] if not r.get("generalisation")]
+
+    ref = {key(r): r for r in rows(files[0]) if "tval3" in r and r["n"] <= 128}
+    out = []
+    for f in files:
+        got = {key(r): r for r in rows(f) if "learned" in r}
+        ks = sorted(set(got) & set(ref))
+        d = {k: got[k]["learned"][0] - ref[k]["tval3"][0] for k in ks}
+        low = [d[k] for k in ks if k[1] <= 0.125 + 1e-9 and abs(k[2] - 0.01) < 1e-9]
+        worst = min(d, key=d.get)
+        out.append(f"{f}: {len(ks)} cells; mean Δ at SR <= 12.5 %, 1 % noise {np.mean(low):+.2f} dB "
+                   f"({len(low)} cells); {sum(v < -0.5 for v in d.values())} cells worse by "
+                   f"> 0.5 dB; worst {d[worst]:+.2f} dB (n={worst[0]} SR {worst[1] * 100:g} % "
+                   f"noise {worst[2] * 100:g} % {worst[3]})")
+        for lev in sorted({k[2] for k in ks}):
+            out.append(f"  noise {lev * 100:g} %: " + ", ".join(
+                f"n={n} {np.mean([d[k] for k in ks if k[:1] == (n,) and k[2] == lev]):+.2f} "
+                f"(min {min(d[k] for k in ks if k[:1] == (n,) and k[2] == lev):+.2f})"
+                for n in sorted({k[0] for k in ks if k[2] == lev})))
+    return "\n".join(out)
+
+
 def gen_table(rows: list[dict]) -> str:
     """Markdown: mean PSNR difference learned − TVAL3 over the classes per (order, SR), n = 64,
     noise 1 %."""
@@ -369,9 +400,15 @@ def main() -> int:
                    help="give the learned model the true noise std (diagnostic)")
     p.add_argument("--weights", default=None,
                    help="a weights file to evaluate (recipe.json beside it; default: shipped)")
+    p.add_argument("--compare", nargs="+", default=None,
+                   help="the acceptance criteria of each file's learned rows against the TVAL3 "
+                        "rows of the first file (same cells), and exit")
     p.add_argument("--table", nargs="+", default=None,
                    help="print the markdown tables of JSON files (joined cell by cell) and exit")
     args = p.parse_args()
+    if args.compare:
+        print(compare(args.compare))
+        return 0
     if args.table:
         rows = merge(args.table)
         print(table(rows))

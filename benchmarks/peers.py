@@ -4,9 +4,10 @@ Every method sees the same image, the same rows and the same noise draw
 (``benchmarks/peers_scenes.py``) and is scored with the same PSNR
 (:func:`torchtof.metrics.psnr`, ``MAX = 1``, estimate clipped to ``[0, 1]``).
 
-- torchtof: its one-call defaults ``TVAL3(A)(y)``, ``BasisPursuit(A)(y)``, ``A.pinv(y)``, and
-  ``torchtof.recon.auto(y, A)`` where that exists (skipped with a note otherwise). No weight is
-  tuned for torchtof.
+- torchtof: its one-call defaults ``TVAL3(A)(y)``, ``BasisPursuit(A)(y)``, ``A.pinv(y)``,
+  ``torchtof.recon.auto(y, A)`` where that exists (skipped with a note otherwise), and the
+  learned reconstructor with its shipped weights ``Learned(A)(y)`` (orthonormal rows only). No
+  weight is tuned for torchtof.
 - peers: each method's weights are **tuned on a grid against the ground truth** (an oracle:
   the best grid point is reported) — their strongest showing, not what a user gets:
 
@@ -208,6 +209,12 @@ def tt_auto_box(P: Problem, _p=None):
     return getattr(out, "x", out)
 
 
+def tt_learned(P: Problem, _p=None):
+    """The shipped weights, ``noise_sigma="auto"`` (the problem's σ is not given)."""
+    with torch.no_grad():
+        return tt.recon.Learned(P.A)(P.y)
+
+
 # ---- deepinv
 def _dinv_physics(P: Problem):
     _import_torchvision()
@@ -407,6 +414,8 @@ def method_table(P: Problem, dip: bool):
     if hasattr(tt.recon, "auto"):
         table["torchtof auto"] = ("torchtof", tt_auto, None, None)
         table["torchtof auto [0,1]"] = ("torchtof", tt_auto_box, None, None)
+    if hasattr(tt.recon, "Learned") and getattr(P.A, "orthonormal_rows", False):
+        table["torchtof learned"] = ("torchtof", tt_learned, None, None)
     vers = peer_versions()
     if vers.get("deepinv"):
         table["deepinv FISTA-TV"] = ("deepinv", dinv_fista_tv, geometric(s), refine2)

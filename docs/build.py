@@ -506,7 +506,9 @@ def render_learned_recipe(rec: dict) -> str:
             f"thread{'s' * (rec['threads'] != 1)}, 1-minute load "
             + (f"{load:.0f} at the end" if load is not None else "not recorded")
             + f", torch {rec['torch_version']}), plus {rec['calibration_wall_s']:.0f} s to "
-            f"calibrate the final step (`{rec['calibration_command']}`).")
+            "calibrate the final step " + (f"(`{rec['calibration_command']}`)."
+                                           if rec.get("calibration_command") else
+                                           "at the end of the same command."))
 
 
 ONNX_LABELS = {"unrolled_tval3": "unrolled TVAL3 (K = 12)", "g2": "g2", "bp": "basis pursuit",
@@ -834,10 +836,9 @@ SECTIONS: dict[str, Section] = {
     ),
     "learned_recipe": Section(
         "torchtof/weights/learned/recipe.json", render_learned_recipe,
-        ("torchtof", "train", "--model", "learned", "--steps", "1300", "--seed", "0", "--out",
-         "/tmp/learned_run", "--max-minutes", "40"),
+        ("torchtof", "train", "--model", "learned", "--seed", "0", "--out", "/tmp/learned_run"),
         "the shipped learned weights' training run",
-        render_only="a 29-min training run, then --calibrate-only; it rewrites the weights",
+        render_only="an 18-min training run and its calibration; it rewrites the weights",
     ),
     "bad_inputs": Section(
         "docs/reliability/bad_inputs.json", render_bad_inputs,

@@ -153,6 +153,17 @@ def test_report_tables():
     assert "| sky | -2.50 (pylops SB-TV) | +1.00 (pylops SB-TV) |" in grid
 
 
+def test_learned_row_only_for_orthonormal_rows():
+    import torchtof as tt
+
+    P = pb.Problem("sky", 32, 0.125, "cake_cutting", 0.01, 0)
+    assert pb.method_table(P, dip=False)["torchtof learned"][1] is pb.tt_learned
+    torch.testing.assert_close(pb.tt_learned(P), tt.recon.Learned(P.A)(P.y))
+    P.A = tt.operators.PatternOperator(tt.operators.random_binary_patterns(
+        P.m, 32, generator=torch.Generator().manual_seed(0)))  # 0/1 rows: not orthonormal
+    assert "torchtof learned" not in pb.method_table(P, dip=False)
+
+
 def test_merge_unites_cells_of_the_same_problem():
     def cell(results):
         c = {"scene": "sky", "n": 32, "sr": 0.25, "order": "sequency", "level": 0.01,

@@ -313,6 +313,9 @@ def test_learned_recipe_states_the_training_run_from_the_recipe():
     assert text.startswith("The shipped weights took 1300 steps in 28.5 min (`torchtof train "
                            "x`, 2 processes, 1 thread, 1-minute load 11 at the end, torch t)")
     assert "plus 70 s to calibrate the final step (`torchtof train y`)" in text
+    del rec["calibration_command"]  # calibrated by the training command itself
+    assert build.render_learned_recipe(rec).endswith(
+        "plus 70 s to calibrate the final step at the end of the same command.")
 
 
 def test_depth_joint_counts_wins_below_12_5_percent_and_lists_where_tval3_wins():

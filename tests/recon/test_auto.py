@@ -336,3 +336,18 @@ def test_piecewise_planar_depth_map_chooses_tgv():
         return float((z - x).square().mean().sqrt())
 
     assert rmse(r.x) < 0.75 * rmse(tval3(y, A).x)
+
+
+def test_priors_option_restricts_the_candidates():
+    assert {c["prior"] for c in candidates(priors=("tv",))} == {"tv"}
+    assert {c["prior"] for c in candidates((0.0, 1.0), priors=("tgv",))} == {"tgv", "box"}
+    A = Hadamard(16, sr=0.5)
+    y = _noisy(A, _square(), 0.01)
+    r = auto(y, A, priors=("tv",), cv_iter=30, return_result=True)
+    assert {c["prior"] for c in r.candidates} == {"tv"} and r.choice[0][0]["prior"] == "tv"
+    assert "priors=('tgv',)" in repr(Auto(A, priors=("tgv",)))
+    for bad in ((), ("tv", "tv"), ("tvl1",), "tv"):
+        with pytest.raises(ValueError, match="auto: expected priors"):
+            auto(y, A, priors=bad)
+    with pytest.raises(ValueError, match="Auto: expected priors"):
+        Auto(A, priors=("dct",))

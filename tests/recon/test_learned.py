@@ -131,6 +131,66 @@ def test_final_step_noise_free_is_the_exact_projection():
     torch.testing.assert_close(on, loud(y), rtol=1e-12, atol=1e-12)
 
 
+def _conditioning(net, y):
+    """The first prior call's input ``z`` and conditioning ``c`` (a forward pre-hook)."""
+    seen = []
+    h = net.prior.register_forward_pre_hook(
+        lambda mod, args: seen.append(args) if not seen else None)
+    try:
+        with torch.no_grad():
+            net(y)
+    finally:
+        h.remove()
+    return seen[0]
+
+
+@pytest.mark.parametrize("sigma,floored", [(0.0, False), (0.5, False), (2.0, True)])
+def test_noise_corrected_norm_scales_input_and_conditioning(sigma, floored):
+    """ν² = max(‖y‖² − Mσ², ε‖y‖²) (ε = 10⁻²), computed here by hand: the first step's
+    z = Aᵀb = Aᵀy·n/ν has RMS ‖y‖/ν, and log(σ_n + 10⁻³) = log(σ n/ν + 10⁻³) with the SR and
+    k/K entries after it. A file without ``meta["scale"]`` keeps ν = ‖y‖."""
+    n, sr = 16, 0.25
+    net = _net(n=n, sr=sr, noise_sigma=sigma).double()
+    m = net.A.m
+    y = _y(net.A, b=1, dtype=torch.float64)  # ‖y‖² ≈ 67, M = 64: σ = 2 drives ν to its floor
+    ny2 = float((y**2).sum())
+    nu2 = ny2 - m * sigma**2
+    assert (nu2 < 0.01 * ny2) == floored
+    nu = math.sqrt(max(nu2, 0.01 * ny2))
+    z, c = _conditioning(net, y)
+    assert float(z.pow(2).mean().sqrt()) == pytest.approx(math.sqrt(ny2) / nu, rel=1e-9)
+    assert float(c[0, 0]) == pytest.approx(math.log(sigma * n / nu + 1e-3), rel=1e-9, abs=1e-12)
+    assert float(c[0, 1]) == pytest.approx(math.log(m / n**2), rel=1e-12)
+    assert float(c[0, 2]) == pytest.approx(1 / 3, rel=1e-12)
+    net.clean_scale = False  # the rule of weights files without meta["scale"]
+    z, c = _conditioning(net, y)
+    assert float(z.pow(2).mean().sqrt()) == pytest.approx(1.0, rel=1e-9)
+    assert float(c[0, 0]) == pytest.approx(math.log(sigma * n / math.sqrt(ny2) + 1e-3), rel=1e-9,
+                                           abs=1e-12)
+
+
+def test_weights_file_records_the_scale_rule_and_old_files_keep_the_noisy_norm(tmp_path):
+    A = Hadamard(16, sr=0.25)
+    torch.manual_seed(0)
+    a = Learned(A, n_layers=2, width=4, pretrained=False, noise_sigma=0.05)
+    assert a.clean_scale
+    new, old = tmp_path / "new.pt", tmp_path / "old.pt"
+    a.save_weights(new)
+    assert torch.load(new, weights_only=True)["meta"]["scale"] == "clean"
+    blob = torch.load(new, weights_only=True)
+    del blob["meta"]["scale"]  # a file written before the noise-corrected norm
+    torch.save(blob, old)
+    b_new = Learned(A, n_layers=2, pretrained=new, noise_sigma=0.05)
+    b_old = Learned(A, n_layers=2, pretrained=old, noise_sigma=0.05)
+    assert b_new.clean_scale and not b_old.clean_scale
+    y = _y(A)
+    torch.testing.assert_close(b_new(y), a(y))
+    c_new, c_old = _conditioning(b_new, y)[1], _conditioning(b_old, y)[1]
+    assert float(c_new[0, 0] - c_old[0, 0]) > 1e-4  # σ > 0: ν < ‖y‖, a larger σ_n
+    a.clean_scale = False
+    torch.testing.assert_close(b_old(y), a(y))
+
+
 def test_calibrate_tau_picks_the_grid_minimum():
     from torchtof.recon.learned_train import calibrate_tau
 
@@ -279,6 +339,16 @@ def test_noise_clean_gaussian_and_shot_variances():
         want = math.sqrt(p * float(x.sum()) * (1 + stray)) / (p * n)
         assert abs(float(e.std()) / want - 1) < 0.03
         assert abs(float(e.mean())) < 4 * want / n  # stray light cancels in y⁺ − y⁻
+
+
+def test_p_clean_one_gives_noise_free_buckets_and_bad_values_raise():
+    A, x, y = _batch(0, 5, 16, 64, "cake_cutting", range(6), p_clean=1.0)
+    torch.testing.assert_close(y, A(x), rtol=0, atol=0)
+    _, _, y0 = _batch(0, 5, 16, 64, "cake_cutting", range(6), p_clean=0.0)
+    assert bool((y0 != A(x)).any(dim=-1).all())  # every sample noisy
+    for bad in (-0.1, 1.5, True):
+        with pytest.raises(ValueError, match="p_clean"):
+            train_learned(steps=1, p_clean=bad, progress=False)
 
 
 def test_noise_levels_give_every_size_the_top_image_noise_of_the_reference():

@@ -24,7 +24,7 @@ __all__ = ["add_arguments", "main"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=positive_int, default=1300, help="optimiser steps" + d)
+    p.add_argument("--steps", type=positive_int, default=2000, help="optimiser steps" + d)
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)
@@ -46,6 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-ref", type=nonneg_int, default=0,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
+    p.add_argument("--p-clean", type=_probability, default=0.3,
+                   help="probability of a noise-free training sample" + d)
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
@@ -86,7 +88,7 @@ def main(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
-                              noise_ref=args.noise_ref or None)
+                              noise_ref=args.noise_ref or None, p_clean=args.p_clean)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
         recipe.update(final_step_calibration=calib, calibration_command=command,
@@ -101,7 +103,8 @@ def main(args: argparse.Namespace) -> int:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
         orders=tuple(args.orders), n_layers=args.n_layers, width=args.width,
-        shuffle=args.shuffle, noise_ref=args.noise_ref or None, out=args.out,
+        shuffle=args.shuffle, noise_ref=args.noise_ref or None, p_clean=args.p_clean,
+        out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
         command=command, calibrate=not args.no_calibrate,

@@ -186,8 +186,8 @@ def _boxes(bounds) -> list:
     return [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
 
 
-def _groups(bounds) -> list:
-    return [(pr, tv, bd, box) for pr in AUTO_PRIORS for tv in AUTO_TVS for bd in AUTO_BOUNDARIES
+def _groups(bounds, priors=AUTO_PRIORS) -> list:
+    return [(pr, tv, bd, box) for pr in priors for tv in AUTO_TVS for bd in AUTO_BOUNDARIES
             for box in _boxes(bounds)]
 
 
@@ -207,16 +207,17 @@ def _fine(w: float) -> tuple:
     return () if w == _INF else (w * REFINE, w / REFINE)
 
 
-def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
+def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tuple[dict, ...]:
     """The candidate list of :func:`auto`: dicts ``prior`` (``"tv"``, ``"tgv"``; ``"box"``
     for the box-only candidate), ``tv`` (the norm), ``boundary``, ``bounds``, ``mu``
     (``None``: the constrained model with ``μ = 2⁸``) and ``stage`` (1: fitted for every
     sample; 2: a factor-``REFINE`` neighbour of a first-stage weight, fitted only around a
-    sample's first-stage choice). Given a finite box, one more candidate ``tv=None``: least
+    sample's first-stage choice), for each prior in ``priors``. Given a finite box, one more
+    candidate ``prior="box"``: least
     squares on the box alone, no TV (projected gradient); it is not cross-validated (its
     ``cv_error`` is ``nan``) but chosen when the box alone determines the image (module doc)."""
     out = []
-    for pr, tv, bd, box in _groups(bounds):
+    for pr, tv, bd, box in _groups(bounds, priors):
         for mu in AUTO_WEIGHTS:
             out.append(dict(prior=pr, tv=tv, boundary=bd, bounds=box,
                             mu=None if mu == _INF else mu, stage=1))
@@ -230,7 +231,11 @@ def candidates(bounds: tuple | None = None) -> tuple[dict, ...]:
     return tuple(out)
 
 
-def _check(fn, folds, cv_iter, max_iter, bounds, split, slack):
+def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS):
+    if (not isinstance(priors, (tuple, list)) or not priors
+            or any(p not in AUTO_PRIORS for p in priors) or len(set(priors)) != len(priors)):
+        raise ValueError(f"{fn}: expected priors a non-empty tuple of distinct names from "
+                         f"{AUTO_PRIORS}, got {priors!r}")
     for name, v, lo in (("folds", folds, 2), ("cv_iter", cv_iter, 1), ("max_iter", max_iter, 1)):
         if v is None and name == "folds":
             continue
@@ -326,6 +331,7 @@ def auto(
     split: str | None = None,
     slack: float = 0.0,
     seed: int = 0,
+    priors: tuple[str, ...] = AUTO_PRIORS,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
     """TV or TGV² reconstruction with prior, bounds and weight chosen by cross-validation (module
@@ -363,6 +369,9 @@ def auto(
             reconstruction must predict follow the measured ones).
         slack: relative CV tolerance of the choice (``≥ 0``).
         seed: seed of the random fold assignment (deterministic by default).
+        priors: the priors tried, a subset of :data:`AUTO_PRIORS` (``("tv", "tgv")``):
+            ``("tv",)`` halves the cost where no piecewise-affine image is expected,
+            ``("tgv",)`` for depth maps of planes.
         return_result: return an :class:`AutoResult` instead of ``x``.
 
     Returns:
@@ -380,12 +389,13 @@ def auto(
     """
     fn = "auto"
     check_buckets(y, A, fn)
-    _check(fn, folds, cv_iter, max_iter, bounds, split, slack)
+    _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors)
+    priors = tuple(priors)
     split = default_split(A) if split is None else split
     use = TAIL_USE if folds is None and split == "tail" else None
     folds = (TAIL_FOLDS if split == "tail" else RANDOM_FOLDS) if folds is None else folds
     b, c, m = y.shape
-    cands = candidates(bounds)
+    cands = candidates(bounds, priors)
     if b * c == 0:
         x = y.new_zeros(b, c, A.n, A.n)
         res = AutoResult(x, torch.zeros(b, c, dtype=torch.int64, device=y.device),
@@ -416,7 +426,7 @@ def auto(
     mask1 = train.repeat_interleave(len(wts), dim=0)
     yt1 = ys * mask1.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
     hm1, tm1 = hm.repeat_interleave(len(wts), dim=0), tm.repeat_interleave(len(wts), dim=0)
-    for g in _groups(bounds):
+    for g in _groups(bounds, priors):
         xg = _fit(g, yt1, MaskedRows(A, mask1), mus1.repeat(nf).expand(bc, -1),
                   tvl2_1.repeat(nf).expand(bc, -1), cv_iter)[0]
         r2 = (A(xg) - ys).square()
@@ -432,7 +442,7 @@ def auto(
     # the first stage's choice decides which solves run next
 
     # -- stage 2: the factor-REFINE neighbours of each sample's first-stage TV-L2 weight
-    for g in _groups(bounds):
+    for g in _groups(bounds, priors):
         rows = [i for i, k in enumerate(first) if _group_of(cands[k]) == g
                 and cands[k]["mu"] is not None]
         if not rows:
@@ -461,7 +471,7 @@ def auto(
     n_iter = torch.zeros(bc, 1, dtype=torch.int64, device=y.device)
     conv = torch.zeros(bc, 1, dtype=torch.bool, device=y.device)
     codes = torch.zeros(bc, 1, dtype=torch.int64, device=y.device)
-    for g in _groups(bounds):
+    for g in _groups(bounds, priors):
         for constrained in (True, False):
             rows = [i for i, k in enumerate(best_l)
                     if _group_of(cands[k]) == g and (cands[k]["mu"] is None) == constrained]
@@ -503,8 +513,8 @@ class Auto(nn.Module):
     """Module of :func:`auto`: ``forward(y) -> x``, ``solve(y) -> AutoResult``.
 
     Args:
-        A: the operator (a submodule). bounds, folds, cv_iter, max_iter, split, slack, seed:
-            as :func:`auto`.
+        A: the operator (a submodule). bounds, folds, cv_iter, max_iter, split, slack, seed,
+            priors: as :func:`auto`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -514,14 +524,14 @@ class Auto(nn.Module):
 
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int | None = None,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
-                 slack: float = 0.0, seed: int = 0) -> None:
+                 slack: float = 0.0, seed: int = 0, priors: tuple = AUTO_PRIORS) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
-        _check("Auto", folds, cv_iter, max_iter, bounds, split, slack)
+        _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
-                            split=split, slack=slack, seed=seed)
+                            split=split, slack=slack, seed=seed, priors=tuple(priors))
 
     def solve(self, y: torch.Tensor) -> AutoResult:
         return auto(y, self.A, return_result=True, **self.options)
@@ -531,4 +541,5 @@ class Auto(nn.Module):
 
     def extra_repr(self) -> str:
         o = self.options
-        return f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}"
+        return (f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}, "
+                f"priors={o['priors']}")

@@ -33,8 +33,21 @@ prior with pixel unshuffle ``r``; the package's Hadamard sizes 32–256) and eve
 (``O(n²)`` convolutions plus one ``A`` and one ``Aᵀ``) and there is no data-dependent control
 flow (it exports to ONNX).
 
-Scale: ``b = y / s`` with ``s = ‖y‖₂ / n`` (the RMS of ``Aᵀy`` over the ``n²`` pixels) and the
-sign of ``⟨1, Aᵀy⟩`` folded into ``s``, the output multiplied back by ``s``: the
+Scale: ``b = y / s`` with ``s = ν / n`` and the sign of ``⟨1, Aᵀy⟩`` folded into ``s``, where
+``ν`` is the noise-corrected norm of the buckets
+
+.. math::
+    ν = \\sqrt{\\max(‖y‖_2^2 - M σ^2,\\ ε ‖y‖_2^2)}, \\qquad ε = 10^{-2},
+
+an unbiased estimate of ``‖A x‖²`` under the square root: for ``y = A x + e`` with zero-mean
+noise of covariance ``σ² I_M``, ``E‖y‖² = ‖A x‖² + 2⟨A x, E e⟩ + E‖e‖² = ‖A x‖² + M σ²``
+(the moment estimate of the signal power, Kay, *Fundamentals of Statistical Signal Processing:
+Estimation Theory*, 1993, Sec. 9.3); ``ε`` keeps it positive when ``σ`` is over-estimated. So
+``s`` is the RMS of the clean ``Aᵀ A x`` over the ``n²`` pixels and ``σ_n = σ / |s|`` the noise
+relative to the *signal* at every size. (Weights files before this rule, ``meta["scale"]``
+absent, used ``ν = ‖y‖₂``, under which ``σ_n·√SR = σ√M/‖y‖ < 1`` saturates at ``1/√SR`` once
+the noise dominates the buckets; they load with that rule.) The output is multiplied back by
+``s``: the
 reconstructor is equivariant to any non-zero scale, ``f(c y) = c f(y)`` (trained on scenes
 in ``[0, 1]``, it applies to physical bucket units and to negative images alike). An
 all-zero ``y`` gives an all-zero image.
@@ -92,6 +105,11 @@ STOP_REASON = "n_layers"
 SIGMA_FLOOR = 1e-3
 #: Initial ``τ`` of the final data-consistency weight (module docstring).
 TAU_INIT = 0.1
+#: ``ε`` of the noise-corrected norm ``ν`` (module docstring).
+CLEAN_FLOOR = 1e-2
+#: ``meta["scale"]`` of the two normalisations: ``ν`` noise-corrected (this module's) or the
+#: noisy ``‖y‖`` (weights files without the key).
+SCALE_CLEAN, SCALE_NOISY = "clean", "noisy"
 
 
 class LearnedResult(NamedTuple):
@@ -275,8 +293,10 @@ def _unrolled(
     log_tau: torch.Tensor | None,
     noise_sigma,
     func: str,
+    clean_scale: bool = True,
 ) -> torch.Tensor:
-    """The iteration of the module docstring; ``y`` already checked."""
+    """The iteration of the module docstring; ``y`` already checked. ``clean_scale=False``: the
+    normalisation of weights files before the noise-corrected norm (``ν = ‖y‖``)."""
     if isinstance(A, DMDSplit):
         if noise_sigma is not None and not isinstance(noise_sigma, str):
             # σ of each frame → σ of (y⁺ − y⁻)/n: √2 σ / n
@@ -293,6 +313,9 @@ def _unrolled(
     norm = peak * (y / peak).norm(dim=-1, keepdim=True)  # (B, C, 1)
     x0 = adj(y / norm.clamp_min(tiny))  # unit-norm Aᵀ b
     sign = torch.where(x0.sum(dim=(-2, -1)) >= 0, 1.0, -1.0).to(y.dtype)[..., None]  # (B, C, 1)
+    if clean_scale:  # ν = √max(‖y‖² − Mσ², ε‖y‖²), in units of the peak (no overflow)
+        rel = (norm / peak) ** 2 - m * (sigma[..., None] / peak) ** 2
+        norm = peak * torch.maximum(rel, CLEAN_FLOOR * (norm / peak) ** 2).sqrt()
     s = sign * norm / n  # signed RMS scale of Aᵀ y
     b = y / torch.where(s >= 0, s.clamp_min(tiny), s.clamp_max(-tiny))
     x = adj(b)
@@ -340,7 +363,7 @@ class Learned(nn.Module):
             high-order tail of ``y``, :func:`~torchtof.recon.tval3.bucket_noise_sigma`; meant
             for low-to-high orders such as cake-cutting). The shipped weights were trained with
             the estimate on every sample, the noise-free ones too (it is never 0): keep
-            ``"auto"`` for noise-free buckets (``0`` scored 2–4 dB lower on the held-out
+            ``"auto"`` for noise-free buckets (``0`` scored 1.2–2.8 dB lower on the held-out
             evaluation, ``docs/learned.md``).
         pretrained: ``True`` loads the shipped weights (:data:`WEIGHTS_FILE`), ``False``
             keeps the random initialisation, a path loads that file.
@@ -412,6 +435,9 @@ class Learned(nn.Module):
         self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
         #: apply the final data-consistency step (training of the prior switches it off)
         self.final_dc = True
+        #: normalise by the noise-corrected norm (module docstring); ``False`` for weights
+        #: files written before it (``meta["scale"]`` absent)
+        self.clean_scale = True
         self.weights_file: str | None = None
         if path is not None:
             self.load_weights(path)
@@ -435,6 +461,7 @@ class Learned(nn.Module):
                 f"Learned.load_weights: weights file {os.fspath(path)!r} holds "
                 f"{ {k: meta.get(k) for k in want} }, expected {want}"
             )
+        self.clean_scale = meta.get("scale", SCALE_NOISY) == SCALE_CLEAN
         self.prior.load_state_dict(blob["prior"])
         with torch.no_grad():
             self.step_raw.copy_(blob["step_raw"])
@@ -447,7 +474,8 @@ class Learned(nn.Module):
             "prior": {k: v.detach().clone() for k, v in self.prior.state_dict().items()},
             "step_raw": self.step_raw.detach().clone(),
             "log_tau": self.log_tau.detach().clone(),
-            "meta": {**self.meta(), **meta},
+            "meta": {**self.meta(), "scale": SCALE_CLEAN if self.clean_scale else SCALE_NOISY,
+                     **meta},
         }
         torch.save(blob, Path(path))
         _load_blob.cache_clear()
@@ -468,7 +496,8 @@ class Learned(nn.Module):
         if y.shape[0] == 0 and not is_tracing():
             return y.new_zeros(0, y.shape[1], self.A.n, self.A.n)
         log_tau = self.log_tau if self.final_dc else None
-        return _unrolled(y, self.A, self.prior, self.step_raw, log_tau, self.noise_sigma, func)
+        return _unrolled(y, self.A, self.prior, self.step_raw, log_tau, self.noise_sigma, func,
+                         self.clean_scale)
 
     def solve(self, y: torch.Tensor) -> LearnedResult:
         """:meth:`forward` plus the per-sample residual ``‖A x − y‖ / ‖y‖`` and the fields of
@@ -491,7 +520,7 @@ class Learned(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"n_layers={self.n_layers}, noise_sigma={self.noise_sigma!r}, "
-            f"weights_file={self.weights_file!r}"
+            f"clean_scale={self.clean_scale}, weights_file={self.weights_file!r}"
         )
 
 

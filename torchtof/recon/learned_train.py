@@ -63,6 +63,9 @@ __all__ = [
 TAU_GRID = (0.02, 0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.3, 0.5)
 #: First step of the calibration batches (beyond any training run).
 CALIBRATION_STEP0 = 1_000_000
+#: Default probability of a noise-free sample (:func:`~torchtof.data.training_noise`; the
+#: shipped run's).
+P_CLEAN = 0.3
 
 
 class LearnedTrainResult(NamedTuple):
@@ -135,12 +138,12 @@ def noise_levels(n: int, noise_ref: int | None = None) -> tuple[float, float]:
 
 
 def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
-           noise_ref: int | None = None):
+           noise_ref: int | None = None, p_clean: float = P_CLEAN):
     x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
     gens = [torch.Generator().manual_seed(int(_seq(seed, step, i, 1).integers(0, 2**62)))
             for i in indices]
     levels = noise_levels(n, noise_ref)
-    recipes = [training_noise(g, levels=levels) for g in gens]
+    recipes = [training_noise(g, p_clean=p_clean, levels=levels) for g in gens]
     A = Hadamard(n, m=m, order=order)
     with torch.no_grad():
         y = noisy_buckets(A, x, recipes, gens)
@@ -158,6 +161,7 @@ def calibrate_tau(
     orders: tuple[str, ...] = ORDERS,
     grid: tuple[float, ...] = TAU_GRID,
     noise_ref: int | None = None,
+    p_clean: float = P_CLEAN,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -173,7 +177,7 @@ def calibrate_tau(
         for k in range(batches):
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref)
+            A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean)
             model.A = A
             outs.append((A, x, y, model(y)))
     model.final_dc = True
@@ -193,7 +197,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 1300,
+    steps: int = 2000,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -205,6 +209,7 @@ def train_learned(
     width: int = DEFAULT_WIDTH,
     shuffle: int = DEFAULT_SHUFFLE,
     noise_ref: int | None = None,
+    p_clean: float = P_CLEAN,
     out: str | os.PathLike | None = None,
     checkpoint_every: int = 100,
     resume: bool = False,
@@ -228,7 +233,8 @@ def train_learned(
         orders: Hadamard orders drawn.
         n_layers, width, shuffle: the network (:class:`Learned`).
         noise_ref: Gaussian noise levels scaled to this size (:func:`noise_levels`;
-            ``None``, the shipped recipe: the same levels at every size).
+            ``None``: the same levels at every size).
+        p_clean: probability of a noise-free sample, in ``[0, 1]``.
         out: folder of the checkpoint, log and final weights (``None``: nothing written).
         checkpoint_every: steps between checkpoints (0: none).
         resume: continue from ``out/checkpoint.pt`` if it exists.
@@ -254,6 +260,9 @@ def train_learned(
     if noise_ref is not None and (isinstance(noise_ref, bool) or not isinstance(noise_ref, int)
                                   or noise_ref < 1):
         raise ValueError(f"{func}: expected noise_ref to be None or an int >= 1, got {noise_ref!r}")
+    if isinstance(p_clean, bool) or not isinstance(p_clean, (int, float)) or not (
+            0 <= p_clean <= 1):
+        raise ValueError(f"{func}: expected p_clean in [0, 1], got {p_clean!r}")
     if not (lr > 0 and math.isfinite(lr)):
         raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
     lo, hi = sr_range
@@ -322,7 +331,7 @@ def train_learned(
         step = start
         for step in range(start, steps):
             n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref)
+            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean)
             model.A = A
             loss = psnr_loss(net(y), x)
             opt.zero_grad(set_to_none=True)
@@ -355,8 +364,10 @@ def train_learned(
             bar.close()
         wall = wall0 + time.perf_counter() - t0
         model.log_tau.requires_grad_(True)
+        t_cal = time.perf_counter()
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
-                              orders=orders, noise_ref=noise_ref) if calibrate else None
+                              orders=orders, noise_ref=noise_ref,
+                              p_clean=p_clean) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -376,11 +387,12 @@ def train_learned(
                 "data": {
                     "families": FAMILIES,
                     "train_images": list(TRAIN_IMAGES),
-                    "noise": {"p_clean": 0.2, "gaussian_levels": list(TRAIN_LEVELS),
+                    "noise": {"p_clean": p_clean, "gaussian_levels": list(TRAIN_LEVELS),
                               "levels_scaled_to_n": noise_ref,
                               "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
                 },
                 "final_step_calibration": calib,
+                "calibration_wall_s": round(time.perf_counter() - t_cal, 1),
                 "final_loss": (float(np.mean(losses[-max(1, len(losses) // 10):]))
                                if losses else None),
                 "torch_version": str(torch.__version__),
