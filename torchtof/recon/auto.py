@@ -90,7 +90,7 @@ from torch import nn
 from .._checks import check_positive
 from ..operators.base import LinearOperator
 from .tgv import TGV_STOP_REASONS, tgv
-from .tv import largest_eig_normal, project_box
+from .tv import box_bounds, largest_eig_normal, project_box
 from .tval3 import (
     STOP_REASONS,
     MaskedRows,
@@ -243,12 +243,7 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIOR
             raise TypeError(f"{fn}: expected {name} to be an int, got {type(v).__name__}")
         if v < lo:
             raise ValueError(f"{fn}: expected {name} >= {lo}, got {v}")
-    if bounds is not None:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
-        lo, hi = bounds
-        if lo is not None and hi is not None and not float(lo) < float(hi):
-            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
+    box_bounds(False, bounds, fn)
     if split not in (None, "random", "tail"):
         raise ValueError(f"{fn}: expected split in (None, 'random', 'tail'), got {split!r}")
     check_positive(slack, "slack", fn, strict=False)
