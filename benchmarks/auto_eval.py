@@ -10,6 +10,15 @@ of 1 % of the bucket spread, one noise draw per cell (seed 0). PSNR on [0, 1] af
     OMP_NUM_THREADS=1 python benchmarks/auto_eval.py --n 32 64 --out auto_eval.json
 
 Prints a Markdown table (docs/auto.md holds the committed one).
+
+How the fold layout and score were chosen (docs/auto.md, "The fold score"): ``--fold-study``
+fits every first-stage TV candidate on the first 4/8 … 7/8 of the rows and stores its error
+on every later eighth and its full-data refit's PSNR; ``--fold-rules`` scores fold rules on
+those files (the peers' cells against ``docs/peers.json``)::
+
+    python benchmarks/auto_eval.py --fold-study fs_a32.json --n 32      # and --n 64
+    python benchmarks/auto_eval.py --fold-study fs_p.json --peers-cells docs/peers.json
+    python benchmarks/auto_eval.py --fold-rules fs_p.json --peers-cells docs/peers.json
 """
 
 from __future__ import annotations
@@ -73,6 +82,96 @@ def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
     return [out[k] for k in key if k in out]
 
 
+STUDY_GROUPS = (("isotropic", None), ("isotropic", (0.0, None)), ("anisotropic", None),
+                ("anisotropic", (0.0, None)))  # TV, Neumann (the study predates TGV in auto)
+
+
+def fold_study_cell(x, A, y, score) -> dict:
+    """Per TV group and weight of ``AUTO_WEIGHTS``: the squared error on each eighth of the
+    rows of the fit (100 iterations) on the first ``k/8`` rows, ``k = 4…7`` (``blocks[k-4][w]``,
+    all 8 eighths), the training misfit, and the full-data refit's PSNR (as ``auto`` refits)."""
+    from torchtof.recon.tval3 import MaskedRows, bucket_noise_sigma
+
+    m, w_n = A.m, len(AUTO_WEIGHTS)
+    edges = [round(i * m / 8) for i in range(9)]
+    inf = float("inf")
+    mus = torch.tensor([2.0**8 if w == inf else w for w in AUTO_WEIGHTS], dtype=y.dtype)
+    tvl2 = torch.tensor([w != inf for w in AUTO_WEIGHTS])
+    masks = torch.zeros(4, m, dtype=torch.bool)
+    for i, k in enumerate(range(4, 8)):
+        masks[i, : edges[k]] = True
+    mask1 = masks.repeat_interleave(w_n, 0)
+    yv = y.reshape(-1)
+    out = dict(m=m, edges=edges, sigma=float(bucket_noise_sigma(y)), groups={},
+               energy=[float(yv[edges[b]:edges[b + 1]].square().sum()) for b in range(8)])
+    finite = [w for w in AUTO_WEIGHTS if w != inf]
+    for tv, box in STUDY_GROUPS:
+        r = tval3(y * mask1.to(y.dtype), MaskedRows(A, mask1), mu=mus.repeat(4)[None],
+                  tvl2=tvl2.repeat(4)[None], max_iter=100, tv=tv, boundary="neumann", bounds=box)
+        r2 = (A(r.x) - y).square()[0].reshape(4, w_n, m)
+        blocks = torch.stack([r2[..., edges[b]:edges[b + 1]].sum(-1) for b in range(8)], -1)
+        fit = (r2 * masks[:, None].to(y.dtype)).sum(-1)
+        rc = tval3(y, A, mu=2.0**8, max_iter=100, tv=tv, boundary="neumann", bounds=box)
+        rl = tval3(y.expand(1, len(finite), -1), A, mu=torch.tensor(finite, dtype=y.dtype)[None],
+                   tvl2=True, max_iter=1025, tv=tv, boundary="neumann", bounds=box)
+        ps = [score(rc.x, x)] + [score(rl.x[:, j : j + 1], x) for j in range(len(finite))]
+        out["groups"][f"{tv[:3]}{'+' if box else ''}"] = dict(
+            blocks=blocks.tolist(), fit=fit.tolist(), psnr=ps)
+    return out
+
+
+#: Fold rules compared by ``--fold-rules``: (training eighths k, held-out eighths) per fold,
+#: and the score ("raw": summed errors; "best": each fold over its best; "log": log of that;
+#: "energy": each fold over its held-out energy).
+FOLD_RULES = {
+    "quarters, summed (the previous rule)": ([(4, [4, 5]), (6, [6, 7])], "raw"),
+    "quarters + a fold on 7/8, summed": ([(4, [4, 5]), (6, [6, 7]), (7, [7])], "raw"),
+    "4 eighth-folds (1/2 … 7/8), summed": ([(4, [4]), (5, [5]), (6, [6]), (7, [7])], "raw"),
+    "3 eighth-folds (5/8 … 7/8), summed": ([(5, [5]), (6, [6]), (7, [7])], "raw"),
+    "4 eighth-folds, each over its held-out energy":
+        ([(4, [4]), (5, [5]), (6, [6]), (7, [7])], "energy"),
+    "quarters, each over its best": ([(4, [4, 5]), (6, [6, 7])], "best"),
+    "4 eighth-folds, log of each over its best": ([(4, [4]), (5, [5]), (6, [6]), (7, [7])], "log"),
+    "4 eighth-folds, each over its best": ([(4, [4]), (5, [5]), (6, [6]), (7, [7])], "best"),
+    "2 eighth-folds (3/4, 7/8), each over its best": ([(6, [6]), (7, [7])], "best"),
+    "3 eighth-folds (5/8, 3/4, 7/8), each over its best (the default)":
+        ([(5, [5]), (6, [6]), (7, [7])], "best"),
+    "one fold: the last eighth from 7/8": ([(7, [7])], "raw"),
+}
+
+
+def fold_pick(d: dict, folds, norm: str) -> tuple[int, list]:
+    """The candidate (index into the groups × weights) a fold rule picks, under the discrepancy
+    bound as in ``auto``; and the candidates' PSNRs."""
+    g = [d["groups"][k] for k in ("iso", "iso+", "ani", "ani+")]
+    w_n = len(AUTO_WEIGHTS)
+    ps = [gg["psnr"][w] for gg in g for w in range(w_n)]
+    cv, fit, bound = [0.0] * len(ps), [0.0] * len(ps), 0.0
+    for k, held in folds:
+        e = [sum(gg["blocks"][k - 4][w][b] for b in held) for gg in g for w in range(w_n)]
+        if norm in ("best", "log"):
+            lo = min(e)
+            e = [v / lo if norm == "best" else math.log(v / lo) for v in e]
+        elif norm == "energy":
+            e = [v / sum(d["energy"][b] for b in held) for v in e]
+        cv = [a + b for a, b in zip(cv, e)]
+        fit = [a + gg["fit"][k - 4][w] for a, (gg, w) in
+               zip(fit, [(gg, w) for gg in g for w in range(w_n)])]
+        bound += d["edges"][k] * d["sigma"] ** 2
+    ok = [f <= bound for f in fit]
+    ok = ok if any(ok) else [True] * len(ps)
+    return min((cv[c], c) for c in range(len(ps)) if ok[c])[1], ps
+
+
+def peer_best(path: str) -> dict:
+    """``(scene, n, sr, order, level) -> best tuned peer PSNR`` of the cells with an auto row."""
+    with open(path) as f:
+        cells = json.load(f)["cells"]
+    return {(c["scene"], c["n"], c["sr"], c["order"], c["level"]):
+            max(v["psnr"] for v in c["results"].values() if v["peer"] != "torchtof")
+            for c in cells if "torchtof auto" in c["results"]}
+
+
 def noise_table(ns, srs, scenes, levels=(0.0, 0.01, 0.03)) -> list[dict]:
     """Bias of TVAL3's tail noise estimate (% of the bucket spread; true level in the header)
     and the PSNR of ``mu="auto"`` minus that of the published ``μ = 2⁸``."""
@@ -126,6 +225,67 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
     return rows
 
 
+def fold_study(args, out: str) -> list[dict]:
+    if args.peers_cells:
+        import sys
+        from pathlib import Path
+
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import peers_scenes as ps
+
+        probs = [(k, *ps.make_problem(*k, 0)[:3], ps.score) for k in peer_best(args.peers_cells)
+                 if k[1] in args.n]
+    else:
+        probs = []
+        for n in args.n:
+            for sr in args.sr:
+                A = tt.operators.Hadamard(n, sr=sr).double()
+                for name in args.scenes:
+                    x = scene(name, n)
+                    y0 = A(x)
+                    g = torch.Generator().manual_seed(0)
+                    y = y0 + args.noise * (y0.max() - y0.min()) * torch.randn(
+                        y0.shape, dtype=y0.dtype, generator=g)
+                    probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y,
+                                  lambda a, b: psnr(a, b)[0]))
+    rows = []
+    for key, x, A, y, score in probs:
+        t0 = time.perf_counter()
+        rows.append(dict(cell=list(key), **fold_study_cell(x, A, y, score)))
+        print(key, f"{time.perf_counter() - t0:.1f} s", flush=True)
+        with open(out, "w") as f:
+            json.dump(rows, f)
+    return rows
+
+
+def fold_rules(paths: list[str], peers: str | None) -> list[dict]:
+    data = []
+    for p in paths:
+        with open(p) as f:
+            data += json.load(f)
+    best = peer_best(peers) if peers else {}
+    out = []
+    print("| rule | folds | mean vs best peer dB | ≥ 0 | worst dB | regret median / max dB | "
+          "cells < median − 0.5 dB |")
+    print("|---|---|---|---|---|---|---|")
+    for name, (folds, norm) in FOLD_RULES.items():
+        gaps, reg, below = [], [], 0
+        for d in data:
+            k, ps = fold_pick(d, folds, norm)
+            reg.append(max(ps) - ps[k])
+            below += ps[k] < statistics.median(ps) - 0.5
+            if tuple(d["cell"]) in best:
+                gaps.append(ps[k] - best[tuple(d["cell"])])
+        row = dict(rule=name, folds=len(folds), regret_median=statistics.median(reg),
+                   regret_max=max(reg), below_median=below)
+        pg = (f"{statistics.mean(gaps):+.2f} | {sum(g >= 0 for g in gaps)}/{len(gaps)} | "
+              f"{min(gaps):.2f}") if gaps else "– | – | –"
+        print(f"| {name} | {len(folds)} | {pg} | {row['regret_median']:.2f} / "
+              f"{row['regret_max']:.2f} | {below} |")
+        out.append(row)
+    return out
+
+
 def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[32, 64])
@@ -136,10 +296,21 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--out", default=None)
     ap.add_argument("--noise-table", action="store_true",
                     help="the noise estimate's bias table instead (estimate %% (dB vs mu=2^8))")
+    ap.add_argument("--fold-study", default=None, metavar="OUT",
+                    help="the fold study's per-candidate errors instead (JSON)")
+    ap.add_argument("--fold-rules", nargs="+", default=None, metavar="STUDY",
+                    help="score the fold rules on these fold-study files (Markdown table)")
+    ap.add_argument("--peers-cells", default=None, metavar="PEERS_JSON",
+                    help="with --fold-study: the cells of this peers JSON (problems of "
+                         "peers_scenes.py); with --fold-rules: their best peer")
     ap.add_argument("--bp", action="store_true",
                     help="basis pursuit's default against TVAL3's default instead (PSNR dB)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
+    if args.fold_rules:
+        return fold_rules(args.fold_rules, args.peers_cells)
+    if args.fold_study:
+        return fold_study(args, args.fold_study)
     if args.bp:
         return bp_table(args.n, args.sr, args.scenes)
     if args.noise_table:

@@ -67,8 +67,8 @@ def test_candidates_and_cv_error_layout():
     r = auto(_noisy(A, _square(), 0.01), A, return_result=True, cv_iter=60, slack=0.0)
     e = r.cv_error[0, 0]
     assert e.shape == (len(r.candidates),)
-    # the tail split's default: 4 folds (each eighth of the rows from the rows before it)
-    assert r.cv_fold.shape == (1, 1, 4, len(r.candidates))
+    # the tail split's default: 3 folds (each of the last 3 eighths from the rows before it)
+    assert r.cv_fold.shape == (1, 1, 3, len(r.candidates))
     torch.testing.assert_close(r.cv_fold[0, 0].sum(0), e, equal_nan=True)
     ok = r.fit_error[0, 0] <= r.fit_bound[0, 0]  # the discrepancy bound (nan: not fitted)
     assert ok.any()
@@ -288,7 +288,11 @@ def test_default_folds_per_split():
     am = _auto_module()
     y = torch.zeros(1, 1, 32)
     r = auto(y, Hadamard(8, sr=0.5), cv_iter=5, return_result=True)  # cake-cutting: tail
-    assert r.cv_fold.shape[2] == am.TAIL_FOLDS - 1 == 4
+    assert r.cv_fold.shape[2] == am.TAIL_USE == 3
+    held, train = holdout_split(Hadamard(8, sr=0.5), am.TAIL_FOLDS, y, 0, "tail")
+    assert held[:3].nonzero()[:, 1].tolist() == list(range(28, 32)) + list(range(24, 28)) + list(
+        range(20, 24))  # M = 32: eighths of 4 rows, the latest first
+    assert train[:3].sum(1).tolist() == [28, 24, 20]
     r = auto(y, Hadamard(8, sr=0.5, order="natural"), cv_iter=5, return_result=True)
     assert r.cv_fold.shape[2] == am.RANDOM_FOLDS == 3
     r = auto(y, Hadamard(8, sr=0.5), folds=3, cv_iter=5, return_result=True)
@@ -299,8 +303,8 @@ def test_picks_anisotropic_where_it_recovers_a_pixel_grid_image_exactly():
     # A binary staircase on the pixel grid, n = 16, lowest 80 of 256 cake-cutting rows, 1 %
     # noise: anisotropic TV recovers it up to the noise (its TV is the edges' pixel count,
     # which the staircase's exact edges minimise), isotropic TV rounds the steps (measured:
-    # constrained anisotropic 45.9 dB, isotropic 24.5 dB). Trained on 5/8 of the rows or fewer
-    # anisotropic TV does not recover it yet; the fold on 7/8 of them shows it does.
+    # constrained anisotropic 45.9 dB, isotropic 24.5 dB; the quarter-fold rule with summed
+    # errors chose isotropic TV, 27.5 dB).
     n = 16
     A = Hadamard(n, sr=0.3125).double()
     x = torch.zeros(1, 1, n, n, dtype=torch.float64)

@@ -177,10 +177,26 @@ def test_dtype_and_result_type():
     assert recon.get("tgv").module is TGV and recon.get("TGV").function is tgv
 
 
+def test_alpha_auto_is_n_over_sqrt_m():
+    # "auto": α0/α1 = n/√M (64 rows of a 16×16 image: 2); equals passing that ratio and the
+    # pair (1, 2); another ratio gives another solution
+    from torchtof.recon.tgv import auto_ratio
+
+    A = Hadamard(16, sr=0.25)
+    assert auto_ratio(A) == 2.0 and auto_ratio(Hadamard(32, sr=0.0625)) == 4.0
+    y = A(planar_depth(16).reshape(1, 1, 16, 16))
+    kw = dict(mu=2.0**8, tvl2=True, max_iter=60, adaptive=False)
+    a = tgv(y, A, **kw).x
+    torch.testing.assert_close(tgv(y, A, alpha=2.0, **kw).x, a, rtol=0, atol=0)
+    torch.testing.assert_close(tgv(y, A, alpha=(1.0, 2.0), **kw).x, a, rtol=0, atol=0)
+    assert float((tgv(y, A, alpha=8.0, **kw).x - a).abs().max()) > 1e-6
+
+
 # -- batching per-sample weights (what cross-validation needs) ----------------------------------
 
 
-def test_per_sample_weights_equal_separate_calls():
+@pytest.mark.parametrize("nonneg", [False, True])  # closed-form / dualised data term
+def test_per_sample_weights_equal_separate_calls(nonneg):
     n = 16
     A = Hadamard(n, sr=0.25)
     g = torch.Generator().manual_seed(3)
@@ -194,10 +210,11 @@ def test_per_sample_weights_equal_separate_calls():
     mask[2, -16:] = False
     Am = MaskedRows(A, mask)
     yb = (y * mask.to(y.dtype)).reshape(1, 3, A.m)
-    r = tgv(yb, Am, mu=torch.tensor([mus]), tvl2=torch.tensor([tvl2]), max_iter=400)
+    r = tgv(yb, Am, mu=torch.tensor([mus]), tvl2=torch.tensor([tvl2]), max_iter=400,
+            nonneg=nonneg)
     for c in range(3):
         Ac = MaskedRows(A, mask[c : c + 1])
-        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400)
+        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400, nonneg=nonneg)
         torch.testing.assert_close(r.x[:, c : c + 1], s.x, rtol=1e-10, atol=1e-12)
         assert int(r.n_iter[0, c]) == int(s.n_iter)
 
@@ -228,6 +245,7 @@ def test_fixed_iterations_make_no_host_reads():
         (dict(mu=torch.tensor([[1.0, -2.0]])), ValueError, "mu"),
         (dict(mu=torch.ones(3, 3)), ValueError, "mu"),
         (dict(alpha=0.0), ValueError, "alpha"),
+        (dict(alpha="big"), ValueError, "alpha"),
         (dict(alpha=(1.0, "a")), TypeError, "alpha"),
         (dict(alpha=(1.0, 2.0, 3.0)), TypeError, "alpha"),
         (dict(tv="tv1"), ValueError, "tv"),

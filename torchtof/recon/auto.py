@@ -20,9 +20,8 @@ Which measurements are held out matters. For Hadamard rows in a low-to-high orde
 package's default cake-cutting order) the reconstruction's task is to predict the rows
 *after* the measured ones, so the default ``split="tail"`` holds out the last rows and fits
 on the rows before them (a forward, "rolling-origin" validation, Tashman 2000, Int. J.
-Forecasting 16); by default (``folds=5``: 4 folds) each of the last four eighths of the rows
-is predicted from all rows before it, i.e. from 7/8, 3/4, 5/8 and 1/2 of them. A random
-partition
+Forecasting 16); by default each of the last three eighths of the rows is predicted from
+all rows before it, i.e. from 7/8, 3/4 and 5/8 of them. A random partition
 (``split="random"``, the default for unordered patterns such as random 0/1) held out rows of
 every sequency and, on textured scenes at low SR, preferred the smoothest candidate and lost
 up to 3 dB (``docs/auto.md``). Rows that alone carry the image mean (the all-ones Hadamard
@@ -34,9 +33,10 @@ Where a prior recovers the image exactly from all rows (anisotropic TV on a bina
 the pixel grid) it may not yet do so from half of them: its error is then largest in the
 early folds and smallest by far in the late ones. Dividing each fold's error by that fold's
 best makes every fold a relative error (scale-free, ``≥ 1``) and the score prefers the
-candidate that is never far from the best in any fold. Measured (``docs/auto.md``): on the
-paper's character, n = 64, SR 37.5 % the choice went from isotropic TV (30.6 dB) to
-anisotropic TV (50.6 dB); the fold trained on 7/8 of the rows is the one that sees it.
+candidate that is never far from the best in any fold. The fold trained on half of the
+rows is left out by default (measured: no better with it, at 4/3 the cost). Measured
+(``docs/auto.md``): on the paper's character, n = 64, SR 37.5 % the choice went from
+isotropic TV (30.6 dB) to anisotropic TV; the fold trained on 7/8 of the rows sees it.
 
 **Discrepancy bound.** On a textured scene the held-out rows are barely predictable and the
 smoothest candidate, which predicts them as almost 0, scores best while it misfits the rows
@@ -68,14 +68,15 @@ least squares is solved from two starts that differ only in the null space of ``
 two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
 leave no freedom and that solution is returned (``choice["prior"] == "box"``).
 
-Cost (defaults: tail split, ``folds=5`` → 4 folds, ``cv_iter=100``): stage 1 is one
-batched solve per (prior, norm, bounds) group — 8 calls (12 with a box) of 4 folds × 7
-weights = 28 channels × 100 iterations; stage 2 one call of 8 channels for the chosen
-group; with a finite box two projected-gradient solves of ``BOX_ITER = 100`` steps (``A``
-and ``Aᵀ`` only); then one refit. That is 23,200 (34,400 with a box) single-channel
-iterations (TVAL3 or TGV primal-dual, each one ``A``, one ``Aᵀ`` and a few differences)
-besides the refit, bounded and independent of the data; the measured time against one
-default TVAL3 solve is in ``docs/auto.md``.
+Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
+(prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
+100 iterations; stage 2 one call of 6 channels for the chosen group; with a finite box two
+projected-gradient solves of ``BOX_ITER = 100`` steps (``A`` and ``Aᵀ`` only); then one
+refit. That is 17,400 (25,800 with a box) single-channel iterations (TVAL3 or TGV
+primal-dual, each one ``A``, one ``Aᵀ`` and a few differences) besides the refit, bounded
+and independent of the data (3/4 of the same candidates on 4 eighth-folds; a random split
+also has 3 folds); the measured time against one default TVAL3 solve is in
+``docs/auto.md``.
 """
 
 from __future__ import annotations
@@ -125,9 +126,11 @@ BOX_ITER = 100
 #: The box alone is taken to determine the image when two box-only solves from starts that
 #: differ in the null space of ``A`` agree to this fraction of the box width (RMS).
 BOX_UNIQUE = 0.01
-#: Default ``folds`` per split: ``"tail"`` 5 (4 folds, each holding out one eighth of the rows
-#: and trained on all rows before it: on 7/8, 3/4, 5/8 and 1/2 of them), ``"random"`` 3.
+#: Default ``folds`` per split: ``"tail"`` 5 (blocks of one eighth of the rows, each trained on
+#: all rows before it), of which the latest :data:`TAIL_USE` are used; ``"random"`` 3.
 TAIL_FOLDS = 5
+#: Tail folds used by default: the 3 trained on the most rows (7/8, 3/4 and 5/8 of them).
+TAIL_USE = 3
 RANDOM_FOLDS = 3
 _CONSTRAINED_MU = 2.0**8
 _INF = float("inf")
@@ -354,11 +357,11 @@ def auto(
             image normalised by a calibration frame, ``(0, c/2f)`` for a depth image): added
             as a bound beside none and ``x ≥ 0``; a finite box also adds the box-only
             candidate (module doc).
-        folds: ``K ≥ 2`` or ``None`` (:data:`TAIL_FOLDS` = 5 for the tail split,
-            :data:`RANDOM_FOLDS` = 3 for the random one). ``split="random"``: ``K`` folds of
-            a random partition. ``split="tail"``: ``K − 1`` folds, fold ``j`` holding out the
-            block of ``M/(2(K−1))`` rows ending ``j`` blocks before the last row, trained on
-            the rows before it.
+        folds: ``K ≥ 2`` or ``None``. ``split="random"``: ``K`` folds of a random partition
+            (``None``: :data:`RANDOM_FOLDS` = 3). ``split="tail"``: ``K − 1`` folds, fold
+            ``j`` holding out the block of ``M/(2(K−1))`` rows ending ``j`` blocks before
+            the last row, trained on the rows before it (``None``: ``K = 5``, eighths, of
+            which the latest :data:`TAIL_USE` = 3, trained on 7/8, 3/4 and 5/8 of the rows).
         cv_iter: iteration budget of every cross-validation solve.
         max_iter: iteration budget of a TV-L2 refit.
         split: ``"random"``, ``"tail"`` or ``None`` (:func:`default_split`: ``"tail"`` for
@@ -389,6 +392,7 @@ def auto(
     _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors)
     priors = tuple(priors)
     split = default_split(A) if split is None else split
+    use = TAIL_USE if folds is None and split == "tail" else None
     folds = (TAIL_FOLDS if split == "tail" else RANDOM_FOLDS) if folds is None else folds
     b, c, m = y.shape
     cands = candidates(bounds, priors)
@@ -404,7 +408,9 @@ def auto(
     ys = y.reshape(bc, 1, m)
     index = {(k["prior"], k["tv"], k["boundary"], k["bounds"], k["mu"]): i
              for i, k in enumerate(cands)}
-    held, train = holdout_split(A, folds, y, seed, split)  # (F, M)
+    held, train = holdout_split(A, folds, y, seed, split)  # (F, M), latest fold first
+    if use is not None:
+        held, train = held[:use], train[:use]
     nf = held.shape[0]
     hm, tm = held.to(y.dtype), train.to(y.dtype)
     cv_err = y.new_full((bc, nf, len(cands)), float("nan"))  # per fold

@@ -64,6 +64,16 @@ buckets are scaled to a spread ``max b − min b = 1.5`` and the image scaled ba
 buckets follow TVAL3's published ``Scaleb`` rule. ``μ`` weighs ``‖A u − b‖²`` in those units
 against ``α₁ = 1``; ``tgv(c·y) = c·tgv(y)`` for orthonormal rows and any ``c > 0``.
 
+**Weights.** ``α₀/α₁`` is a length (in pixels): a kink that changes the slope by ``s``
+costs as much as a jump of height ``s·α₀/α₁``. ``alpha="auto"`` sets it to ``n/√M``, the
+size in pixels of a cell of the ``√M × √M`` grid that ``M`` low-order rows resolve: ``2`` at
+25 % sampling (the common choice ``α₀ = 2α₁`` on a unit grid), larger at lower sampling,
+where the measured resolution is coarser. On the piecewise-planar scene (1 % noise,
+cake-cutting rows, best weight and prior per ratio, ``docs/tgv.md``) ``n/√M`` was the best
+of the ratios tried (1–8) at n = 32 and SR 6.25, 12.5, 25 and 37.5 %, and within 0.1 dB of
+the best at n = 64 (SR 25, 37.5 %); against the fixed ratio 2 it gained 2.2 dB at n = 32,
+SR 6.25 % and was within 0.11 dB elsewhere.
+
 **Stopping**: a sample stops when the relative change ``‖x_k − x_{k−1}‖ ≤ tol ‖x_{k−1}‖``;
 the test is read on the host only every ``check_every`` iterations (``adaptive=True``) or
 never (``adaptive=False``: exactly ``max_iter`` iterations, no host reads in the loop).
@@ -91,19 +101,20 @@ from .tv import (
 )
 from .tval3 import B_SPREAD, B_SPREAD_MIN, check_buckets
 
-__all__ = ["tgv", "TGV", "TGVResult", "TGV_STOP_REASONS", "tgv_prior", "DEFAULT_RATIO"]
+__all__ = ["tgv", "TGV", "TGVResult", "TGV_STOP_REASONS", "tgv_prior", "auto_ratio",
+           "DEFAULT_RATIO"]
 
 #: ``stop_reason`` codes of :class:`TGVResult` (index into this tuple).
 TGV_STOP_REASONS = ("tol", "max_iter")
-#: Default ``α₀/α₁`` (in pixels): Bredies, Kunisch & Pock's experiments and most later uses
-#: take ``α₀ = 2α₁`` on a unit pixel grid.
+#: ``α₀/α₁`` of ``alpha="auto"`` where no operator is known yet (``TGV``'s checks): the
+#: common choice ``α₀ = 2α₁`` on a unit pixel grid, which ``n/√M`` gives at 25 % sampling.
 DEFAULT_RATIO = 2.0
 #: Bounds of ``‖K‖²`` (module doc): closed-form data prox / dualised data.
 _L2_PROX = 12.0
 _L2_DUAL = 13.0
 #: Primal/dual balance: ``τ/σ = (BALANCE · RMS(Aᵀb) / α₁)²`` (module doc). Measured on the
 #: 32×32 and 64×64 piecewise-planar scenes at 25 % SR (``docs/tgv.md``): 0.03–0.1 reach the
-#: converged PSNR (±0.05 dB) in ~300 iterations, 1 needs ~3 000, 10 more than 3 000.
+#: converged PSNR (±0.07 dB) in ~300 iterations; 1 (plain ``τ = σ``) needed 1 000–3 000.
 BALANCE = 0.05
 
 
@@ -177,8 +188,18 @@ def tgv_prior(x: torch.Tensor, w: torch.Tensor, alpha: tuple[float, float] = (1.
 # -- validation --------------------------------------------------------------------------------
 
 
-def _alpha(alpha, fn: str) -> tuple[float, float]:
-    """``(α₁, α₀)`` from a ratio ``α₀/α₁`` (``α₁ = 1``) or a pair."""
+def auto_ratio(A: LinearOperator) -> float:
+    """``alpha="auto"``: ``α₀/α₁ = n/√M`` (module doc, "Weights")."""
+    return A.n / math.sqrt(A.m)
+
+
+def _alpha(alpha, fn: str, A: LinearOperator | None = None) -> tuple[float, float]:
+    """``(α₁, α₀)`` from ``"auto"``, a ratio ``α₀/α₁`` (``α₁ = 1``) or a pair."""
+    if isinstance(alpha, str):
+        if alpha != "auto":
+            raise ValueError(f"{fn}: expected alpha 'auto', a positive number or a pair, "
+                             f"got {alpha!r}")
+        return 1.0, (DEFAULT_RATIO if A is None else auto_ratio(A))
     if isinstance(alpha, bool):
         raise TypeError(f"{fn}: expected alpha a positive number or a pair, got bool")
     if isinstance(alpha, (int, float)):
@@ -217,7 +238,7 @@ def _box(nonneg, bounds, fn: str) -> tuple[float | None, float | None]:
 
 
 def _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bounds,
-                   check_every) -> dict:
+                   check_every, A=None) -> dict:
     if isinstance(mu, torch.Tensor):
         if mu.is_complex() or not mu.is_floating_point():
             raise TypeError(f"{fn}: expected mu a float tensor, got {mu.dtype}")
@@ -245,7 +266,7 @@ def _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bou
         raise ValueError(f"{fn}: expected tv in {TV_NORMS}, got {tv!r}")
     if boundary not in BOUNDARIES:
         raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
-    return dict(alpha=_alpha(alpha, fn), box=_box(nonneg, bounds, fn))
+    return dict(alpha=_alpha(alpha, fn, A), box=_box(nonneg, bounds, fn))
 
 
 def _per_sample(v, shape, dtype, device, name: str, fn: str) -> torch.Tensor:
@@ -264,7 +285,7 @@ def tgv(
     y: torch.Tensor,
     A: LinearOperator,
     mu: float | torch.Tensor = 2.0**8,
-    alpha: float | tuple[float, float] = DEFAULT_RATIO,
+    alpha: float | tuple[float, float] | str = "auto",
     max_iter: int = 2000,
     tol: float = 1e-5,
     tv: str = "isotropic",
@@ -285,9 +306,9 @@ def tgv(
             by the constrained model), or a per-sample ``(B, C)`` tensor: with ``tvl2`` a
             ``(B, C)`` bool tensor one batched call tries several weights and models, as
             :func:`~torchtof.recon.auto` does with TVAL3.
-        alpha: the ratio ``α₀/α₁`` (``α₁ = 1``; in pixels: the length over which a kink costs
-            as much as a jump of the same slope change times that length), or the pair
-            ``(α₁, α₀)``.
+        alpha: ``"auto"`` (``α₀/α₁ = n/√M``, module doc), the ratio ``α₀/α₁`` (``α₁ = 1``; a
+            length in pixels: a kink of slope change ``s`` costs as much as a jump of height
+            ``s·α₀/α₁``), or the pair ``(α₁, α₀)``.
         max_iter: iteration cap (``≥ 1``).
         tol: relative change per iteration at which a sample stops.
         tv: ``"isotropic"`` or ``"anisotropic"`` norm of both terms.
@@ -322,7 +343,7 @@ def tgv(
     fn = "tgv"
     check_buckets(y, A, fn)
     opts = _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bounds,
-                          check_every)
+                          check_every, A)
     (a1, a0), (lo, hi) = opts["alpha"], opts["box"]
     b_, c_, _ = y.shape
     shape = (b_, c_)
@@ -452,7 +473,7 @@ class TGV(nn.Module):
     """
 
     def __init__(self, A: LinearOperator, mu: float | torch.Tensor = 2.0**8,
-                 alpha: float | tuple[float, float] = DEFAULT_RATIO, max_iter: int = 2000,
+                 alpha: float | tuple[float, float] | str = "auto", max_iter: int = 2000,
                  tol: float = 1e-5, tv: str = "isotropic", nonneg: bool = False, *,
                  boundary: str = "neumann", bounds: tuple | None = None,
                  tvl2: bool | torch.Tensor = False, adaptive: bool = True,
