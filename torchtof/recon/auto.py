@@ -69,7 +69,7 @@ two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and
 leave no freedom and that solution is returned (``choice["prior"] == "box"``) — unless the
 cross-validated choice, refitted on all rows, agrees with it to the same tolerance: then the
 image it describes is the box's, and the choice is kept (measured on the paper's character,
-n = 64, SR 37.5 %, box [0, 1]: box-only 46.4 dB, the anisotropic TV choice 50.6 dB).
+n = 64, SR 37.5 %, box [0, 1]: box-only 46.4 dB, the anisotropic TV choice 50.5 dB).
 
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
