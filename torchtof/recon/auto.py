@@ -66,7 +66,10 @@ Res. 214). Cross-validation cannot see this (with a quarter of the rows held out
 longer determines the image: ``docs/auto.md``), so it is tested directly: box-constrained
 least squares is solved from two starts that differ only in the null space of ``A``; if the
 two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
-leave no freedom and that solution is returned (``choice["prior"] == "box"``).
+leave no freedom and that solution is returned (``choice["prior"] == "box"``) — unless the
+cross-validated choice, refitted on all rows, agrees with it to the same tolerance: then the
+image it describes is the box's, and the choice is kept (measured on the paper's character,
+n = 64, SR 37.5 %, box [0, 1]: box-only 46.4 dB, the anisotropic TV choice 50.5 dB).
 
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
@@ -457,9 +460,6 @@ def auto(
                 fit_err[i, index[(*g, w)]] = f[j, q]
     score = _score(cv_err, fit_err, fit_max)
     best_l = _pick(score, rank, slack).tolist()
-    if unique is not None:
-        k_box = index[("box", None, None, tuple(bounds), None)]
-        best_l = [k_box if u else k for k, u in zip(best_l, unique.tolist())]
 
     # -- refit the choice on every row: one call per (group, model)
     x = y.new_zeros(bc, 1, A.n, A.n)
@@ -480,11 +480,19 @@ def auto(
                                  device=y.device)
                 out = _fit(g, ys[idx], A, w[:, None], True, max_iter)
             x[idx], n_iter[idx], conv[idx], codes[idx] = out
+    if unique is not None:  # the box alone determines the image: the box-only solution
+        # replaces a refitted choice that does not agree with it (module doc)
+        lo, hi = float(bounds[0]), float(bounds[1])
+        gap = (x - xb).pow(2).mean(dim=(-3, -2, -1)).sqrt() / (hi - lo)
+        k_box = index[("box", None, None, tuple(bounds), None)]
+        best_l = [k_box if u and gp > BOX_UNIQUE else k
+                  for k, u, gp in zip(best_l, unique.tolist(), gap.tolist())]
     rows = [i for i, k in enumerate(best_l) if cands[k]["prior"] == "box"]
     if rows:
         idx = torch.tensor(rows, device=y.device)
         x[idx] = xb[idx]
         n_iter[idx] = BOX_ITER  # its fixed budget (the validated regulariser), not a tolerance
+        conv[idx] = False
         codes[idx] = STOP_REASONS.index("max_iter")
     x = x.reshape(b, c, A.n, A.n)
     ynorm = y.norm(dim=-1)
