@@ -269,7 +269,7 @@ def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
             row(256, 0.125, 0.0, "depth", 30.0, 29.5, t_l=1.0, t_t=0.8)]  # Δ +0.5, ratio 0.8
     res = {"rows": rows,
            "auto_rows": [{"n": 32, "sr": 0.125, "level": 0.01, "class": "depth",
-                          "auto": [19.5, 0.4]}],
+                          "auto": [19.5, 0.4], "t_auto": 2.0}],
            "speed": [{"n": 32, "learned_ms": 15.2, "tval3_ms": 220.8, "ratio": 14.56,
                       "load_avg": 12.3}],
            "onnx": [{"n": 32, "batch": 8, "ort_ms": 5.01, "torch_ms": 14.64,
@@ -281,7 +281,8 @@ def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
     assert "| 0 % | +3.00 (min +3.00) | +0.50 (min +0.50) |" in text
     assert "| 1 % | +0.00 (min -1.00) | - |" in text  # (1 - 1) / 2
     assert "| 14.6× (15 / 221 ms) | - |" in text
-    assert "+0.50 dB at SR ≤ 12.5 %, 1 % noise (1 cells, min +0.50)" in text  # 20 - 19.5
+    assert "+0.50 dB at SR ≤ 12.5 %, 1 % noise (1 cells, n ≤ 32, min +0.50)" in text  # 20 - 19.5
+    assert "10–10× a default TVAL3 solve per image on these cells" in text  # 2.0 / 0.2 s
     assert "at every SR, with and without the 3 m gate" in text
     assert "it is +0.00 dB from TVAL3's defaults on average (2 cells" in text
     assert "worse in 1 of 3 (class, n, SR, noise) cells at n ≤ 128 (worst -1.00 dB: n = 32, " \

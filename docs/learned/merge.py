@@ -27,8 +27,10 @@ def _rows(path: Path) -> list:
 
 def merge(parts: Path) -> dict:
     return {
-        "what": "benchmarks/eval_learned.py on held-out scenes: learned (shipped weights) "
-                "against TVAL3's defaults and the automatic TV reconstructor",
+        "what": "benchmarks/eval_learned.py on held-out scenes: learned (the weights whose "
+                "sha256 is weights_sha256; every part run with them) against TVAL3's defaults "
+                "and the automatic TV reconstructor (auto rows: the cells its part file covers)",
+        "parts": sorted(f.name for f in parts.glob("*.json")),
         "weights_sha256": hashlib.sha256(WEIGHTS.read_bytes()).hexdigest(),
         "rows": [r for f in sorted(parts.glob("main_*.json")) for r in _rows(f)],
         "auto_rows": [r for f in sorted(parts.glob("auto_*.json")) for r in _rows(f)],

@@ -134,3 +134,27 @@ def test_admm_tv_solves_constrained_problem(boundary):
     out = admm_tv(b, A, 256 * one, 32 * one, one.bool(), boundary=boundary, max_iter=400)
     assert (out.u - x).abs().max() < 1e-3
     assert (A(out.u) - b).abs().max() < 1e-6
+
+
+def test_box_bounds_one_validation_for_every_tv_solver():
+    from torchtof.operators import Hadamard
+    from torchtof.recon import auto, tgv, tval3
+    from torchtof.recon.tv import box_bounds
+
+    assert box_bounds(False, None, "f") == (None, None)
+    assert box_bounds(True, None, "f") == (0.0, None)
+    assert box_bounds(True, (-1, 2), "f") == (0.0, 2.0)
+    assert box_bounds(False, (None, 5), "f") == (None, 5.0)
+    A = Hadamard(8, sr=0.5)
+    y = torch.zeros(1, 1, 32)
+    for fn, f in (("tval3", tval3), ("tgv", tgv), ("auto", auto)):
+        with pytest.raises(TypeError, match=f"{fn}: expected bounds lo a number or None"):
+            f(y, A, bounds=("0", 1.0))
+        with pytest.raises(TypeError, match=f"{fn}: expected bounds hi a number or None"):
+            f(y, A, bounds=(0.0, True))
+        with pytest.raises(ValueError, match=f"{fn}: expected bounds hi finite or None"):
+            f(y, A, bounds=(0.0, float("inf")))
+        with pytest.raises(ValueError, match=f"{fn}: expected bounds with lo < hi"):
+            f(y, A, bounds=(1.0, 1.0))
+        with pytest.raises(ValueError, match=f"{fn}: expected bounds to be a pair"):
+            f(y, A, bounds=(0.0,))

@@ -66,7 +66,10 @@ Res. 214). Cross-validation cannot see this (with a quarter of the rows held out
 longer determines the image: ``docs/auto.md``), so it is tested directly: box-constrained
 least squares is solved from two starts that differ only in the null space of ``A``; if the
 two solutions agree to ``BOX_UNIQUE`` (1 %) of the box width (RMS), the data and the box
-leave no freedom and that solution is returned (``choice["prior"] == "box"``).
+leave no freedom and that solution is returned (``choice["prior"] == "box"``) — unless the
+cross-validated choice, refitted on all rows, agrees with it to the same tolerance: then the
+image it describes is the box's, and the choice is kept (measured on the paper's character,
+n = 64, SR 37.5 %, box [0, 1]: box-only 46.4 dB, the anisotropic TV choice 50.5 dB).
 
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
@@ -90,7 +93,7 @@ from torch import nn
 from .._checks import check_positive
 from ..operators.base import LinearOperator
 from .tgv import TGV_STOP_REASONS, tgv
-from .tv import largest_eig_normal, project_box
+from .tv import box_bounds, largest_eig_normal, project_box
 from .tval3 import (
     STOP_REASONS,
     MaskedRows,
@@ -243,12 +246,7 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIOR
             raise TypeError(f"{fn}: expected {name} to be an int, got {type(v).__name__}")
         if v < lo:
             raise ValueError(f"{fn}: expected {name} >= {lo}, got {v}")
-    if bounds is not None:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
-        lo, hi = bounds
-        if lo is not None and hi is not None and not float(lo) < float(hi):
-            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
+    box_bounds(False, bounds, fn)
     if split not in (None, "random", "tail"):
         raise ValueError(f"{fn}: expected split in (None, 'random', 'tail'), got {split!r}")
     check_positive(slack, "slack", fn, strict=False)
@@ -462,9 +460,6 @@ def auto(
                 fit_err[i, index[(*g, w)]] = f[j, q]
     score = _score(cv_err, fit_err, fit_max)
     best_l = _pick(score, rank, slack).tolist()
-    if unique is not None:
-        k_box = index[("box", None, None, tuple(bounds), None)]
-        best_l = [k_box if u else k for k, u in zip(best_l, unique.tolist())]
 
     # -- refit the choice on every row: one call per (group, model)
     x = y.new_zeros(bc, 1, A.n, A.n)
@@ -485,11 +480,19 @@ def auto(
                                  device=y.device)
                 out = _fit(g, ys[idx], A, w[:, None], True, max_iter)
             x[idx], n_iter[idx], conv[idx], codes[idx] = out
+    if unique is not None:  # the box alone determines the image: the box-only solution
+        # replaces a refitted choice that does not agree with it (module doc)
+        lo, hi = float(bounds[0]), float(bounds[1])
+        gap = (x - xb).pow(2).mean(dim=(-3, -2, -1)).sqrt() / (hi - lo)
+        k_box = index[("box", None, None, tuple(bounds), None)]
+        best_l = [k_box if u and gp > BOX_UNIQUE else k
+                  for k, u, gp in zip(best_l, unique.tolist(), gap.tolist())]
     rows = [i for i, k in enumerate(best_l) if cands[k]["prior"] == "box"]
     if rows:
         idx = torch.tensor(rows, device=y.device)
         x[idx] = xb[idx]
         n_iter[idx] = BOX_ITER  # its fixed budget (the validated regulariser), not a tolerance
+        conv[idx] = False
         codes[idx] = STOP_REASONS.index("max_iter")
     x = x.reshape(b, c, A.n, A.n)
     ynorm = y.norm(dim=-1)

@@ -39,10 +39,12 @@ Scale: ``b = y / s`` with ``s = ν / n`` and the sign of ``⟨1, Aᵀy⟩`` fold
 .. math::
     ν = \\sqrt{\\max(‖y‖_2^2 - M σ^2,\\ ε ‖y‖_2^2)}, \\qquad ε = 10^{-2},
 
-an unbiased estimate of ``‖A x‖²`` under the square root: for ``y = A x + e`` with zero-mean
-noise of covariance ``σ² I_M``, ``E‖y‖² = ‖A x‖² + 2⟨A x, E e⟩ + E‖e‖² = ‖A x‖² + M σ²``
-(the moment estimate of the signal power, Kay, *Fundamentals of Statistical Signal Processing:
-Estimation Theory*, 1993, Sec. 9.3); ``ε`` keeps it positive when ``σ`` is over-estimated. So
+with ``σ`` the bucket noise std (``noise_sigma`` or its estimate). Under the square root is
+the method-of-moments estimate of ``‖A x‖²`` (Kay, *Fundamentals of Statistical Signal
+Processing: Estimation Theory*, 1993, Ch. 9), unbiased for the true ``σ``: for
+``y = A x + e`` with zero-mean noise of covariance ``σ² I_M``,
+``E‖y‖² = ‖A x‖² + 2⟨A x, E e⟩ + E‖e‖² = ‖A x‖² + M σ²``; ``ε`` keeps it positive when ``σ``
+is over-estimated. So
 ``s`` is the RMS of the clean ``Aᵀ A x`` over the ``n²`` pixels and ``σ_n = σ / |s|`` the noise
 relative to the *signal* at every size. (Weights files before this rule, ``meta["scale"]``
 absent, used ``ν = ‖y‖₂``, under which ``σ_n·√SR = σ√M/‖y‖ < 1`` saturates at ``1/√SR`` once

@@ -92,6 +92,7 @@ from ..operators.base import LinearOperator
 from .tv import (
     BOUNDARIES,
     TV_NORMS,
+    box_bounds,
     grad2,
     grad2_adjoint,
     largest_eig_normal,
@@ -215,26 +216,6 @@ def _alpha(alpha, fn: str, A: LinearOperator | None = None) -> tuple[float, floa
                     f"(α1, α0), got {type(alpha).__name__}")
 
 
-def _box(nonneg, bounds, fn: str) -> tuple[float | None, float | None]:
-    """``(lo, hi)`` from ``nonneg`` (``lo ≥ 0``) and ``bounds`` (validated, as TVAL3's)."""
-    if not isinstance(nonneg, bool):
-        raise TypeError(f"{fn}: expected nonneg to be a bool, got {type(nonneg).__name__}")
-    lo = hi = None
-    if bounds is not None:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
-        for v in bounds:
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or not math.isfinite(v)):
-                raise ValueError(f"{fn}: expected bounds finite numbers or None, got {bounds!r}")
-        lo, hi = (None if v is None else float(v) for v in bounds)
-        if lo is not None and hi is not None and not lo < hi:
-            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
-    if nonneg:
-        lo = 0.0 if lo is None else max(lo, 0.0)
-        if hi is not None and hi <= lo:
-            raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
-    return lo, hi
 
 
 def _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bounds,
@@ -266,7 +247,7 @@ def _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bou
         raise ValueError(f"{fn}: expected tv in {TV_NORMS}, got {tv!r}")
     if boundary not in BOUNDARIES:
         raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
-    return dict(alpha=_alpha(alpha, fn, A), box=_box(nonneg, bounds, fn))
+    return dict(alpha=_alpha(alpha, fn, A), box=box_bounds(nonneg, bounds, fn))
 
 
 def _per_sample(v, shape, dtype, device, name: str, fn: str) -> torch.Tensor:

@@ -56,6 +56,7 @@ __all__ = [
     "tv_norm",
     "shrink",
     "group_shrink",
+    "box_bounds",
     "project_box",
     "laplacian_eigs",
     "laplacian_inverse",
@@ -195,6 +196,37 @@ def group_shrink(v: torch.Tensor, t: torch.Tensor, tv: str = "isotropic",
     tiny = torch.finfo(v.dtype).tiny
     norm = torch.sqrt((v * v).sum(dim=dims, keepdim=True) + tiny)
     return v * (torch.clamp(norm - t.amax(dim=1, keepdim=True), min=0) / norm)
+
+
+def box_bounds(nonneg: bool, bounds, fn: str) -> tuple[float | None, float | None]:
+    """``(lo, hi)`` of the box constraint of a TV solver from ``nonneg`` (``lo ≥ 0``) and
+    ``bounds`` (a pair, either end ``None``), validated once at the solver's entry: the
+    message names ``fn`` and the argument.
+
+    Example:
+        >>> box_bounds(True, (None, 2), "tval3")
+        (0.0, 2.0)
+    """
+    if not isinstance(nonneg, bool):
+        raise TypeError(f"{fn}: expected nonneg to be a bool, got {type(nonneg).__name__}")
+    lo = hi = None
+    if bounds is not None:
+        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
+        for name, v in zip(("lo", "hi"), bounds):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise TypeError(f"{fn}: expected bounds {name} a number or None, got "
+                                f"{type(v).__name__}")
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f"{fn}: expected bounds {name} finite or None, got {v}")
+        lo, hi = (None if v is None else float(v) for v in bounds)
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
+    if nonneg:
+        lo = 0.0 if lo is None else max(lo, 0.0)
+        if hi is not None and hi <= lo:
+            raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
+    return lo, hi
 
 
 def project_box(u: torch.Tensor, lo: float | None, hi: float | None) -> torch.Tensor:

@@ -43,6 +43,7 @@ from ..operators.base import LinearOperator
 from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (
     BOUNDARIES,
+    box_bounds,
     check_exact_memory,
     exact_factors,
     exact_solve,
@@ -480,7 +481,7 @@ def tval3(
                                     torch.ones_like(s_scaled)))
         gain = g * sq
     b = y * gain[..., None]
-    lo, hi = _box(nonneg, bounds, fn)
+    lo, hi = box_bounds(nonneg, bounds, fn)
     scale = gain / math.sqrt(inv_s2)  # u = x · gain/√s2
     box = (None if lo is None else lo * scale, None if hi is None else hi * scale)
 
@@ -585,25 +586,6 @@ def _check_boundary(boundary: str, fn: str) -> None:
         raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
 
 
-def _box(nonneg: bool, bounds, fn: str) -> tuple[float | None, float | None]:
-    """``(lo, hi)`` from ``nonneg`` and ``bounds`` (validated; ``nonneg`` is ``lo ≥ 0``)."""
-    if not isinstance(nonneg, bool):
-        raise TypeError(f"{fn}: expected nonneg to be a bool, got {type(nonneg).__name__}")
-    lo = hi = None
-    if bounds is not None:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise ValueError(f"{fn}: expected bounds to be a pair (lo, hi), got {bounds!r}")
-        lo, hi = (None if v is None else float(v) for v in bounds)
-        for name, v in (("lo", lo), ("hi", hi)):
-            if v is not None and not math.isfinite(v):
-                raise ValueError(f"{fn}: expected bounds {name} finite or None, got {v}")
-        if lo is not None and hi is not None and not lo < hi:
-            raise ValueError(f"{fn}: expected bounds with lo < hi, got {bounds!r}")
-    if nonneg:
-        lo = 0.0 if lo is None else max(lo, 0.0)
-        if hi is not None and hi <= lo:
-            raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
-    return lo, hi
 
 
 def _estimate_sigma(y: torch.Tensor, A: LinearOperator, name: str | None, fn: str
@@ -988,7 +970,7 @@ class TVAL3(nn.Module):
         _check_boundary(opts["boundary"], "TVAL3")
         if opts["u_step"] == "exact":
             check_exact_memory(A, torch.empty(0), opts["boundary"], "TVAL3", _EXACT_MEMORY_HINT)
-        _box(nonneg, opts["bounds"], "TVAL3")
+        box_bounds(nonneg, opts["bounds"], "TVAL3")
         self.A = A
         if not A.orthonormal_rows:  # ScaleA's s₂, cached now so that tracing never computes it
             largest_eig_normal(A, torch.zeros(1))
