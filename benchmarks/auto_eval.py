@@ -53,6 +53,16 @@ def scene(name: str, n: int) -> torch.Tensor:
 SCENES = ("sky", "binary:horse", "camera", "coins", "moon", "planar")
 
 
+def noisy(name: str, A, noise: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(x, y)``: the scene at ``A.n`` and its buckets with Gaussian noise of ``noise`` × the
+    bucket spread (one draw, seed 0)."""
+    x = scene(name, A.n)
+    y0 = A(x)
+    g = torch.Generator().manual_seed(0)
+    return x, y0 + noise * (y0.max() - y0.min()) * torch.randn(y0.shape, dtype=y0.dtype,
+                                                               generator=g)
+
+
 def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:
     return tt.metrics.psnr(a.clamp(0, 1), x, bits=8).reshape(-1).tolist()
 
@@ -241,11 +251,7 @@ def fold_study(args, out: str) -> list[dict]:
             for sr in args.sr:
                 A = tt.operators.Hadamard(n, sr=sr).double()
                 for name in args.scenes:
-                    x = scene(name, n)
-                    y0 = A(x)
-                    g = torch.Generator().manual_seed(0)
-                    y = y0 + args.noise * (y0.max() - y0.min()) * torch.randn(
-                        y0.shape, dtype=y0.dtype, generator=g)
+                    x, y = noisy(name, A, args.noise)
                     probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y,
                                   lambda a, b: psnr(a, b)[0]))
     rows = []
@@ -327,11 +333,7 @@ def main(argv=None) -> list[dict]:
         for sr in args.sr:
             A = tt.operators.Hadamard(n, sr=sr).double()
             for name in args.scenes:
-                x = scene(name, n)
-                y0 = A(x)
-                g = torch.Generator().manual_seed(0)
-                y = y0 + args.noise * (y0.max() - y0.min()) * torch.randn(
-                    y0.shape, dtype=y0.dtype, generator=g)
+                x, y = noisy(name, A, args.noise)
                 t0 = time.perf_counter()
                 d = tval3(y, A)
                 t_def = time.perf_counter() - t0
