@@ -29,7 +29,7 @@ EXAMPLE = ROOT / "examples" / "onnx_inference.py"
 #: Small sizes for the tests (the shipped unrolled weights exist for n = 32 only).
 N, SR = 16, 0.25
 SIZES = {"unrolled_tval3": 32, "depth_resolved": 32}
-ITERS = {"bp": 5, "tval3": 3, "dip": 5}
+ITERS = {"bp": 5, "tval3": 3, "tgv": 5, "dip": 5}
 
 
 def _spec_args(name):
@@ -78,6 +78,7 @@ def test_registry_covers_every_inference_stage():
         "pinv",
         "bp",
         "tval3",
+        "tgv",
         "unrolled_tval3",
         "unet",
         "dip",

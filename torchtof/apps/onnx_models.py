@@ -29,6 +29,7 @@ from ..recon.dip import default_unet, dip_input, fit_dip
 from ..recon.learned import Learned
 from ..recon.pinv import PseudoInverse
 from ..recon.synthetic import synthetic_scenes
+from ..recon.tgv import TGV
 from ..recon.tval3 import TVAL3
 from ..recon.unrolled import UnrolledTVAL3, available_weights
 from ..sensor import CameraReadout, correlation_taps, phasor_from_depth
@@ -251,6 +252,12 @@ def _build_tval3(n, sr, batch, seed, n_iter):
     return rec, (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
 
 
+def _build_tgv(n, sr, batch, seed, n_iter):
+    A = Hadamard(n, sr=sr)
+    rec = TGV(A, max_iter=n_iter, adaptive=False)
+    return rec, (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
+
+
 def _dip_data(n: int, sr: float, batch: int, seed: int) -> tuple[Hadamard, torch.Tensor]:
     A = Hadamard(n, sr=sr)
     return A, _hadamard_buckets(A, _scenes(n, batch, seed), seed)
@@ -413,6 +420,16 @@ MODELS: dict[str, ModelSpec] = {
         "TVAL3 (mu='auto', BB steps, nonmonotone search), fixed n_iter iterations (adaptive=False)",
         exporter="torchscript",
         n_iter=50,
+    ),
+    "tgv": ModelSpec(
+        _build_tgv,
+        ("y",),
+        ("x",),
+        {"y": _MEAS, "x": _IMG},
+        "TGV² (constrained, alpha='auto'), fixed n_iter primal-dual iterations (adaptive=False; "
+        "the graph grows with n_iter)",
+        exporter="torchscript",
+        n_iter=100,
     ),
     "unet": ModelSpec(
         _build_unet,

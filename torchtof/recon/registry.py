@@ -100,8 +100,7 @@ _SPECS = (
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
     _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
           summary="TV with prior, bounds and weight chosen by cross-validation on the buckets"),
-    # not exportable: the adaptive stop reads the host; ONNX export is not provided for TGV
-    _spec("tgv", "TGV", tgv, TGV, iterative=True, budget="max_iter",
+    _spec("tgv", "TGV", tgv, TGV, iterative=True, exportable=True, budget="max_iter",
           fixed_budget={"adaptive": False},
           summary="second-order TGV (Bredies et al. 2010) by primal-dual: planes, no staircase"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
