@@ -76,7 +76,8 @@ SR 6.25 % and was within 0.11 dB elsewhere.
 
 **Stopping**: a sample stops when the relative change ``‖x_k − x_{k−1}‖ ≤ tol ‖x_{k−1}‖``;
 the test is read on the host only every ``check_every`` iterations (``adaptive=True``) or
-never (``adaptive=False``: exactly ``max_iter`` iterations, no host reads in the loop).
+never (``adaptive=False``: exactly ``max_iter`` iterations, no host reads in the loop; that
+form exports to ONNX, ``torchtof export tgv``).
 """
 
 from __future__ import annotations
