@@ -21,8 +21,7 @@ from pathlib import Path
 
 import peers_scenes as ps  # benchmarks/ is the script's directory
 import torch
-
-from torchtof.recon import tgv, tval3
+from auto_eval import refit
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {
@@ -56,10 +55,7 @@ def main(argv: list[str]) -> dict:
             fe[:, ~m] = float("nan")
             score = au._score(cvf, fe, r.fit_bound[0].reshape(-1, 1))
             c = r.candidates[int(au._pick(score, rank, 0.0)[0])]
-            solve = tgv if c["prior"] == "tgv" else tval3
-            xx = solve(y, A, mu=c["mu"] or 2.0**8, tvl2=c["mu"] is not None,
-                       max_iter=100 if c["mu"] is None else 1025, tv=c["tv"],
-                       boundary=c["boundary"], bounds=c["bounds"]).x
+            xx = refit(c, y, A)
             g = ps.score(xx, x) - best_peer
             out[name].append(g)
             row.append(f"{g:+.2f}")

@@ -24,6 +24,7 @@ those files (the peers' cells against ``docs/peers.json``)::
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import statistics
@@ -35,6 +36,8 @@ import torchtof as tt
 from torchtof.data import planar_depth
 from torchtof.recon import auto, tgv, tval3
 from torchtof.recon.auto import AUTO_WEIGHTS
+
+_auto = importlib.import_module("torchtof.recon.auto")  # the module (recon.auto is the function)
 
 SRS = (0.0625, 0.125, 0.25, 0.375)
 
@@ -61,6 +64,15 @@ def noisy(name: str, A, noise: float) -> tuple[torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(0)
     return x, y0 + noise * (y0.max() - y0.min()) * torch.randn(y0.shape, dtype=y0.dtype,
                                                                generator=g)
+
+
+def refit(cand: dict, y: torch.Tensor, A, cv_iter: int = 100, max_iter: int = 1025):
+    """``auto``'s refit of one of its candidates on every row (its own ``_fit``: the
+    constrained model with the ``cv_iter`` budget it was validated with, TV-L2 up to
+    ``max_iter``) -> ``x``."""
+    constrained = cand["mu"] is None
+    return _auto._fit(_auto._group_of(cand), y, A, 2.0**8 if constrained else cand["mu"],
+                      not constrained, cv_iter if constrained else max_iter)[0]
 
 
 def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:

@@ -2,8 +2,8 @@
 
 For every stored cell of ``docs/peers.json`` with the given (order, n, noise, SRs), ``auto``
 runs once (``return_result=True``); for each slack its choice is recomputed from the same
-scores (``auto``'s ``_pick``) and refitted as ``auto`` refits (constrained: ``cv_iter``
-iterations; TV-L2: up to 1025), and scored against the best oracle-tuned peer of the cell
+scores (``auto``'s ``_pick``) and refitted as ``auto`` refits (``auto_eval.refit``), and
+scored against the best oracle-tuned peer of the cell
 (``benchmarks/peers.py``'s PSNR on [0, 1]). No box (the plain ``auto(y, A)`` call).
 
     OMP_NUM_THREADS=1 python benchmarks/auto_slack.py cake_cutting 32 0.01 0.0625 0.125 0.25 0.375
@@ -24,8 +24,7 @@ from pathlib import Path
 
 import peers_scenes as ps  # benchmarks/ is the script's directory
 import torch
-
-from torchtof.recon import tgv, tval3
+from auto_eval import refit
 
 SLACKS = (0.0, 0.02, 0.05, 0.1)
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,10 +52,7 @@ def main(argv: list[str]) -> dict:
             row = []
             for sl in SLACKS:
                 c = r.candidates[int(au._pick(r.score[0], rank, sl)[0])]
-                solve = tgv if c["prior"] == "tgv" else tval3
-                xx = solve(y, A, mu=c["mu"] or 2.0**8, tvl2=c["mu"] is not None,
-                           max_iter=100 if c["mu"] is None else 1025, tv=c["tv"],
-                           boundary=c["boundary"], bounds=c["bounds"]).x
+                xx = refit(c, y, A)
                 g = ps.score(xx, x) - best_peer
                 out[sl].append(g)
                 row.append(f"{g:+.2f}")
