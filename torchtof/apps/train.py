@@ -46,6 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-ref", type=nonneg_int, default=0,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
+    p.add_argument("--p-noise-ref", type=_probability, default=1.0,
+                   help="with --noise-ref, the probability that a noisy sample's level is drawn "
+                        "from the scaled levels (else from the unscaled ones)" + d)
     p.add_argument("--p-clean", type=_probability, default=0.3,
                    help="probability of a noise-free training sample" + d)
     p.add_argument("--out", default="train_learned_out",
@@ -88,7 +91,8 @@ def main(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
-                              noise_ref=args.noise_ref or None, p_clean=args.p_clean)
+                              noise_ref=args.noise_ref or None, p_clean=args.p_clean,
+                              p_noise_ref=args.p_noise_ref)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
         recipe.update(final_step_calibration=calib, calibration_command=command,
@@ -104,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
         orders=tuple(args.orders), n_layers=args.n_layers, width=args.width,
         shuffle=args.shuffle, noise_ref=args.noise_ref or None, p_clean=args.p_clean,
+        p_noise_ref=args.p_noise_ref,
         out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
