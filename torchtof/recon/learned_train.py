@@ -66,6 +66,10 @@ CALIBRATION_STEP0 = 1_000_000
 #: Default probability of a noise-free sample (:func:`~torchtof.data.training_noise`; the
 #: shipped run's).
 P_CLEAN = 0.3
+#: Default size the top noise level is scaled to (:func:`noise_levels`) and the probability
+#: that a sample draws its level from the scaled range (the shipped run's).
+NOISE_REF = 128
+P_NOISE_REF = 0.5
 
 
 class LearnedTrainResult(NamedTuple):
@@ -214,7 +218,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 2000,
+    steps: int = 5000,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -225,9 +229,9 @@ def train_learned(
     n_layers: int = DEFAULT_N_LAYERS,
     width: int = DEFAULT_WIDTH,
     shuffle: int = DEFAULT_SHUFFLE,
-    noise_ref: int | None = None,
+    noise_ref: int | None = NOISE_REF,
     p_clean: float = P_CLEAN,
-    p_noise_ref: float = 1.0,
+    p_noise_ref: float = P_NOISE_REF,
     out: str | os.PathLike | None = None,
     checkpoint_every: int = 100,
     resume: bool = False,
