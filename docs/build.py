@@ -834,13 +834,13 @@ SECTIONS: dict[str, Section] = {
         "docs/learned/eval.json", render_learned,
         ("sh", "docs/learned/run.sh"),
         "the learned reconstructor on held-out scenes against TVAL3's defaults",
-        render_only="about 80 min at load 12–16",
+        render_only="about 13 min at load 2–3 (80 min at load 12–16)",
     ),
     "learned_recipe": Section(
         "torchtof/weights/learned/recipe.json", render_learned_recipe,
         ("torchtof", "train", "--model", "learned", "--seed", "0", "--out", "/tmp/learned_run"),
         "the shipped learned weights' training run",
-        render_only="an 18-min training run and its calibration; it rewrites the weights",
+        render_only="a 24-min training run and its calibration; it rewrites the weights",
     ),
     "bad_inputs": Section(
         "docs/reliability/bad_inputs.json", render_bad_inputs,
