@@ -27,6 +27,7 @@ from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binar
 from torchtof.recon.learned import WEIGHTS_FILE, Learned, LearnedResult, learned
 from torchtof.recon.learned_train import (
     _batch,
+    _recipes,
     noise_levels,
     psnr_loss,
     step_config,
@@ -365,6 +366,35 @@ def test_noise_levels_give_every_size_the_top_image_noise_of_the_reference():
         e = noisy_buckets(A, x, [NoiseRecipe(level=level)], [torch.Generator().manual_seed(n)])
         got = float(A.adjoint(e - A(x)).std())
         assert abs(got / 1.92 - 1) < 0.05, (n, got)
+
+
+def test_p_noise_ref_mixes_the_two_level_ranges_sample_by_sample():
+    """``p_noise_ref = Q``: each sample's recipe is the one it draws with the scaled levels
+    (``Q = 1``) or the one with the unscaled levels (``Q = 0``) -- the same noise stream, only
+    the range differs -- and the scaled one in a fraction ``Q`` of the samples. Log-uniform in
+    ``[0.002, 0.24]`` (n = 32, reference 128), a level exceeds the unscaled top 0.06 with
+    probability ``ln(0.24/0.06)/ln(0.24/0.002) = ln 4/ln 120 = 0.2896``, so with ``Q = 0.5`` a
+    fraction ``0.1448`` of the noisy samples does."""
+    idx = range(3000)
+    _, scaled = _recipes(0, 7, 32, idx, 128, p_clean=0.0, p_noise_ref=1.0)
+    _, plain = _recipes(0, 7, 32, idx, 128, p_clean=0.0, p_noise_ref=0.0)
+    _, mixed = _recipes(0, 7, 32, idx, 128, p_clean=0.0, p_noise_ref=0.5)
+    _, unref = _recipes(0, 7, 32, idx, None, p_clean=0.0)
+    assert plain == unref  # Q = 0 is the run without noise_ref
+    assert max(r.level for r in plain) <= 0.06 < max(r.level for r in scaled) <= 0.24
+    assert all(m in (a, b) for m, a, b in zip(mixed, scaled, plain, strict=True))
+    frac_scaled = sum(m == a != b for m, a, b in zip(mixed, scaled, plain, strict=True)) / 3000
+    assert abs(frac_scaled - 0.5) < 4 * math.sqrt(0.25 / 3000)
+    p = math.log(4) / math.log(120)
+    for recipes, want in ((scaled, p), (mixed, 0.5 * p)):
+        got = sum(r.level > 0.06 for r in recipes) / 3000
+        assert abs(got - want) < 4 * math.sqrt(want * (1 - want) / 3000), (got, want)
+    # at n >= the reference both ranges are the same: the mixture changes nothing
+    _, big = _recipes(0, 7, 256, range(50), 128, p_clean=0.3, p_noise_ref=0.5)
+    assert big == _recipes(0, 7, 256, range(50), 128, p_clean=0.3, p_noise_ref=1.0)[1]
+    for bad in (-0.1, 1.5, True, "0.5"):
+        with pytest.raises(ValueError, match="p_noise_ref"):
+            train_learned(steps=1, noise_ref=128, p_noise_ref=bad, progress=False)
 
 
 # -- training ---------------------------------------------------------------------------------

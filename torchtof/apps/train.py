@@ -15,7 +15,7 @@ import torch
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
 from ..recon.learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
-from ..recon.learned_train import calibrate_tau, train_learned
+from ..recon.learned_train import NOISE_REF, P_NOISE_REF, calibrate_tau, train_learned
 from .args import nonneg_int, positive_float, positive_int, power_of_two, sampling_rate
 
 __all__ = ["add_arguments", "main"]
@@ -24,7 +24,7 @@ __all__ = ["add_arguments", "main"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=positive_int, default=2000, help="optimiser steps" + d)
+    p.add_argument("--steps", type=positive_int, default=5000, help="optimiser steps" + d)
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)
@@ -43,9 +43,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="channels of the prior" + d)
     p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE,
                    help="pixel-unshuffle factor of the prior" + d)
-    p.add_argument("--noise-ref", type=nonneg_int, default=0,
+    p.add_argument("--noise-ref", type=nonneg_int, default=NOISE_REF,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
+    p.add_argument("--p-noise-ref", type=_probability, default=P_NOISE_REF,
+                   help="with --noise-ref, the probability that a noisy sample's level is drawn "
+                        "from the scaled levels (else from the unscaled ones)" + d)
     p.add_argument("--p-clean", type=_probability, default=0.3,
                    help="probability of a noise-free training sample" + d)
     p.add_argument("--out", default="train_learned_out",
@@ -88,7 +91,8 @@ def main(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
-                              noise_ref=args.noise_ref or None, p_clean=args.p_clean)
+                              noise_ref=args.noise_ref or None, p_clean=args.p_clean,
+                              p_noise_ref=args.p_noise_ref)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
         recipe.update(final_step_calibration=calib, calibration_command=command,
@@ -104,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
         orders=tuple(args.orders), n_layers=args.n_layers, width=args.width,
         shuffle=args.shuffle, noise_ref=args.noise_ref or None, p_clean=args.p_clean,
+        p_noise_ref=args.p_noise_ref,
         out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,

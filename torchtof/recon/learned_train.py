@@ -66,6 +66,10 @@ CALIBRATION_STEP0 = 1_000_000
 #: Default probability of a noise-free sample (:func:`~torchtof.data.training_noise`; the
 #: shipped run's).
 P_CLEAN = 0.3
+#: Default size the top noise level is scaled to (:func:`noise_levels`) and the probability
+#: that a sample draws its level from the scaled range (the shipped run's).
+NOISE_REF = 128
+P_NOISE_REF = 0.5
 
 
 class LearnedTrainResult(NamedTuple):
@@ -137,13 +141,28 @@ def noise_levels(n: int, noise_ref: int | None = None) -> tuple[float, float]:
     return lo, hi * max(1.0, noise_ref / n)
 
 
-def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
-           noise_ref: int | None = None, p_clean: float = P_CLEAN):
-    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
+def _recipes(seed: int, step: int, n: int, indices: range, noise_ref: int | None = None,
+             p_clean: float = P_CLEAN, p_noise_ref: float = 1.0):
+    """Each sample's noise generator and :class:`~torchtof.data.NoiseRecipe`.
+
+    With ``noise_ref``, sample ``i`` draws its Gaussian level from ``noise_levels(n,
+    noise_ref)`` with probability ``p_noise_ref`` (a uniform number from its own stream
+    ``(seed, step, i, 3)``) and from ``noise_levels(n)`` otherwise; ``p_noise_ref = 1`` (every
+    sample scaled) draws nothing extra, so runs before the option reproduce."""
     gens = [torch.Generator().manual_seed(int(_seq(seed, step, i, 1).integers(0, 2**62)))
             for i in indices]
-    levels = noise_levels(n, noise_ref)
-    recipes = [training_noise(g, p_clean=p_clean, levels=levels) for g in gens]
+    scaled, plain = noise_levels(n, noise_ref), noise_levels(n)
+    recipes = []
+    for i, g in zip(indices, gens, strict=True):
+        use = p_noise_ref >= 1 or _seq(seed, step, i, 3).random() < p_noise_ref
+        recipes.append(training_noise(g, p_clean=p_clean, levels=scaled if use else plain))
+    return gens, recipes
+
+
+def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
+           noise_ref: int | None = None, p_clean: float = P_CLEAN, p_noise_ref: float = 1.0):
+    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
+    gens, recipes = _recipes(seed, step, n, indices, noise_ref, p_clean, p_noise_ref)
     A = Hadamard(n, m=m, order=order)
     with torch.no_grad():
         y = noisy_buckets(A, x, recipes, gens)
@@ -162,6 +181,7 @@ def calibrate_tau(
     grid: tuple[float, ...] = TAU_GRID,
     noise_ref: int | None = None,
     p_clean: float = P_CLEAN,
+    p_noise_ref: float = 1.0,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -177,7 +197,8 @@ def calibrate_tau(
         for k in range(batches):
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean)
+            A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean,
+                             p_noise_ref)
             model.A = A
             outs.append((A, x, y, model(y)))
     model.final_dc = True
@@ -197,7 +218,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 2000,
+    steps: int = 5000,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
@@ -208,8 +229,9 @@ def train_learned(
     n_layers: int = DEFAULT_N_LAYERS,
     width: int = DEFAULT_WIDTH,
     shuffle: int = DEFAULT_SHUFFLE,
-    noise_ref: int | None = None,
+    noise_ref: int | None = NOISE_REF,
     p_clean: float = P_CLEAN,
+    p_noise_ref: float = P_NOISE_REF,
     out: str | os.PathLike | None = None,
     checkpoint_every: int = 100,
     resume: bool = False,
@@ -235,6 +257,9 @@ def train_learned(
         noise_ref: Gaussian noise levels scaled to this size (:func:`noise_levels`;
             ``None``: the same levels at every size).
         p_clean: probability of a noise-free sample, in ``[0, 1]``.
+        p_noise_ref: with ``noise_ref``, the probability in ``[0, 1]`` that a sample's
+            Gaussian level is drawn from the scaled levels (else from the unscaled ones): a
+            mixture of the two ranges.
         out: folder of the checkpoint, log and final weights (``None``: nothing written).
         checkpoint_every: steps between checkpoints (0: none).
         resume: continue from ``out/checkpoint.pt`` if it exists.
@@ -263,6 +288,9 @@ def train_learned(
     if isinstance(p_clean, bool) or not isinstance(p_clean, (int, float)) or not (
             0 <= p_clean <= 1):
         raise ValueError(f"{func}: expected p_clean in [0, 1], got {p_clean!r}")
+    if isinstance(p_noise_ref, bool) or not isinstance(p_noise_ref, (int, float)) or not (
+            0 <= p_noise_ref <= 1):
+        raise ValueError(f"{func}: expected p_noise_ref in [0, 1], got {p_noise_ref!r}")
     if not (lr > 0 and math.isfinite(lr)):
         raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
     lo, hi = sr_range
@@ -331,7 +359,7 @@ def train_learned(
         step = start
         for step in range(start, steps):
             n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean)
+            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref)
             model.A = A
             loss = psnr_loss(net(y), x)
             opt.zero_grad(set_to_none=True)
@@ -366,8 +394,8 @@ def train_learned(
         model.log_tau.requires_grad_(True)
         t_cal = time.perf_counter()
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
-                              orders=orders, noise_ref=noise_ref,
-                              p_clean=p_clean) if calibrate else None
+                              orders=orders, noise_ref=noise_ref, p_clean=p_clean,
+                              p_noise_ref=p_noise_ref) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -389,6 +417,7 @@ def train_learned(
                     "train_images": list(TRAIN_IMAGES),
                     "noise": {"p_clean": p_clean, "gaussian_levels": list(TRAIN_LEVELS),
                               "levels_scaled_to_n": noise_ref,
+                              "p_levels_scaled": p_noise_ref if noise_ref else None,
                               "p_shot": 0.25, "photons": [3.0, 300.0], "stray": [0.0, 2.0]},
                 },
                 "final_step_calibration": calib,
@@ -402,7 +431,9 @@ def train_learned(
             }
             model.A = Hadamard(sizes[0], sr=0.25)
             model.save_weights(outdir / "learned.pt", seed=seed, steps=step,
-                               torch_version=str(torch.__version__))
+                               torch_version=str(torch.__version__), noise_ref=noise_ref,
+                               p_noise_ref=p_noise_ref if noise_ref else None,
+                               p_clean=p_clean)
             (outdir / "recipe.json").write_text(json.dumps(recipe, indent=1))
         if is_dist:
             dist.barrier()
