@@ -304,6 +304,15 @@ def fold_rules(paths: list[str], peers: str | None) -> list[dict]:
     return out
 
 
+def _bounds(b) -> str:
+    """``-``, ``≥0`` or ``[lo, hi]`` (a box, e.g. the inferred two levels) for the table."""
+    if b is None:
+        return "-"
+    if tuple(b) == (0.0, None):
+        return "≥0"
+    return "[" + ", ".join("-" if v is None else f"{v:.2f}" for v in b) + "]"
+
+
 def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[32, 64])
@@ -361,7 +370,7 @@ def main(argv=None) -> list[dict]:
                            t_default=t_def, t_auto=t_auto)
                 rows.append(row)
                 mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
-                bd = {None: "-", (0.0, None): "≥0"}.get(ch["bounds"], str(ch["bounds"]))
+                bd = _bounds(ch["bounds"])
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
                       f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "

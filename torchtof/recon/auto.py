@@ -99,8 +99,9 @@ Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched so
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
 100 iterations; stage 2 one call of 6 channels for the chosen group; with a finite box two
 projected-gradient solves of ``BOX_ITER = 100`` steps (``A`` and ``Aᵀ`` only); then one
-refit. That is 17,400 (25,800 with a box) single-channel iterations (TVAL3 or TGV
-primal-dual, each one ``A``, one ``Aᵀ`` and a few differences) besides the refit, bounded
+refit. That is 17,400 (25,800 with a box; 20,100 and a second refit for a two-level image
+whose box is inferred) single-channel iterations (TVAL3 or TGV primal-dual, each one ``A``,
+one ``Aᵀ`` and a few differences) besides the refit, bounded
 and independent of the data (3/4 of the same candidates on 4 eighth-folds; a random split
 also has 3 folds); the measured time against one default TVAL3 solve is in
 ``docs/auto.md``.
