@@ -459,11 +459,11 @@ def test_inferred_box_of_a_negative_two_level_image():
     r = auto(y, A, cv_iter=60, return_result=True)
     ch = r.choice[0][0]
     assert ch["inferred"] is True
-    if ch["bounds"] is not None and ch["bounds"][1] is not None:
-        lo, hi = ch["bounds"]
-        assert -5.45 < lo < -4.55 and -2.45 < hi < -1.55  # within 15 % of the gap (measured
-        # -4.98 and -2.29: the refit's loss of contrast at this noise)
-        assert bool((r.x >= lo - 1e-9).all() and (r.x <= hi + 1e-9).all())
+    assert ch["bounds"] is not None and ch["bounds"][1] is not None  # the box is kept here
+    lo, hi = ch["bounds"]
+    assert -5.45 < lo < -4.55 and -2.45 < hi < -1.55  # within 15 % of the gap (measured
+    # -4.98 and -2.29: the refit's loss of contrast at this noise)
+    assert bool((r.x >= lo - 1e-9).all() and (r.x <= hi + 1e-9).all())
     err = float((r.x - x).pow(2).mean().sqrt())
     ref = float((auto(y, A, cv_iter=60, infer_box=False) - x).pow(2).mean().sqrt())
     assert err <= 1.05 * ref
