@@ -840,7 +840,7 @@ SECTIONS: dict[str, Section] = {
         "torchtof/weights/learned/recipe.json", render_learned_recipe,
         ("torchtof", "train", "--model", "learned", "--seed", "0", "--out", "/tmp/learned_run"),
         "the shipped learned weights' training run",
-        render_only="a 24-min training run and its calibration; it rewrites the weights",
+        render_only="a 35-min training run and its calibration; it rewrites the weights",
     ),
     "bad_inputs": Section(
         "docs/reliability/bad_inputs.json", render_bad_inputs,

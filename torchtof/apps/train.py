@@ -24,7 +24,7 @@ __all__ = ["add_arguments", "main"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``torchtof train --model learned`` (defaults: the shipped run)."""
     d = " (default: %(default)s)"
-    p.add_argument("--steps", type=positive_int, default=5000, help="optimiser steps" + d)
+    p.add_argument("--steps", type=positive_int, default=8000, help="optimiser steps" + d)
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)

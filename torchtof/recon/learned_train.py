@@ -218,7 +218,7 @@ def calibrate_tau(
 
 
 def train_learned(
-    steps: int = 5000,
+    steps: int = 8000,
     batch_size: int = 12,
     lr: float = 2e-3,
     seed: int = 0,
