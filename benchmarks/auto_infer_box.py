@@ -16,7 +16,6 @@ whose image was found two-level (the others run the same code path and cost noth
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -29,12 +28,7 @@ from torchtof.recon import auto
 
 
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--n", type=int, default=32)
-    p.add_argument("--sr", type=float, nargs="+", default=[0.0625, 0.125, 0.25, 0.375])
-    p.add_argument("--orders", nargs="+", default=["cake_cutting"], choices=ps.ORDERS)
-    p.add_argument("--scenes", nargs="+", default=list(ps.SCENES), choices=ps.SCENES)
-    p.add_argument("--noise", type=float, default=0.01)
+    p = ps.cell_parser(__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)

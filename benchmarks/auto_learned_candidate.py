@@ -18,7 +18,6 @@ won, else ``auto``'s. Prints per cell and the mean gap to the best oracle-tuned 
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import statistics
@@ -36,12 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--n", type=int, default=32)
-    p.add_argument("--sr", type=float, nargs="+", default=[0.0625, 0.125, 0.25, 0.375])
-    p.add_argument("--orders", nargs="+", default=["cake_cutting"], choices=ps.ORDERS)
-    p.add_argument("--scenes", nargs="+", default=list(ps.SCENES), choices=ps.SCENES)
-    p.add_argument("--noise", type=float, default=0.01)
+    p = ps.cell_parser(__doc__.splitlines()[0])
     p.add_argument("--peers", default=str(ROOT / "docs" / "peers.json"))
     a = p.parse_args(argv)
     am = importlib.import_module("torchtof.recon.auto")

@@ -89,3 +89,17 @@ def score(x_hat: torch.Tensor, x: torch.Tensor) -> float:
     x_hat = torch.as_tensor(x_hat).reshape(x.shape).to(torch.float64)
     x_hat = torch.nan_to_num(x_hat, nan=0.5, posinf=1.0, neginf=0.0)
     return float(tt.metrics.psnr(x_hat.clamp(0.0, 1.0), x.to(torch.float64), bits=None)[0])
+
+
+def cell_parser(description: str):
+    """An ``argparse`` parser with the cell options of the benchmark scripts that study
+    ``auto`` on these problems: ``--n``, ``--sr``, ``--orders``, ``--scenes``, ``--noise``."""
+    import argparse
+
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--n", type=int, default=32)
+    p.add_argument("--sr", type=float, nargs="+", default=[0.0625, 0.125, 0.25, 0.375])
+    p.add_argument("--orders", nargs="+", default=["cake_cutting"], choices=ORDERS)
+    p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES)
+    p.add_argument("--noise", type=float, default=0.01)
+    return p

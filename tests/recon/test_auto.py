@@ -448,3 +448,22 @@ def test_inferred_box_recovers_a_silhouette_the_box_determines():
     p0 = float(psnr(auto(y, A, infer_box=False).clamp(0, 1), x, bits=None))
     p1 = float(psnr(auto(y, A).clamp(0, 1), x, bits=None))
     assert p1 > 40.0 and p1 > p0 + 10.0
+
+
+def test_inferred_box_of_a_negative_two_level_image():
+    # depth-like units, negative (the paper's dark pixels read 5 m and come out negative):
+    # the levels are read off the refit whatever their sign, and a refit with the box obeys it
+    A = Hadamard(16, sr=0.375)
+    x = -5.0 + 3.0 * _square()  # background -5, object -2
+    y = _noisy(A, x, 0.005)
+    r = auto(y, A, cv_iter=60, return_result=True)
+    ch = r.choice[0][0]
+    assert ch["inferred"] is True
+    assert ch["bounds"] is not None and ch["bounds"][1] is not None  # the box is kept here
+    lo, hi = ch["bounds"]
+    assert -5.45 < lo < -4.55 and -2.45 < hi < -1.55  # within 15 % of the gap (measured
+    # -4.98 and -2.29: the refit's loss of contrast at this noise)
+    assert bool((r.x >= lo - 1e-9).all() and (r.x <= hi + 1e-9).all())
+    err = float((r.x - x).pow(2).mean().sqrt())
+    ref = float((auto(y, A, cv_iter=60, infer_box=False) - x).pow(2).mean().sqrt())
+    assert err <= 1.05 * ref

@@ -669,4 +669,4 @@ class Auto(nn.Module):
     def extra_repr(self) -> str:
         o = self.options
         return (f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}, "
-                f"priors={o['priors']}")
+                f"priors={o['priors']}, infer_box={o['infer_box']}")
