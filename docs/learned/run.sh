@@ -1,6 +1,6 @@
 #!/bin/sh
 # The learned reconstructor's held-out evaluation behind the README's table (docs/learned.md):
-# 12.5 min on the shared 2-core machine at load 2-3 (about 80 min at load 12-16). Run from the repository root.
+# 11 min on the shared 2-core machine at load 1-2 (about 80 min at load 12-16). Run from the repository root.
 set -e
 export OMP_NUM_THREADS=1
 P=docs/learned/parts
