@@ -28,19 +28,22 @@ demo: $(STAMP)
 	$(BIN)/torchtof demo --out demo_out
 
 # the default suite and the package's doctests (slow tests: make test-slow)
+# doctests run torch on one thread: beside another job on this 2-core machine its default two
+# threads oversubscribe the cores (measured: 10 s alone, 22 s beside a one-thread job with two
+# threads, 10 s with one)
 test: $(STAMP)
 	$(PYTEST) -n 2 -m "not slow" tests
-	$(PYTEST) --doctest-modules torchtof
+	OMP_NUM_THREADS=1 $(PYTEST) --doctest-modules torchtof
 
 doctest: $(STAMP)
-	$(PYTEST) --doctest-modules torchtof
+	OMP_NUM_THREADS=1 $(PYTEST) --doctest-modules torchtof
 
 test-slow: $(STAMP)
 	$(PYTEST) -n 2 -m slow tests
 
 test-all: $(STAMP)
 	$(PYTEST) -n 2 tests
-	$(PYTEST) --doctest-modules torchtof
+	OMP_NUM_THREADS=1 $(PYTEST) --doctest-modules torchtof
 
 # `import torchtof` in a fresh venv holding only the core dependencies (no extras)
 check-core:
