@@ -478,16 +478,17 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
     mask1 = train.repeat_interleave(len(wts), dim=0)
     yt1 = ys * mask1.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
     hm1, tm1 = hm.repeat_interleave(len(wts), dim=0), tm.repeat_interleave(len(wts), dim=0)
+    if known is not None:  # the call without the box: its candidates and its choice
+        at = {_key(k): i for i, k in enumerate(known.candidates)}
+        chosen = (known.choice[0][0]["prior"], known.choice[0][0]["tv"])
     for g in _groups(bounds, priors):
         cols = [index[(*g, None if w == _INF else w)] for w in AUTO_WEIGHTS]
         if known is not None and g[3] in _boxes(None):  # fitted by the call without the box
-            at = {_key(k): i for i, k in enumerate(known.candidates)}
             kc = [at[_key(cands[i])] for i in cols]
             cv_err[:, :, cols] = known.cv_fold.reshape(bc, nf, -1)[:, :, kc]
             fit_err[:, cols] = known.fit_error.reshape(bc, -1)[:, kc]
             continue
-        if known is not None and (g[0], g[1]) != (known.choice[0][0]["prior"],
-                                                  known.choice[0][0]["tv"]):
+        if known is not None and (g[0], g[1]) != chosen:
             continue  # the inferred box refines the chosen prior and norm only
         xg = _fit(g, yt1, MaskedRows(A, mask1), mus1.repeat(nf).expand(bc, -1),
                   tvl2_1.repeat(nf).expand(bc, -1), cv_iter)[0]

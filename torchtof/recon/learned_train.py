@@ -285,12 +285,9 @@ def train_learned(
     if noise_ref is not None and (isinstance(noise_ref, bool) or not isinstance(noise_ref, int)
                                   or noise_ref < 1):
         raise ValueError(f"{func}: expected noise_ref to be None or an int >= 1, got {noise_ref!r}")
-    if isinstance(p_clean, bool) or not isinstance(p_clean, (int, float)) or not (
-            0 <= p_clean <= 1):
-        raise ValueError(f"{func}: expected p_clean in [0, 1], got {p_clean!r}")
-    if isinstance(p_noise_ref, bool) or not isinstance(p_noise_ref, (int, float)) or not (
-            0 <= p_noise_ref <= 1):
-        raise ValueError(f"{func}: expected p_noise_ref in [0, 1], got {p_noise_ref!r}")
+    for name, v in (("p_clean", p_clean), ("p_noise_ref", p_noise_ref)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
+            raise ValueError(f"{func}: expected {name} in [0, 1], got {v!r}")
     if not (lr > 0 and math.isfinite(lr)):
         raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
     lo, hi = sr_range
