@@ -88,6 +88,18 @@ def test_function_equals_module(tmp_path):
     torch.testing.assert_close(learned(y, net.A, n_layers=2, pretrained=path, width=4), net(y))
 
 
+def test_function_output_has_a_graph_only_through_y(tmp_path):
+    net = _net(K=2)
+    path = tmp_path / "w.pt"
+    net.save_weights(path)
+    y = _y(net.A)
+    assert not learned(y, net.A, n_layers=2, pretrained=path, width=4).requires_grad
+    yg = y.clone().requires_grad_(True)
+    x = learned(yg, net.A, n_layers=2, pretrained=path, width=4)
+    (g,) = torch.autograd.grad(x.square().sum(), yg)
+    assert g.shape == y.shape and bool(g.abs().sum() > 0)
+
+
 @pytest.mark.parametrize("c", [3.0, 1e-3, -2.0])
 def test_scale_and_sign_equivariance(c):
     net = _net(noise_sigma="auto")

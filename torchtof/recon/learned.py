@@ -543,7 +543,8 @@ def learned(
         n_layers, noise_sigma, pretrained, width, shuffle: as in :class:`Learned`.
 
     Returns:
-        ``(B, C, n, n)`` reconstruction, dtype and device of ``y``.
+        ``(B, C, n, n)`` reconstruction, dtype and device of ``y``; differentiable with
+        respect to ``y`` (the network's weights are held fixed: train :class:`Learned`).
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -553,4 +554,5 @@ def learned(
     """
     net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
                   width=width, shuffle=shuffle)
-    return net.to(y.device)(y)
+    # the weights are constants here: the output carries a graph only through ``y``
+    return net.requires_grad_(False).to(y.device)(y)
