@@ -12,6 +12,8 @@ from torchtof.recon.auto import (
     AUTO_WEIGHTS,
     REFINE,
     candidates,
+    stack_weight,
+    stackable,
 )
 from torchtof.recon.tval3 import default_split, holdout_split
 
@@ -467,3 +469,116 @@ def test_inferred_box_of_a_negative_two_level_image():
     err = float((r.x - x).pow(2).mean().sqrt())
     ref = float((auto(y, A, cv_iter=60, infer_box=False) - x).pow(2).mean().sqrt())
     assert err <= 1.05 * ref
+
+
+# -- stacking with the learned network -------------------------------------------------------
+
+
+def test_stack_weight_is_the_smallest_fold_least_squares_weight():
+    g = torch.Generator().manual_seed(3)
+    R, F, M = 3, 2, 40
+    pa = torch.randn(R, F, M, generator=g, dtype=torch.float64)
+    pl = torch.randn(R, F, M, generator=g, dtype=torch.float64)
+    y = 0.6 * pl[:, :1] + 0.4 * pa[:, :1] + 0.3 * torch.randn(R, 1, M, generator=g,
+                                                                  dtype=torch.float64)
+    held = torch.zeros(F, M, dtype=torch.bool)
+    held[0, 30:35], held[1, 35:40] = True, True
+    w = stack_weight(pa, pl, y, held)
+    # reference: each fold's held-out loss on a fine grid of w in [0, 1], then the smallest
+    grid = torch.linspace(0, 1, 10001, dtype=torch.float64)
+    for i in range(R):
+        best = []
+        for f in range(F):
+            loss = [float((((1 - t) * pa[i, f] + t * pl[i, f] - y[i, 0]) * held[f]).square().sum())
+                    for t in grid]
+            best.append(float(grid[min(range(len(loss)), key=loss.__getitem__)]))
+        assert abs(float(w[i]) - min(best)) <= 1e-4
+    # rows outside the held-out sets do not count
+    y2 = y.clone()
+    y2[..., :30] += 100.0
+    torch.testing.assert_close(stack_weight(pa, pl, y2, held), w)
+    # the unconstrained minimiser outside [0, 1] is clipped; equal predictions give 0
+    a1, l1 = pa[:, :1], pl[:, :1]  # one fold
+    assert stack_weight(a1, l1, 2 * l1 - a1, held[:1]).tolist() == [1.0] * R  # w* = 2
+    assert stack_weight(a1, l1, 2 * a1 - l1, held[:1]).tolist() == [0.0] * R  # w* = -1
+    torch.testing.assert_close(stack_weight(a1, l1, 0.3 * l1 + 0.7 * a1, held[:1]),
+                               torch.full((R,), 0.3, dtype=torch.float64))
+    assert stack_weight(pa, pa, y, held).tolist() == [0.0] * R
+    # one fold that wants no network keeps the weight at 0
+    y5 = 0.5 * (a1 + l1)  # fold 0 wants w = 0.5; fold 1 predicts y exactly with w = 0
+    w2 = stack_weight(torch.cat([a1, y5], 1), torch.cat([l1, l1], 1), y5, held)
+    assert w2.tolist() == [0.0] * R
+    torch.testing.assert_close(stack_weight(a1, l1, y5, held[:1]),
+                               torch.full((R,), 0.5, dtype=torch.float64))
+
+
+def _grey(n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    t = torch.linspace(0, 1, n)
+    u, v = torch.meshgrid(t, t, indexing="ij")
+    x = 0.5 + 0.3 * torch.sin(6 * u + 2 * v) * torch.cos(4 * v)
+    x = x + 0.05 * torch.rand(n, n, generator=g)
+    return x.clamp(0, 1)[None, None]
+
+
+def test_stacking_is_the_convex_combination_with_the_learned_network():
+    from torchtof.recon import learned
+
+    A = Hadamard(32, sr=0.25)
+    x = torch.cat([_grey(32, 0), _grey(32, 1).flip(-1)])
+    y = _noisy(A, x, 0.01)
+    on = auto(y, A, cv_iter=20, max_iter=200, return_result=True)
+    off = auto(y, A, cv_iter=20, max_iter=200, learned=False, return_result=True)
+    w = torch.tensor([[ch["learned_weight"] for ch in row] for row in on.choice])
+    assert bool(((w >= 0) & (w <= 1)).all())
+    assert all(ch["learned_weight"] is None for row in off.choice for ch in row)
+    want = off.x + w[..., None, None] * (learned(y, A) - off.x)
+    torch.testing.assert_close(on.x, want, rtol=1e-5, atol=1e-5)
+    # every other field of the choice is the unstacked one's
+    for a, b in zip(on.choice, off.choice, strict=True):
+        for ca, cb in zip(a, b, strict=True):
+            assert {k: v for k, v in ca.items() if k != "learned_weight"} == \
+                {k: v for k, v in cb.items() if k != "learned_weight"}
+    # the caller's box holds for the image: the blend is projected onto it
+    xb = auto(y, A, bounds=(0.2, 0.8), cv_iter=20, max_iter=200)
+    assert float(xb.min()) >= 0.2 and float(xb.max()) <= 0.8
+
+
+def test_not_stacked_where_the_network_does_not_apply():
+    x = _grey(32)
+    A = Hadamard(32, sr=0.25)
+    y = _noisy(A, x, 0.01)
+    assert stackable(A) and not stackable(A, "random") and not stackable(Hadamard(16, sr=0.5))
+    for kw in (dict(split="random"),):
+        on = auto(y, A, cv_iter=10, max_iter=50, return_result=True, **kw)
+        off = auto(y, A, cv_iter=10, max_iter=50, return_result=True, learned=False, **kw)
+        assert on.choice[0][0]["learned_weight"] is None
+        torch.testing.assert_close(on.x, off.x)
+    A16 = Hadamard(16, sr=0.5)
+    r = auto(A16(_square()), A16, cv_iter=10, max_iter=50, return_result=True)
+    assert r.choice[0][0]["learned_weight"] is None
+    with pytest.raises(TypeError, match="auto: expected learned to be a bool"):
+        auto(y, A, learned=1)
+    with pytest.raises(TypeError, match="Auto: expected learned to be a bool"):
+        Auto(A, learned="yes")
+
+
+@pytest.mark.slow
+def test_stacking_gains_where_the_network_is_better():
+    """The camera image at n = 32, SR 12.5 %, noise of 1 % of ``‖A x‖`` (a cell of the peers
+    benchmark): the folds give the network most of the weight (measured +2 dB over the TV/TGV
+    choice alone, ``docs/auto.md``)."""
+    from torchtof.metrics import psnr
+    from torchtof.scenes import skimage_scene
+
+    A = Hadamard(32, sr=0.125)
+    x = skimage_scene("camera", 32).to(torch.float32).clamp(0, 1)
+    y0 = A(x)
+    g = torch.Generator().manual_seed(0)
+    y = y0 + 0.01 * y0.norm() / A.m**0.5 * torch.randn(y0.shape, generator=g)
+    on = auto(y, A, return_result=True)
+    off = auto(y, A, learned=False)
+    p_on = float(psnr(on.x.clamp(0, 1), x, bits=None)[0])
+    p_off = float(psnr(off.clamp(0, 1), x, bits=None)[0])
+    assert on.choice[0][0]["learned_weight"] > 0.5
+    assert p_on > p_off + 1.0

@@ -117,6 +117,8 @@ from torch import nn
 
 from .._checks import check_positive
 from ..operators.base import LinearOperator
+from ..operators.hadamard import Hadamard
+from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
 from .tv import box_bounds, largest_eig_normal, project_box
 from .tval3 import (
@@ -131,7 +133,7 @@ from .tval3 import (
 
 __all__ = [
     "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_PRIORS", "AUTO_TVS", "AUTO_BOUNDARIES",
-    "candidates",
+    "candidates", "stackable", "stack_weight", "LEARNED_MIN_N",
 ]
 
 #: First-stage TV-L2 weights (on the buckets scaled as TVAL3's ``Scaleb``), a factor 4 apart;
@@ -164,6 +166,9 @@ RANDOM_FOLDS = 3
 #: of its pixels lies within ``TWO_LEVEL_TOL`` of its level gap of one of its two levels.
 TWO_LEVEL = 0.5
 TWO_LEVEL_TOL = 0.05
+#: Smallest ``n`` at which the learned network is stacked (the sizes it was trained and
+#: evaluated on: 32–256).
+LEARNED_MIN_N = 32
 _CONSTRAINED_MU = 2.0**8
 _INF = float("inf")
 
@@ -267,9 +272,10 @@ def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tupl
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS,
-           infer_box=True):
-    if not isinstance(infer_box, bool):
-        raise TypeError(f"{fn}: expected infer_box to be a bool, got {type(infer_box).__name__}")
+           infer_box=True, learned=True):
+    for name, v in (("infer_box", infer_box), ("learned", learned)):
+        if not isinstance(v, bool):
+            raise TypeError(f"{fn}: expected {name} to be a bool, got {type(v).__name__}")
     if (not isinstance(priors, (tuple, list)) or not priors
             or any(p not in AUTO_PRIORS for p in priors) or len(set(priors)) != len(priors)):
         raise ValueError(f"{fn}: expected priors a non-empty tuple of distinct names from "
@@ -370,6 +376,7 @@ def auto(
     seed: int = 0,
     priors: tuple[str, ...] = AUTO_PRIORS,
     infer_box: bool = True,
+    learned: bool = True,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
     """TV or TGV² reconstruction with prior, bounds and weight chosen by cross-validation (module
@@ -412,6 +419,10 @@ def auto(
             ``("tgv",)`` for depth maps of planes.
         infer_box: without ``bounds``, choose again with the box of the image's two levels
             when the refit is two-level (module doc, "The inferred box").
+        learned: stack the shipped learned network (:func:`~torchtof.recon.learned`) with the
+            choice, weighted by cross-validation, where it applies (:func:`stackable`: a
+            Hadamard operator, ``n ≥ 32``, the tail split; module doc, "Stacking");
+            ``choice["learned_weight"]`` is the weight (``None`` where not stacked).
         return_result: return an :class:`AutoResult` instead of ``x``.
 
     Returns:
@@ -429,12 +440,14 @@ def auto(
     """
     fn = "auto"
     check_buckets(y, A, fn)
-    _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box)
+    _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
                 seed=seed, priors=tuple(priors))
     res = _auto(y, A, bounds, **opts)
     if bounds is None and infer_box and y.shape[0] * y.shape[1] > 0:
         res = _with_inferred_box(res, y, A, opts)
+    if learned and stackable(A, split) and y.shape[0] * y.shape[1] > 0:
+        res = _with_learned(res, y, A, bounds, opts)
     return res if return_result else res.x
 
 
@@ -571,7 +584,8 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
     cv_l, sc_l = cv_sum.tolist(), score.tolist()
     choice = tuple(
         tuple(dict(cands[best_l[i * c + j]], cv=cv_l[i * c + j][best_l[i * c + j]],
-                   score=sc_l[i * c + j][best_l[i * c + j]], inferred=False)
+                   score=sc_l[i * c + j][best_l[i * c + j]], inferred=False,
+                   learned_weight=None)
               for j in range(c)) for i in range(b))
     codes = codes.reshape(b, c)
     reasons = tuple(tuple(STOP_REASONS[k] for k in row) for row in codes.tolist())
@@ -635,12 +649,113 @@ def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
                         stop_reason=nest(reasons), choice=nest(choice))
 
 
+def stackable(A: LinearOperator, split: str | None = None) -> bool:
+    """Whether :func:`auto` stacks the learned network for ``A`` (module doc, "Stacking"):
+    a :class:`~torchtof.operators.Hadamard` operator with ``n ≥`` :data:`LEARNED_MIN_N`
+    cross-validated on the tail split (every training set a prefix of its rows)."""
+    split = default_split(A) if split is None else split
+    return isinstance(A, Hadamard) and split == "tail" and A.n >= LEARNED_MIN_N
+
+
+def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
+                 held: torch.Tensor) -> torch.Tensor:
+    """Stacking weight of a second estimator that every fold supports, in ``[0, 1]``.
+
+    Per fold ``k``, the least-squares weight of the convex combination of the two
+    estimators' held-out predictions (Breiman 1996, Machine Learning 24, "Stacked
+    regressions", with the weights constrained to a convex combination),
+
+    .. math::
+        w_k = \\operatorname{clip}_{[0, 1]}\\frac{⟨P_k d_k,\\ P_k r_k⟩}{\\|P_k d_k\\|^2},
+        \\qquad d_k = p^{l}_k − p^{a}_k, \\quad r_k = y − p^{a}_k,
+
+    the minimiser over ``[0, 1]`` of ``‖P_k (y − (1 − w) p^a_k − w p^l_k)‖²`` (a convex
+    quadratic in ``w``: the unconstrained minimiser, clipped; ``0`` where the two agree on the
+    held-out rows), and then the smallest over the folds, ``w = min_k w_k``. The minimum, not
+    a pooled least-squares weight: pooled, the fold trained on the fewest rows dominates
+    (its held-out rows carry the most energy), and where the first estimator recovers the
+    image almost exactly from all rows but not yet from the fewest (anisotropic TV with a box
+    on a binary character), that fold asks for a weight that costs several dB on all rows
+    (measured in ``docs/auto.md``).
+
+    Args:
+        pred_a, pred_l: predictions ``A x̂`` of the two estimators fitted on each fold,
+            ``(R, F, M)``.
+        y: buckets ``(R, 1, M)``.
+        held: ``(F, M)`` bool, the held-out rows ``P_k`` of each fold.
+
+    Returns:
+        ``(R,)`` weights of the second estimator.
+    """
+    h = held.to(y.dtype)
+    d = (pred_l - pred_a) * h
+    r = (y - pred_a) * h
+    num, den = (d * r).sum(dim=-1), (d * d).sum(dim=-1)  # (R, F)
+    w = num / den.clamp_min(torch.finfo(y.dtype).tiny)
+    return torch.where(den > 0, w, torch.zeros_like(w)).clamp(0.0, 1.0).amin(dim=-1)
+
+
+def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
+                  ) -> AutoResult:
+    """Stage 4 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
+    network are fitted on the same tail folds, the weight of the network is the least-squares
+    stacking weight of their held-out predictions (:func:`stack_weight`), and the result is
+    that convex combination of the two full-row reconstructions (projected onto the caller's
+    ``bounds``, if any)."""
+    b, c, m = y.shape
+    bc, n = b * c, A.n
+    folds = opts["folds"]
+    held, train = holdout_split(A, TAIL_FOLDS if folds is None else folds, y, opts["seed"],
+                                "tail")
+    if folds is None:
+        held, train = held[:TAIL_USE], train[:TAIL_USE]
+    nf = held.shape[0]
+    ys = y.reshape(bc, 1, m)
+    choice = [ch for row in res.choice for ch in row]
+    # the chosen candidate on every fold: one batched solve per distinct choice
+    xa = y.new_zeros(bc, nf, n, n)
+    by_key: dict = {}
+    for i, ch in enumerate(choice):
+        if ch["prior"] != "box":  # the box-only solution is not stacked (weight 0)
+            by_key.setdefault(_key(ch), []).append(i)
+    tm = train.to(y.dtype)
+    for key, rows in by_key.items():
+        idx = torch.tensor(rows, device=y.device)
+        g, mu = key[:4], key[4]
+        if mu is None:
+            xa[idx] = _fit(g, ys[idx] * tm, MaskedRows(A, train), _CONSTRAINED_MU, False,
+                           opts["cv_iter"])[0]
+        else:
+            xa[idx] = _fit(g, ys[idx] * tm, MaskedRows(A, train),
+                           ys.new_full((len(rows), nf), mu), True, opts["cv_iter"])[0]
+    # the network on every fold: the first k rows of the same order
+    xl = []
+    for f in range(nf):
+        k = int(train[f].sum())
+        xl.append(learned_recon(ys[..., :k], Hadamard(n, m=k, order=A.order).to(y.device)))
+    xl = torch.cat(xl, dim=1)  # (BC, F, n, n)
+    w = stack_weight(A(xa), A(xl), ys, held)
+    w = torch.where(torch.tensor([ch["prior"] != "box" for ch in choice], device=y.device), w,
+                    torch.zeros_like(w))
+    x_full = learned_recon(ys, A).reshape(b, c, n, n)
+    wi = w.reshape(b, c, 1, 1)
+    x = res.x + wi * (x_full - res.x)
+    if bounds is not None:  # the caller's box holds for the image: project the blend onto it
+        x = project_box(x, bounds[0], bounds[1])
+    ynorm = y.norm(dim=-1)
+    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    wl = w.tolist()
+    nest = tuple(tuple(dict(choice[i * c + j], learned_weight=wl[i * c + j]) for j in range(c))
+                 for i in range(b))
+    return res._replace(x=x, residual=residual, choice=nest)
+
+
 class Auto(nn.Module):
     """Module of :func:`auto`: ``forward(y) -> x``, ``solve(y) -> AutoResult``.
 
     Args:
         A: the operator (a submodule). bounds, folds, cv_iter, max_iter, split, slack, seed,
-            priors, infer_box: as :func:`auto`.
+            priors, infer_box, learned: as :func:`auto`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -651,15 +766,16 @@ class Auto(nn.Module):
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int | None = None,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
                  slack: float = 0.0, seed: int = 0, priors: tuple = AUTO_PRIORS,
-                 infer_box: bool = True) -> None:
+                 infer_box: bool = True, learned: bool = True) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
-        _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box)
+        _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box,
+               learned)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
                             split=split, slack=slack, seed=seed, priors=tuple(priors),
-                            infer_box=infer_box)
+                            infer_box=infer_box, learned=learned)
 
     def solve(self, y: torch.Tensor) -> AutoResult:
         return auto(y, self.A, return_result=True, **self.options)
@@ -670,4 +786,4 @@ class Auto(nn.Module):
     def extra_repr(self) -> str:
         o = self.options
         return (f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}, "
-                f"priors={o['priors']}, infer_box={o['infer_box']}")
+                f"priors={o['priors']}, infer_box={o['infer_box']}, learned={o['learned']}")
