@@ -42,6 +42,10 @@ _auto = importlib.import_module("torchtof.recon.auto")  # the module (recon.auto
 SRS = (0.0625, 0.125, 0.25, 0.375)
 
 
+def _weight(w) -> str:
+    return "–" if w is None else f"{w:.2f}"
+
+
 def scene(name: str, n: int) -> torch.Tensor:
     if name == "sky":
         x = tt.scenes.sky_character(32).double()
@@ -330,6 +334,10 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--peers-cells", default=None, metavar="PEERS_JSON",
                     help="with --fold-study: the cells of this peers JSON (problems of "
                          "peers_scenes.py); with --fold-rules: their best peer")
+    ap.add_argument("--reuse", default=None, metavar="AUTO_EVAL_JSON",
+                    help="take each cell's candidate PSNRs (best, median) from this earlier "
+                         "output instead of refitting every candidate; auto and TVAL3's "
+                         "default still run (the candidates do not depend on auto's rule)")
     ap.add_argument("--bp", action="store_true",
                     help="basis pursuit's default against TVAL3's default instead (PSNR dB)")
     args = ap.parse_args(argv)
@@ -347,9 +355,13 @@ def main(argv=None) -> list[dict]:
                 json.dump(rows, f, indent=1)
         return rows
     rows = []
+    reuse = {}
+    if args.reuse:
+        with open(args.reuse) as f:
+            reuse = {(r["scene"], r["n"], r["sr"]): r for r in json.load(f)}
     print("| scene | n | SR % | TVAL3 default | auto | best cand. | median cand. | regret | "
-          "vs median | chosen | t default s | t auto s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "vs median | chosen | learned w | t default s | t auto s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in args.n:
         for sr in args.sr:
             A = tt.operators.Hadamard(n, sr=sr).double()
@@ -361,12 +373,17 @@ def main(argv=None) -> list[dict]:
                 t0 = time.perf_counter()
                 r = auto(y, A, cv_iter=args.cv_iter, return_result=True)
                 t_auto = time.perf_counter() - t0
-                cp = candidate_psnrs(y, A, x, r.candidates, args.cv_iter)
+                if (name, n, sr) in reuse:
+                    old = reuse[(name, n, sr)]
+                    best, median = old["best"], old["median"]
+                else:
+                    cp = candidate_psnrs(y, A, x, r.candidates, args.cv_iter)
+                    best, median = max(cp), statistics.median(cp)
                 ch = r.choice[0][0]
                 row = dict(scene=name, n=n, sr=sr, default=psnr(d.x, x)[0],
-                           auto=psnr(r.x, x)[0], best=max(cp), median=statistics.median(cp),
+                           auto=psnr(r.x, x)[0], best=best, median=median,
                            chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
-                                       mu=ch["mu"]),
+                                       mu=ch["mu"], learned_weight=ch.get("learned_weight")),
                            t_default=t_def, t_auto=t_auto)
                 rows.append(row)
                 mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
@@ -374,7 +391,8 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
                       f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
-                      f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | {t_def:.2f} | "
+                      f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | "
+                      f"{_weight(ch.get('learned_weight'))} | {t_def:.2f} | "
                       f"{t_auto:.1f} |", flush=True)
     if args.out:
         with open(args.out, "w") as f:

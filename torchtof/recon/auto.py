@@ -1,4 +1,5 @@
-"""Automatic TV/TGV reconstruction: prior, bounds and weight chosen from the buckets alone.
+"""Automatic reconstruction: TV/TGV prior, bounds and weight chosen from the buckets alone,
+stacked with the learned network where it applies.
 
 No single TV model wins everywhere: anisotropic TV suits binary, pixel-grid silhouettes,
 isotropic TV natural grey images, second-order TGV² piecewise-planar depth maps, a
@@ -95,16 +96,38 @@ not two-level by this test and do not change. It costs one more solve of one can
 (the chosen prior and norm with the box; stage 1 solves 8), its stage 2 and, if the choice
 changes, a refit: only for two-level images.
 
+**Stacking with the learned network** (``learned=True``, the default, where it applies:
+a :class:`~torchtof.operators.Hadamard` operator, ``n ≥ 32``, the tail split). The shipped
+learned reconstructor (:func:`~torchtof.recon.learned`, a network trained on procedural
+scenes) is better than every TV/TGV candidate on some images and worse on others, and
+cross-validation scoring it as one more candidate rarely saw where (its fold score was
+3–5× the best TV candidate's on images where it was 2.5–5.7 dB better: ``docs/auto.md``).
+So it is not chosen *instead* of the TV/TGV choice but combined *with* it (stacked
+generalisation, Wolpert 1992, Neural Networks 5; Breiman 1996, Machine Learning 24): the
+chosen candidate and the network are both fitted on each tail fold (the network on the
+first ``k`` rows of the same order, a plain ``Hadamard(n, m=k)``), each fold's
+least-squares weight of the convex combination of their held-out predictions is computed
+in closed form and clipped to ``[0, 1]``, and the network gets the smallest of these
+weights (:func:`stack_weight`: the weight that every fold supports; a pooled weight
+follows the fold with the fewest rows and was measured to cost 6 dB on the paper's
+character at n = 64, SR 37.5 %, where the TV choice with the inferred box is almost exact
+from all rows). The result is ``(1 − w) x̂ + w x̂_learned`` of the two full-row
+reconstructions (projected onto the caller's ``bounds`` if given: the image obeys them);
+``choice["learned_weight"]`` is ``w`` (``0``: the TV/TGV choice alone; ``None``: not
+stacked). The box-only solution is never stacked. Measured on the peers benchmark in
+``docs/auto.md``.
+
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
 100 iterations; stage 2 one call of 6 channels for the chosen group; with a finite box two
 projected-gradient solves of ``BOX_ITER = 100`` steps (``A`` and ``Aᵀ`` only); then one
 refit. That is 17,400 (25,800 with a box; 20,100 and a second refit for a two-level image
 whose box is inferred) single-channel iterations (TVAL3 or TGV primal-dual, each one ``A``,
-one ``Aᵀ`` and a few differences) besides the refit, bounded
-and independent of the data (3/4 of the same candidates on 4 eighth-folds; a random split
-also has 3 folds); the measured time against one default TVAL3 solve is in
-``docs/auto.md``.
+one ``Aᵀ`` and a few differences) besides the refit; stacking adds 300 (the choice on the
+3 folds) and four passes of the learned network (3 folds and all rows; each 6 steps of one
+``A``, one ``Aᵀ`` and a small CNN); bounded and independent of the data (3/4 of the same
+candidates on 4 eighth-folds; a random split also has 3 folds); the measured time against
+one default TVAL3 solve is in ``docs/auto.md``.
 """
 
 from __future__ import annotations

@@ -99,7 +99,8 @@ _SPECS = (
           fixed_budget={"adaptive": False},
           summary="TVAL3: min TV s.t. Ax = y by augmented Lagrangian (Li et al. 2013)"),
     _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
-          summary="TV with prior, bounds and weight chosen by cross-validation on the buckets"),
+          summary="TV/TGV with prior, bounds and weight chosen by cross-validation on the "
+                  "buckets, stacked with the learned network"),
     _spec("tgv", "TGV", tgv, TGV, iterative=True, exportable=True, budget="max_iter",
           fixed_budget={"adaptive": False},
           summary="second-order TGV (Bredies et al. 2010) by primal-dual: planes, no staircase"),
