@@ -1,0 +1,141 @@
+"""How ``auto`` should weight the learned network it stacks with its TV/TGV choice. (Offline study.)
+
+For each peers cell (``benchmarks/peers_scenes.py``: same image, Hadamard rows, noise draw and
+PSNR as ``benchmarks/peers.py``), ``auto(y, A, learned=False)`` runs once; its chosen
+candidate and the shipped learned network are then fitted on the same tail folds as ``auto``
+uses (the network on the first ``k`` rows, a plain ``Hadamard(n, m=k)``), and the weight
+``w`` of the convex combination ``(1 − w) x̂_auto + w x̂_learned`` of the two full-row
+reconstructions is set by several rules from the held-out predictions (no ground truth):
+
+- ``pooled``: the least-squares weight over all folds' held-out rows together;
+- ``relative``: the same with each fold's rows divided by the TV/TGV choice's error there;
+- ``latest``: the least-squares weight of the fold trained on the most rows (7/8);
+- ``min``: the smallest of the folds' least-squares weights (``auto``'s rule,
+  :func:`torchtof.recon.auto.stack_weight`);
+- ``median``: the median of the folds' weights.
+
+Prints, per rule, the mean gap to the best oracle-tuned peer of ``docs/peers.json``, the
+cells at ≥ 0, the mean and worst change against ``auto`` without the network; and the fixed
+weights ``w ∈ {0.25, 0.5, 1}`` and the per-cell oracle weight for reference.
+
+    OMP_NUM_THREADS=1 python benchmarks/auto_stack_rules.py --n 32 --orders cake_cutting \\
+        sequency
+    OMP_NUM_THREADS=1 python benchmarks/auto_stack_rules.py --n 32 --noise 0.05 --sr 0.125 0.375
+    OMP_NUM_THREADS=1 python benchmarks/auto_stack_rules.py --n 64 --sr 0.125 0.25 0.375
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import statistics
+from pathlib import Path
+
+import peers_scenes as ps  # benchmarks/ is the script's directory
+import torch
+
+from torchtof.operators import Hadamard
+from torchtof.recon import auto, learned
+from torchtof.recon.tval3 import MaskedRows, holdout_split
+
+ROOT = Path(__file__).resolve().parents[1]
+RULES = ("pooled", "relative", "latest", "min", "median")
+FIXED = (0.25, 0.5, 1.0)
+
+
+def fold_predictions(y, A, choice, am):
+    """``(pa, pl, held)``: the chosen candidate's and the network's predictions ``A x̂`` fitted
+    on each of ``auto``'s default tail folds ``(1, F, M)``, and the held-out rows ``(F, M)``."""
+    held, train = holdout_split(A, am.TAIL_FOLDS, y, 0, "tail")
+    held, train = held[:am.TAIL_USE], train[:am.TAIL_USE]
+    nf = held.shape[0]
+    g, mu = am._key(choice)[:4], choice["mu"]
+    yt = y * train.to(y.dtype)
+    if mu is None:
+        xa = am._fit(g, yt, MaskedRows(A, train), am._CONSTRAINED_MU, False, 100)[0]
+    else:
+        xa = am._fit(g, yt, MaskedRows(A, train), y.new_full((1, nf), mu), True, 100)[0]
+    xl = []
+    for f in range(nf):
+        k = int(train[f].sum())
+        assert bool(train[f, :k].all()), "a tail fold trains on a prefix"
+        xl.append(learned(y[..., :k], Hadamard(A.n, m=k, order=A.order)))
+    return A(xa), A(torch.cat(xl, dim=1)), held
+
+
+def rule_weights(pa, pl, y, held, am) -> dict:
+    h = held.to(y.dtype)
+    d, r = ((pl - pa) * h)[0], ((y - pa) * h)[0]  # (F, M)
+    num, den = (d * r).sum(-1), (d * d).sum(-1)
+    per_fold = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
+    per_fold = per_fold.clamp(0, 1)
+    rel = 1 / r.square().sum(-1).clamp_min(1e-300)
+
+    def pooled(wf):
+        return float(((num * wf).sum() / (den * wf).sum().clamp_min(1e-300)).clamp(0, 1))
+
+    return {"pooled": pooled(torch.ones_like(num)), "relative": pooled(rel),
+            "latest": float(per_fold[0]), "min": float(am.stack_weight(pa, pl, y, held)[0]),
+            "median": float(per_fold.median())}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = ps.cell_parser(__doc__.splitlines()[0])
+    p.add_argument("--peers", default=str(ROOT / "docs" / "peers.json"))
+    a = p.parse_args(argv)
+    am = importlib.import_module("torchtof.recon.auto")
+    torch.set_num_threads(1)
+    stored = {(c["scene"], c["n"], c["sr"], c["order"], c["level"]): c
+              for c in json.loads(Path(a.peers).read_text())["cells"]}
+    rows = []
+    for order in a.orders:
+        for sr in a.sr:
+            for scene in a.scenes:
+                key = (scene, a.n, sr, order, a.noise)
+                if key not in stored:
+                    continue
+                x, A, y, _ = ps.make_problem(scene, a.n, sr, order, a.noise)
+                r = auto(y, A, learned=False, return_result=True)
+                ch = r.choice[0][0]
+                with torch.no_grad():
+                    x_l = learned(y, A)
+                    if ch["prior"] == "box":
+                        ws = dict.fromkeys(RULES, 0.0)
+                    else:
+                        pa, pl, held = fold_predictions(y, A, ch, am)
+                        ws = rule_weights(pa, pl, y, held, am)
+                res = stored[key]["results"]
+                peer = max(v["psnr"] for v in res.values()
+                           if v.get("peer") != "torchtof" and v["psnr"] is not None)
+                blend = {w: ps.score(r.x + w * (x_l - r.x), x) for w in (0.0, *FIXED)}
+                grid = [ps.score(r.x + (i / 20) * (x_l - r.x), x) for i in range(21)]
+                row = dict(scene=scene, n=a.n, sr=sr, order=order, peer=peer, auto=blend[0.0],
+                           weights=ws, fixed={str(w): blend[w] for w in FIXED},
+                           oracle=max(grid),
+                           rules={k: ps.score(r.x + w * (x_l - r.x), x) for k, w in ws.items()})
+                rows.append(row)
+                print(f"{order} SR={sr} {scene}: auto {row['auto']:.2f}, "
+                      + ", ".join(f"{k} {row['rules'][k] - row['auto']:+.2f} (w {w:.2f})"
+                                  for k, w in ws.items()), flush=True)
+    print(f"{len(rows)} cells: gap to the best tuned peer (mean, cells >= 0, worst) and change "
+          "against auto without the network (mean, worst)")
+
+    def line(name, f):
+        g = [f(r) - r["peer"] for r in rows]
+        d = [f(r) - r["auto"] for r in rows]
+        print(f"| {name} | {statistics.mean(g):+.2f} | {sum(v >= 0 for v in g)} | {min(g):+.2f} "
+              f"| {statistics.mean(d):+.2f} | {min(d):+.2f} |")
+
+    print("| rule | mean gap dB | cells ≥ 0 | worst gap | mean change | worst change |")
+    print("|---|---|---|---|---|---|")
+    line("no network (w = 0)", lambda r: r["auto"])
+    for k in RULES:
+        line(k, lambda r, k=k: r["rules"][k])
+    for w in FIXED:
+        line(f"fixed w = {w:g}", lambda r, w=w: r["fixed"][str(w)])
+    line("oracle w (ground truth)", lambda r: r["oracle"])
+    return dict(rows=rows)
+
+
+if __name__ == "__main__":
+    main()
