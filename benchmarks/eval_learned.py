@@ -102,16 +102,17 @@ def score(x_hat: torch.Tensor, x: torch.Tensor) -> tuple[float, float]:
 METHODS = ("learned", "tval3", "auto", "unrolled")
 
 
-def run_cell(n, sr, order, level, cls, methods=METHODS, weights=True, oracle_sigma=False):
+def run_cell(n, sr, order, level, cls, methods=METHODS, weights=True, oracle_sigma=False,
+             flips=1):
     """One (n, SR, order, noise, class) cell: PSNR/SSIM and time per image of each method
     (``oracle_sigma``: the learned model is given the true bucket noise std instead of
-    estimating it)."""
+    estimating it; ``flips``: the learned model's self-ensemble, ``Learned(flips=...)``)."""
     A = Hadamard(n, sr=sr, order=order)
     x = scenes(cls, n)
     y = buckets(A, x, level, salt=n + int(sr * 1e4) + int(level * 1e4))
     row = {"n": n, "sr": sr, "order": order, "level": level, "class": cls}
     if "learned" in methods:
-        net = Learned(A, pretrained=weights)
+        net = Learned(A, pretrained=weights, flips=flips)
         fn = net
         if oracle_sigma:
             y0 = A(x)
@@ -400,6 +401,8 @@ def main() -> int:
                    help="give the learned model the true noise std (diagnostic)")
     p.add_argument("--weights", default=None,
                    help="a weights file to evaluate (recipe.json beside it; default: shipped)")
+    p.add_argument("--flips", type=int, default=1, choices=(1, 2, 4),
+                   help="the learned model's self-ensemble over image flips (Learned(flips=))")
     p.add_argument("--compare", nargs="+", default=None,
                    help="the acceptance criteria of each file's learned rows against the TVAL3 "
                         "rows of the first file (same cells), and exit")
@@ -444,7 +447,9 @@ def main() -> int:
             for level in args.levels:
                 for cls in args.classes:
                     r = run_cell(n, sr, "cake_cutting", level, cls, args.methods, weights,
-                                 args.oracle_sigma)
+                                 args.oracle_sigma, args.flips)
+                    if args.flips > 1:
+                        r["flips"] = args.flips
                     rows.append(r)
                     if args.out:  # after every cell: an interrupted run keeps what it measured
                         with open(args.out, "w") as f:

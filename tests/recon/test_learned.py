@@ -532,3 +532,83 @@ def test_ddp_two_processes_train_the_single_process_model(tmp_path):
     for k, v in single.prior.state_dict().items():
         torch.testing.assert_close(got["prior"][k], v, rtol=1e-4, atol=1e-6)
     torch.testing.assert_close(got["step_raw"], single.step_raw.detach(), rtol=1e-4, atol=1e-6)
+
+
+# -- self-ensemble over image flips ------------------------------------------------------------
+
+
+def _flip(x, fl):
+    dims = [d for d, f in zip((-2, -1), fl, strict=True) if f]
+    return torch.flip(x, dims) if dims else x
+
+
+@pytest.mark.parametrize("n,order", [(16, "natural"), (32, "cake_cutting"), (64, "sequency")])
+def test_flipped_image_buckets_are_signed_buckets(n, order):
+    """Sylvester arithmetic: H[k, n-1-j] = (-1)^popcount(k) H[k, j], so row a·n + b of A
+    changes sign under a column flip when popcount(b) is odd, under a row flip when
+    popcount(a) is odd; checked against the operator applied to the flipped image."""
+    from torchtof.recon.learned import FLIPS, _flip_signs
+
+    A = Hadamard(n, sr=0.3, order=order)
+    x = torch.rand(2, 1, n, n, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    d = _flip_signs(A, 4, x)
+    a, b = A.index // n, A.index % n
+    par = lambda v: torch.tensor([bin(int(k)).count("1") % 2 for k in v])  # noqa: E731
+    want = torch.stack([torch.ones(A.m), 1 - 2.0 * par(b), 1 - 2.0 * par(a),
+                        (1 - 2.0 * par(a)) * (1 - 2.0 * par(b))]).to(torch.float64)
+    torch.testing.assert_close(d, want)
+    for k, fl in enumerate(FLIPS):
+        torch.testing.assert_close(A(_flip(x, fl)), A(x) * d[k])
+
+
+@pytest.mark.parametrize("flips", [2, 4])
+def test_flips_average_the_estimates_of_the_flipped_images(flips):
+    from torchtof.recon.learned import FLIPS, _flip_signs
+
+    net = _net(n=16, K=2)
+    y = _y(net.A, b=3)
+    ens = Learned(net.A, n_layers=2, width=4, pretrained=False, flips=flips)
+    ens.load_state_dict(net.state_dict())
+    d = _flip_signs(net.A, 4, y)
+    want = sum(_flip(net(y * d[k]), FLIPS[k]) for k in range(flips)) / flips
+    torch.testing.assert_close(ens(y), want)
+    # a DMD split's frames give what their combined buckets give, with the ensemble too
+    S = DMDSplit(net.A)
+    ens_s = Learned(S, n_layers=2, width=4, pretrained=False, flips=flips)
+    ens_s.load_state_dict(net.state_dict())
+    x = torch.rand(3, 1, 16, 16, generator=torch.Generator().manual_seed(2))
+    torch.testing.assert_close(ens_s(S(x)), ens(net.A(x)), rtol=1e-4, atol=1e-5)
+
+
+def test_flips_bad_values_raise():
+    A = Hadamard(16, sr=0.25)
+    with pytest.raises(ValueError, match="Learned: expected flips in"):
+        Learned(A, flips=3, pretrained=False)
+    with pytest.raises(TypeError, match="Learned: expected flips to be an int"):
+        Learned(A, flips=2.0, pretrained=False)
+    P = PatternOperator(A.patterns() / 16)  # orthonormal rows, but no Hadamard sign rule
+    assert P.orthonormal_rows
+    Learned(P, pretrained=False)  # flips=1 is fine
+    with pytest.raises(ValueError, match="flips > 1 needs a Hadamard operator"):
+        Learned(P, flips=2, pretrained=False)
+
+
+def test_onnx_parity_with_flips(tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    import numpy as np
+
+    A = Hadamard(32, sr=0.125)
+    torch.manual_seed(0)
+    net = Learned(A, width=4, n_layers=2, pretrained=False, flips=4).eval()
+    path = tmp_path / "learned_flips.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net, (A(torch.rand(2, 1, 32, 32)),), path, dynamo=False,
+                          opset_version=17, input_names=["y"], output_names=["x"],
+                          dynamic_axes={"y": {0: "batch"}, "x": {0: "batch"}})
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    for b in (1, 3):
+        y = A(draw_scenes(32, 99, 0, range(b)))
+        with torch.no_grad():
+            ref = net(y)
+        assert np.abs(sess.run(None, {"y": y.numpy()})[0] - ref.numpy()).max() <= 1e-4

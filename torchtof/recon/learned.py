@@ -92,6 +92,7 @@ __all__ = [
     "DEFAULT_WIDTH",
     "DEFAULT_SHUFFLE",
     "STOP_REASON",
+    "FLIPS",
 ]
 
 #: The shipped weights (with ``recipe.json`` in the same folder).
@@ -247,6 +248,39 @@ def _operator_pair(op: LinearOperator, like: torch.Tensor):
     )
 
 
+#: The image flips of the self-ensemble, in order: ``(flip rows, flip columns)``.
+FLIPS = ((False, False), (False, True), (True, False), (True, True))
+
+
+def _flip_signs(op: Hadamard, flips: int, like: torch.Tensor) -> torch.Tensor:
+    """``(flips, M)`` ±1: the measurements of each flipped image (:data:`FLIPS`) are the
+    measurements of the image times these signs. Row ``a·n + b`` of ``A`` is the Sylvester
+    pattern ``H[a, i] H[b, j]`` with ``H[k, j] = (−1)^{popcount(k ∧ j)}``; reversing ``j``
+    (``j → n − 1 − j = j ⊕ (n − 1)``) multiplies it by ``(−1)^{popcount(b)}``, reversing
+    ``i`` by ``(−1)^{popcount(a)}``."""
+    n = op.n
+    a, b = op.index // n, op.index % n
+    pa, pb = torch.zeros_like(a), torch.zeros_like(b)
+    for bit in range(max(1, n.bit_length())):  # parity of the set bits
+        pa = pa ^ ((a >> bit) & 1)
+        pb = pb ^ ((b >> bit) & 1)
+    sa, sb = (1 - 2 * pa).to(like.dtype), (1 - 2 * pb).to(like.dtype)
+    one = torch.ones_like(sa)
+    return torch.stack([(sa if fi else one) * (sb if fj else one) for fi, fj in FLIPS[:flips]])
+
+
+def check_flips(flips, A: LinearOperator, func: str) -> None:
+    """``flips`` in ``{1, 2, 4}``; above 1 only for a Hadamard operator (or its DMD split)."""
+    if isinstance(flips, bool) or not isinstance(flips, int):
+        raise TypeError(f"{func}: expected flips to be an int, got {type(flips).__name__}")
+    if flips not in (1, 2, 4):
+        raise ValueError(f"{func}: expected flips in (1, 2, 4), got {flips}")
+    if flips > 1 and not isinstance(_base_operator(A), Hadamard):
+        raise ValueError(f"{func}: flips > 1 needs a Hadamard operator (or its DMD split): the "
+                         f"sign rule of a flipped image holds for its rows; got "
+                         f"{type(A).__name__}")
+
+
 def _sigma_of(noise_sigma, y: torch.Tensor, func: str) -> torch.Tensor:
     """``(B, C)`` noise std in the units of ``y`` (orthonormal measurements)."""
     if isinstance(noise_sigma, str):
@@ -296,9 +330,11 @@ def _unrolled(
     noise_sigma,
     func: str,
     clean_scale: bool = True,
+    flips: int = 1,
 ) -> torch.Tensor:
     """The iteration of the module docstring; ``y`` already checked. ``clean_scale=False``: the
-    normalisation of weights files before the noise-corrected norm (``ν = ‖y‖``)."""
+    normalisation of weights files before the noise-corrected norm (``ν = ‖y‖``). ``flips > 1``:
+    the self-ensemble over image flips (:class:`Learned`), run as one batch."""
     if isinstance(A, DMDSplit):
         if noise_sigma is not None and not isinstance(noise_sigma, str):
             # σ of each frame → σ of (y⁺ − y⁻)/n: √2 σ / n
@@ -311,6 +347,12 @@ def _unrolled(
     B, C = y.shape[0], y.shape[1]
 
     sigma = _sigma_of("auto" if noise_sigma is None else noise_sigma, y, func)  # (B, C)
+    B0 = B
+    if flips > 1:  # every flipped image's buckets, stacked along the batch
+        d = _flip_signs(op, flips, y)  # (F, M)
+        y = (y[None] * d[:, None, None, :]).reshape(flips * B, C, m)
+        sigma = sigma.repeat(flips, 1)
+        B = flips * B
     peak = y.abs().amax(dim=-1, keepdim=True).clamp_min(tiny)  # ‖y‖ without over/underflow
     norm = peak * (y / peak).norm(dim=-1, keepdim=True)  # (B, C, 1)
     x0 = adj(y / norm.clamp_min(tiny))  # unit-norm Aᵀ b
@@ -341,7 +383,13 @@ def _unrolled(
     if log_tau is not None:  # final noise-weighted data consistency
         w = 1 / (1 + (sigma_n / torch.exp(log_tau.to(y.dtype))) ** 2)  # (B, C)
         x = x + w[..., None, None] * adj(bf - fwd(x))
-    return x * s[..., None]
+    x = x * s[..., None]
+    if flips > 1:  # flip every estimate back and average them
+        xs = x.reshape(flips, B0, C, n, n).unbind(0)
+        back = [torch.flip(xf, [d for d, f in zip((-2, -1), fl, strict=True) if f])
+                if any(fl) else xf for xf, fl in zip(xs, FLIPS, strict=False)]
+        x = torch.stack(back).mean(0)
+    return x
 
 
 # -- weights -------------------------------------------------------------------------------
@@ -372,13 +420,22 @@ class Learned(nn.Module):
         width, shuffle: the prior's channels and pixel-unshuffle factor
             (:class:`LearnedPrior`); ``None``: the weights file's (:data:`DEFAULT_WIDTH`,
             :data:`DEFAULT_SHUFFLE` without one); given, they must match it.
+        flips: ``1`` (default), ``2`` or ``4``: average the reconstructions of the image and
+            of its flips (left–right; then up–down and both), a self-ensemble (test-time
+            augmentation; Timofte, Rothe & Van Gool, CVPR 2016, "Seven ways to improve
+            example-based single image super resolution"). A flipped image's Hadamard
+            buckets are the buckets times a sign per row (:data:`FLIPS`), so no new
+            measurement is needed; the network is not flip-invariant, so the estimates
+            differ and their mean is better on average (measured in ``docs/learned.md``),
+            for ``flips`` times the work (one batched call). Hadamard operators and their DMD
+            split only.
 
     Raises:
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
             ``n_layers`` not an int.
         ValueError: if ``A`` has no orthonormal rows (and is not a DMD split), ``A.n`` is
-            not divisible by ``2·shuffle``, ``n_layers < 1``, or the weights file does not
-            match.
+            not divisible by ``2·shuffle``, ``n_layers < 1``, the weights file does not
+            match, or ``flips`` is not 1, 2 or 4 (or above 1 for a non-Hadamard operator).
         FileNotFoundError: if ``pretrained=True`` and the shipped file is missing.
 
     Shape:
@@ -400,11 +457,13 @@ class Learned(nn.Module):
         pretrained: bool | str | os.PathLike = True,
         width: int | None = None,
         shuffle: int | None = None,
+        flips: int = 1,
     ) -> None:
         super().__init__()
         func = "Learned"
         _check_operator(A, func)
         check_n_layers(n_layers, func)
+        check_flips(flips, A, func)
         for name, v in (("width", width), ("shuffle", shuffle)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
                 raise ValueError(f"{func}: expected {name} to be an int >= 1, got {v!r}")
@@ -432,6 +491,7 @@ class Learned(nn.Module):
         self.A = A
         self.n_layers = n_layers
         self.noise_sigma = noise_sigma
+        self.flips = flips
         self.prior = LearnedPrior(width=width, shuffle=shuffle)
         self.step_raw = nn.Parameter(torch.zeros(n_layers))
         self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
@@ -499,7 +559,7 @@ class Learned(nn.Module):
             return y.new_zeros(0, y.shape[1], self.A.n, self.A.n)
         log_tau = self.log_tau if self.final_dc else None
         return _unrolled(y, self.A, self.prior, self.step_raw, log_tau, self.noise_sigma, func,
-                         self.clean_scale)
+                         self.clean_scale, self.flips)
 
     def solve(self, y: torch.Tensor) -> LearnedResult:
         """:meth:`forward` plus the per-sample residual ``‖A x − y‖ / ‖y‖`` and the fields of
@@ -521,7 +581,7 @@ class Learned(nn.Module):
 
     def extra_repr(self) -> str:
         return (
-            f"n_layers={self.n_layers}, noise_sigma={self.noise_sigma!r}, "
+            f"n_layers={self.n_layers}, noise_sigma={self.noise_sigma!r}, flips={self.flips}, "
             f"clean_scale={self.clean_scale}, weights_file={self.weights_file!r}"
         )
 
@@ -534,13 +594,14 @@ def learned(
     pretrained: bool | str | os.PathLike = True,
     width: int | None = None,
     shuffle: int | None = None,
+    flips: int = 1,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained, width, shuffle: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width, shuffle, flips: as in :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``; differentiable with
@@ -553,6 +614,6 @@ def learned(
         torch.Size([1, 1, 32, 32])
     """
     net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
-                  width=width, shuffle=shuffle)
+                  width=width, shuffle=shuffle, flips=flips)
     # the weights are constants here: the output carries a graph only through ``y``
     return net.requires_grad_(False).to(y.device)(y)
