@@ -327,17 +327,22 @@ def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
     return out
 
 
-def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True) -> list[dict]:
+def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True,
+          flips_options=(1,)) -> list[dict]:
     """Time per image, learned vs TVAL3's defaults, on the three depth scenes at SR 12.5 % and
     1 % noise (one batched call / 3), 1 thread: after a warm-up, ``repeats`` rounds that
-    alternate the two methods; the minimum of each (the least disturbed by other processes)."""
+    alternate the two methods; the minimum of each (the least disturbed by other processes).
+    ``flips_options``: the learned model with each of these self-ensembles, interleaved too
+    (``learned_f{k}_ms`` and ``ratio_f{k}``; ``flips = 1`` keeps the keys ``learned_ms``,
+    ``ratio``)."""
     out = []
     for n in sizes:
         A = Hadamard(n, sr=0.125)
         x = scenes("depth", n)
         y = buckets(A, x, 0.01, salt=n)
-        net = Learned(A, pretrained=weights)
-        fns = {"learned": net, "tval3": lambda v, A=A: tval3(v, A).x}
+        fns = {"learned" if k == 1 else f"learned_f{k}": Learned(A, pretrained=weights, flips=k)
+               for k in flips_options}
+        fns["tval3"] = lambda v, A=A: tval3(v, A).x
         t = {k: [] for k in fns}
         with torch.no_grad():
             for fn in fns.values():
@@ -349,7 +354,9 @@ def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True) -> list[dict
                     t[k].append((time.perf_counter() - t0) / y.shape[0])
         row = {"n": n, **{f"{k}_ms": 1e3 * min(v) for k, v in t.items()},
                "load_avg": os.getloadavg()[0]}
-        row["ratio"] = row["tval3_ms"] / row["learned_ms"]
+        for k in flips_options:
+            name = "learned" if k == 1 else f"learned_f{k}"
+            row["ratio" if k == 1 else f"ratio_f{k}"] = row["tval3_ms"] / row[f"{name}_ms"]
         out.append(row)
         print(row, flush=True)
     return out
@@ -426,7 +433,8 @@ def main() -> int:
     torch.set_num_threads(1)
     if args.onnx or args.paper or args.speed:
         if args.speed:
-            rows = speed(weights=args.weights or True)
+            rows = speed(weights=args.weights or True,
+                         flips_options=(1,) if args.flips == 1 else (1, args.flips))
         else:
             rows = onnx_times() if args.onnx else paper()
         if args.out:
