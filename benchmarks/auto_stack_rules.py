@@ -12,7 +12,14 @@ reconstructions is set by several rules from the held-out predictions (no ground
 - ``latest``: the least-squares weight of the fold trained on the most rows (7/8);
 - ``min``: the smallest of the folds' least-squares weights (``auto``'s rule,
   :func:`torchtof.recon.auto.stack_weight`);
-- ``median``: the median of the folds' weights.
+- ``median``: the median of the folds' weights; ``mean``: their mean;
+- ``latest∧pooled``, ``latest∧relative``: the smaller of the latest fold's weight and the
+  pooled (relative) one.
+
+``--auto-eval``: the cells of ``benchmarks/auto_eval.py`` instead (6 scenes incl. the smooth
+``moon``, cake-cutting rows, noise of ``--noise`` × the bucket spread; no peers there, so only
+the change against ``auto`` without the network is reported): a check of a rule chosen on the
+peers cells on cells it was not chosen on.
 
 Prints, per rule, the mean gap to the best oracle-tuned peer of ``docs/peers.json``, the
 cells at ≥ 0, the mean and worst change against ``auto`` without the network; and the fixed
@@ -40,7 +47,8 @@ from torchtof.recon import auto, learned
 from torchtof.recon.tval3 import MaskedRows, holdout_split
 
 ROOT = Path(__file__).resolve().parents[1]
-RULES = ("pooled", "relative", "latest", "min", "median")
+RULES = ("pooled", "relative", "latest", "min", "median", "mean", "latest∧pooled",
+         "latest∧relative")
 FIXED = (0.25, 0.5, 1.0)
 
 
@@ -75,65 +83,89 @@ def rule_weights(pa, pl, y, held, am) -> dict:
     def pooled(wf):
         return float(((num * wf).sum() / (den * wf).sum().clamp_min(1e-300)).clamp(0, 1))
 
-    return {"pooled": pooled(torch.ones_like(num)), "relative": pooled(rel),
-            "latest": float(per_fold[0]), "min": float(am.stack_weight(pa, pl, y, held)[0]),
-            "median": float(per_fold.median())}
+    w = {"pooled": pooled(torch.ones_like(num)), "relative": pooled(rel),
+         "latest": float(per_fold[0]), "min": float(am.stack_weight(pa, pl, y, held)[0]),
+         "median": float(per_fold.median()), "mean": float(per_fold.mean())}
+    w["latest∧pooled"] = min(w["latest"], w["pooled"])
+    w["latest∧relative"] = min(w["latest"], w["relative"])
+    return w
 
 
 def main(argv: list[str] | None = None) -> dict:
     p = ps.cell_parser(__doc__.splitlines()[0])
     p.add_argument("--peers", default=str(ROOT / "docs" / "peers.json"))
+    p.add_argument("--auto-eval", action="store_true",
+                   help="the cells of benchmarks/auto_eval.py (--n, --sr; its six scenes, "
+                        "cake-cutting rows, --noise × the bucket spread) instead of the peers'")
+    p.add_argument("--out", default=None, help="JSON file of the per-cell rows")
     a = p.parse_args(argv)
+    if a.auto_eval:
+        import auto_eval as ae
+
+        problems = [(name, a.n, sr, "cake_cutting") for sr in a.sr for name in ae.SCENES]
+
+        def make(name, n, sr, order):
+            A = Hadamard(n, sr=sr).double()
+            x, y = ae.noisy(name, A, a.noise)
+            return x, A, y
+    else:
+        problems = [(scene, a.n, sr, order) for order in a.orders for sr in a.sr
+                    for scene in a.scenes]
+
+        def make(name, n, sr, order):
+            return ps.make_problem(name, n, sr, order, a.noise)[:3]
     am = importlib.import_module("torchtof.recon.auto")
     torch.set_num_threads(1)
     stored = {(c["scene"], c["n"], c["sr"], c["order"], c["level"]): c
               for c in json.loads(Path(a.peers).read_text())["cells"]}
     rows = []
-    for order in a.orders:
-        for sr in a.sr:
-            for scene in a.scenes:
-                key = (scene, a.n, sr, order, a.noise)
-                if key not in stored:
-                    continue
-                x, A, y, _ = ps.make_problem(scene, a.n, sr, order, a.noise)
-                t0 = time.perf_counter()
-                r = auto(y, A, learned=False, return_result=True)
-                t_off = time.perf_counter() - t0
-                t0 = time.perf_counter()  # the stacking stage alone, as auto(y, A) runs it
-                opts = dict(folds=None, cv_iter=100, max_iter=1025, split=None, slack=0.0,
-                            seed=0, priors=am.AUTO_PRIORS)
-                stacked = am._with_learned(r, y, A, None, opts)
-                t_stack = time.perf_counter() - t0
-                ch = r.choice[0][0]
-                with torch.no_grad():
-                    x_l = learned(y, A)
-                    if ch["prior"] == "box":
-                        ws = dict.fromkeys(RULES, 0.0)
-                    else:
-                        pa, pl, held = fold_predictions(y, A, ch, am)
-                        ws = rule_weights(pa, pl, y, held, am)
-                res = stored[key]["results"]
-                peer = max(v["psnr"] for v in res.values()
-                           if v.get("peer") != "torchtof" and v["psnr"] is not None)
-                blend = {w: ps.score(r.x + w * (x_l - r.x), x) for w in (0.0, *FIXED)}
-                grid = [ps.score(r.x + (i / 20) * (x_l - r.x), x) for i in range(21)]
-                row = dict(scene=scene, n=a.n, sr=sr, order=order, peer=peer, auto=blend[0.0],
-                           weights=ws, fixed={str(w): blend[w] for w in FIXED},
-                           oracle=max(grid),
-                           rules={k: ps.score(r.x + w * (x_l - r.x), x) for k, w in ws.items()},
-                           stacked=ps.score(stacked.x, x), cost=(t_off + t_stack) / t_off)
-                rows.append(row)
-                print(f"{order} SR={sr} {scene}: auto {row['auto']:.2f}, "
-                      + ", ".join(f"{k} {row['rules'][k] - row['auto']:+.2f} (w {w:.2f})"
-                                  for k, w in ws.items()), flush=True)
+    for scene, n, sr, order in problems:
+        key = (scene, n, sr, order, a.noise)
+        if key not in stored and not a.auto_eval:
+            continue
+        x, A, y = make(scene, n, sr, order)
+        t0 = time.perf_counter()
+        r = auto(y, A, learned=False, return_result=True)
+        t_off = time.perf_counter() - t0
+        t0 = time.perf_counter()  # the stacking stage alone, as auto(y, A) runs it
+        opts = dict(folds=None, cv_iter=100, max_iter=1025, split=None, slack=0.0,
+                    seed=0, priors=am.AUTO_PRIORS)
+        stacked = am._with_learned(r, y, A, None, opts)
+        t_stack = time.perf_counter() - t0
+        ch = r.choice[0][0]
+        with torch.no_grad():
+            x_l = learned(y, A)
+            if ch["prior"] == "box":
+                ws = dict.fromkeys(RULES, 0.0)
+            else:
+                pa, pl, held = fold_predictions(y, A, ch, am)
+                ws = rule_weights(pa, pl, y, held, am)
+        if a.auto_eval:
+            peer = float("nan")
+        else:
+            res = stored[key]["results"]
+            peer = max(v["psnr"] for v in res.values()
+                       if v.get("peer") != "torchtof" and v["psnr"] is not None)
+        blend = {w: ps.score(r.x + w * (x_l - r.x), x) for w in (0.0, *FIXED)}
+        grid = [ps.score(r.x + (i / 20) * (x_l - r.x), x) for i in range(21)]
+        row = dict(scene=scene, n=n, sr=sr, order=order, peer=peer, auto=blend[0.0],
+                   weights=ws, fixed={str(w): blend[w] for w in FIXED},
+                   oracle=max(grid),
+                   rules={k: ps.score(r.x + w * (x_l - r.x), x) for k, w in ws.items()},
+                   stacked=ps.score(stacked.x, x), cost=(t_off + t_stack) / t_off)
+        rows.append(row)
+        print(f"{order} SR={sr} {scene}: auto {row['auto']:.2f}, "
+              + ", ".join(f"{k} {row['rules'][k] - row['auto']:+.2f} (w {w:.2f})"
+                          for k, w in ws.items()), flush=True)
     print(f"{len(rows)} cells: gap to the best tuned peer (mean, cells >= 0, worst) and change "
           "against auto without the network (mean, worst)")
 
     def line(name, f):
         g = [f(r) - r["peer"] for r in rows]
         d = [f(r) - r["auto"] for r in rows]
-        print(f"| {name} | {statistics.mean(g):+.2f} | {sum(v >= 0 for v in g)} | {min(g):+.2f} "
-              f"| {statistics.mean(d):+.2f} | {min(d):+.2f} |")
+        gap = ("– | – | –" if a.auto_eval else
+               f"{statistics.mean(g):+.2f} | {sum(v >= 0 for v in g)} | {min(g):+.2f}")
+        print(f"| {name} | {gap} | {statistics.mean(d):+.2f} | {min(d):+.2f} |")
 
     print("| rule | mean gap dB | cells ≥ 0 | worst gap | mean change | worst change |")
     print("|---|---|---|---|---|---|")
@@ -147,6 +179,8 @@ def main(argv: list[str] | None = None) -> dict:
     cost = sorted(r["cost"] for r in rows)
     print(f"cost of auto(y, A) against auto(y, A, learned=False), same buckets: median "
           f"{statistics.median(cost):.2f}× ({cost[0]:.2f}–{cost[-1]:.2f}×)")
+    if a.out:
+        Path(a.out).write_text(json.dumps(rows, indent=0))
     return dict(rows=rows)
 
 
