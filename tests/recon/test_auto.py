@@ -582,3 +582,17 @@ def test_stacking_gains_where_the_network_is_better():
     p_off = float(psnr(off.clamp(0, 1), x, bits=None)[0])
     assert on.choice[0][0]["learned_weight"] > 0.5
     assert p_on > p_off + 1.0
+
+
+def test_missing_weights_warn_and_return_the_choice(monkeypatch, tmp_path):
+    import importlib
+
+    lm = importlib.import_module("torchtof.recon.learned")  # the module, not the function
+    A = Hadamard(32, sr=0.25)
+    y = _noisy(A, _grey(32), 0.01)
+    monkeypatch.setattr(lm, "WEIGHTS_FILE", tmp_path / "absent.pt")
+    with pytest.warns(UserWarning, match="auto: the learned network's weights"):
+        r = auto(y, A, cv_iter=10, max_iter=50, return_result=True)
+    assert r.choice[0][0]["learned_weight"] is None
+    off = auto(y, A, cv_iter=10, max_iter=50, learned=False)
+    torch.testing.assert_close(r.x, off)

@@ -133,6 +133,7 @@ one default TVAL3 solve is in ``docs/auto.md``.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import torch
@@ -141,6 +142,7 @@ from torch import nn
 from .._checks import check_positive
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
+from . import learned as _learned_mod
 from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
 from .tv import box_bounds, largest_eig_normal, project_box
@@ -470,7 +472,13 @@ def auto(
     if bounds is None and infer_box and y.shape[0] * y.shape[1] > 0:
         res = _with_inferred_box(res, y, A, opts)
     if learned and stackable(A, split) and y.shape[0] * y.shape[1] > 0:
-        res = _with_learned(res, y, A, bounds, opts)
+        if _learned_mod.WEIGHTS_FILE.is_file():
+            res = _with_learned(res, y, A, bounds, opts)
+        else:
+            warnings.warn(f"{fn}: the learned network's weights "
+                          f"({_learned_mod.WEIGHTS_FILE}) are missing: returning the TV/TGV "
+                          "choice without stacking (learned=False does so silently)",
+                          stacklevel=2)
     return res if return_result else res.x
 
 
