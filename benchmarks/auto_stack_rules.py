@@ -10,11 +10,11 @@ reconstructions is set by several rules from the held-out predictions (no ground
 - ``pooled``: the least-squares weight over all folds' held-out rows together;
 - ``relative``: the same with each fold's rows divided by the TV/TGV choice's error there;
 - ``latest``: the least-squares weight of the fold trained on the most rows (7/8);
-- ``min``: the smallest of the folds' least-squares weights (``auto``'s rule,
-  :func:`torchtof.recon.auto.stack_weight`);
+- ``min``: the smallest of the folds' least-squares weights;
 - ``median``: the median of the folds' weights; ``mean``: their mean;
 - ``latest∧pooled``, ``latest∧relative``: the smaller of the latest fold's weight and the
-  pooled (relative) one.
+  pooled (relative) one; ``latest∧relative`` is ``auto``'s rule
+  (:func:`torchtof.recon.auto.stack_weight`).
 
 ``--auto-eval``: the cells of ``benchmarks/auto_eval.py`` instead (6 scenes incl. the smooth
 ``moon``, cake-cutting rows, noise of ``--noise`` × the bucket spread; no peers there, so only
@@ -84,10 +84,12 @@ def rule_weights(pa, pl, y, held, am) -> dict:
         return float(((num * wf).sum() / (den * wf).sum().clamp_min(1e-300)).clamp(0, 1))
 
     w = {"pooled": pooled(torch.ones_like(num)), "relative": pooled(rel),
-         "latest": float(per_fold[0]), "min": float(am.stack_weight(pa, pl, y, held)[0]),
+         "latest": float(per_fold[0]), "min": float(per_fold.min()),
          "median": float(per_fold.median()), "mean": float(per_fold.mean())}
     w["latest∧pooled"] = min(w["latest"], w["pooled"])
     w["latest∧relative"] = min(w["latest"], w["relative"])
+    own = float(am.stack_weight(pa, pl, y, held)[0])  # auto's rule, computed by auto
+    assert abs(own - w["latest∧relative"]) <= 1e-9 + 1e-6 * own, (own, w)
     return w
 
 
@@ -175,7 +177,7 @@ def main(argv: list[str] | None = None) -> dict:
     for w in FIXED:
         line(f"fixed w = {w:g}", lambda r, w=w: r["fixed"][str(w)])
     line("oracle w (ground truth)", lambda r: r["oracle"])
-    line("auto(y, A) (stacked, 'min')", lambda r: r["stacked"])
+    line("auto(y, A) (stacked: latest∧relative)", lambda r: r["stacked"])
     cost = sorted(r["cost"] for r in rows)
     print(f"cost of auto(y, A) against auto(y, A, learned=False), same buckets: median "
           f"{statistics.median(cost):.2f}× ({cost[0]:.2f}–{cost[-1]:.2f}×)")

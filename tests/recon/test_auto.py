@@ -474,28 +474,33 @@ def test_inferred_box_of_a_negative_two_level_image():
 # -- stacking with the learned network -------------------------------------------------------
 
 
-def test_stack_weight_is_the_smallest_fold_least_squares_weight():
+def test_stack_weight_from_the_held_out_losses():
+    """Reference: the held-out losses minimised on a fine grid of w in [0, 1] — fold 0's
+    alone, and every fold's with the first estimator's error there as the unit — then the
+    smaller of the two minimisers."""
     g = torch.Generator().manual_seed(3)
-    R, F, M = 3, 2, 40
+    R, F, M = 3, 3, 60
     pa = torch.randn(R, F, M, generator=g, dtype=torch.float64)
     pl = torch.randn(R, F, M, generator=g, dtype=torch.float64)
     y = 0.6 * pl[:, :1] + 0.4 * pa[:, :1] + 0.3 * torch.randn(R, 1, M, generator=g,
                                                                   dtype=torch.float64)
     held = torch.zeros(F, M, dtype=torch.bool)
-    held[0, 30:35], held[1, 35:40] = True, True
+    for f in range(F):
+        held[f, 40 + 5 * f:45 + 5 * f] = True
     w = stack_weight(pa, pl, y, held)
-    # reference: each fold's held-out loss on a fine grid of w in [0, 1], then the smallest
     grid = torch.linspace(0, 1, 10001, dtype=torch.float64)
     for i in range(R):
-        best = []
-        for f in range(F):
-            loss = [float((((1 - t) * pa[i, f] + t * pl[i, f] - y[i, 0]) * held[f]).square().sum())
-                    for t in grid]
-            best.append(float(grid[min(range(len(loss)), key=loss.__getitem__)]))
-        assert abs(float(w[i]) - min(best)) <= 1e-4
+        def loss(t, f, i=i):
+            blend = (1 - t) * pa[i, f] + t * pl[i, f]
+            return float(((blend - y[i, 0]) * held[f]).square().sum())
+
+        e = [loss(0.0, f) for f in range(F)]
+        best0 = min(grid.tolist(), key=lambda t: loss(t, 0))
+        best_rel = min(grid.tolist(), key=lambda t: sum(loss(t, f) / e[f] for f in range(F)))
+        assert abs(float(w[i]) - min(best0, best_rel)) <= 1e-4
     # rows outside the held-out sets do not count
     y2 = y.clone()
-    y2[..., :30] += 100.0
+    y2[..., :40] += 100.0
     torch.testing.assert_close(stack_weight(pa, pl, y2, held), w)
     # the unconstrained minimiser outside [0, 1] is clipped; equal predictions give 0
     a1, l1 = pa[:, :1], pl[:, :1]  # one fold
@@ -504,12 +509,15 @@ def test_stack_weight_is_the_smallest_fold_least_squares_weight():
     torch.testing.assert_close(stack_weight(a1, l1, 0.3 * l1 + 0.7 * a1, held[:1]),
                                torch.full((R,), 0.3, dtype=torch.float64))
     assert stack_weight(pa, pa, y, held).tolist() == [0.0] * R
-    # one fold that wants no network keeps the weight at 0
-    y5 = 0.5 * (a1 + l1)  # fold 0 wants w = 0.5; fold 1 predicts y exactly with w = 0
-    w2 = stack_weight(torch.cat([a1, y5], 1), torch.cat([l1, l1], 1), y5, held)
-    assert w2.tolist() == [0.0] * R
-    torch.testing.assert_close(stack_weight(a1, l1, y5, held[:1]),
-                               torch.full((R,), 0.5, dtype=torch.float64))
+    # the first estimator predicting a fold exactly keeps the weight at 0 (no nan)
+    y5 = 0.5 * (a1 + l1)  # fold 0 alone wants w = 0.5; fold 1 is predicted exactly by w = 0
+    w2 = stack_weight(torch.cat([a1, y5], 1), torch.cat([l1, l1], 1), y5, held[:2])
+    assert w2.tolist() == pytest.approx([0.0] * R, abs=1e-12) and bool(w2.isfinite().all())
+    # fold 0 wanting less than the others caps the weight
+    pa3, pl3 = torch.cat([a1, a1], 1), torch.cat([l1, l1], 1)
+    yf = torch.where(held[0], 0.2 * l1[:, 0] + 0.8 * a1[:, 0], 0.9 * l1[:, 0] + 0.1 * a1[:, 0])
+    torch.testing.assert_close(stack_weight(pa3, pl3, yf[:, None], held[:2]),
+                               torch.full((R,), 0.2, dtype=torch.float64))
 
 
 def _grey(n, seed=0):

@@ -105,17 +105,18 @@ cross-validation scoring it as one more candidate rarely saw where (its fold sco
 So it is not chosen *instead* of the TV/TGV choice but combined *with* it (stacked
 generalisation, Wolpert 1992, Neural Networks 5; Breiman 1996, Machine Learning 24): the
 chosen candidate and the network are both fitted on each tail fold (the network on the
-first ``k`` rows of the same order, a plain ``Hadamard(n, m=k)``), each fold's
-least-squares weight of the convex combination of their held-out predictions is computed
-in closed form and clipped to ``[0, 1]``, and the network gets the smallest of these
-weights (:func:`stack_weight`: the weight that every fold supports; a pooled weight
-follows the fold with the fewest rows and was measured to cost 6 dB on the paper's
-character at n = 64, SR 37.5 %, where the TV choice with the inferred box is almost exact
-from all rows). The result is ``(1 − w) x̂ + w x̂_learned`` of the two full-row
-reconstructions (projected onto the caller's ``bounds`` if given: the image obeys them);
-``choice["learned_weight"]`` is ``w`` (``0``: the TV/TGV choice alone; ``None``: not
-stacked). The box-only solution is never stacked. Measured on the peers benchmark in
-``docs/auto.md``.
+first ``k`` rows of the same order, a plain ``Hadamard(n, m=k)``), and the network's
+weight in the convex combination of the two is the least-squares weight of their held-out
+predictions, in closed form and clipped to ``[0, 1]``: the smaller of that of the fold
+trained on the most rows and that of all folds with each fold's rows divided by the
+choice's error there (:func:`stack_weight`; a plainly pooled weight follows the fold with
+the fewest rows and was measured to cost 6 dB on the paper's character at n = 64, SR
+37.5 %, where the TV choice with the inferred box is almost exact from all rows). The
+result is ``(1 − w) x̂ + w x̂_learned`` of the two full-row reconstructions (projected onto
+the caller's ``bounds`` if given: the image obeys them); ``choice["learned_weight"]`` is
+``w`` (``0``: the TV/TGV choice alone; ``None``: not stacked). The box-only solution is
+never stacked. The rule was chosen among seven on the peers benchmark's cells and checked on
+the cells of ``benchmarks/auto_eval.py``, which it was not chosen on (``docs/auto.md``).
 
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
@@ -690,28 +691,35 @@ def stackable(A: LinearOperator, split: str | None = None) -> bool:
 
 def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
                  held: torch.Tensor) -> torch.Tensor:
-    """Stacking weight of a second estimator that every fold supports, in ``[0, 1]``.
+    """Stacking weight of a second estimator from held-out predictions, in ``[0, 1]``.
 
-    Per fold ``k``, the least-squares weight of the convex combination of the two
-    estimators' held-out predictions (Breiman 1996, Machine Learning 24, "Stacked
-    regressions", with the weights constrained to a convex combination),
+    The weight ``w`` of the convex combination ``(1 − w) p^a + w p^l`` of two estimators'
+    predictions (Breiman 1996, Machine Learning 24, "Stacked regressions", with the weights
+    constrained to a convex combination) that minimises a weighted held-out squared error is
+    a convex quadratic's minimiser, clipped to ``[0, 1]``. With ``d_k = p^l_k − p^a_k`` and
+    ``r_k = y − p^a_k`` on the held-out rows ``P_k`` of fold ``k``:
 
     .. math::
-        w_k = \\operatorname{clip}_{[0, 1]}\\frac{⟨P_k d_k,\\ P_k r_k⟩}{\\|P_k d_k\\|^2},
-        \\qquad d_k = p^{l}_k − p^{a}_k, \\quad r_k = y − p^{a}_k,
+        w(ρ) = \\operatorname{clip}_{[0, 1]}
+            \\frac{\\sum_k ρ_k ⟨P_k d_k,\\ P_k r_k⟩}{\\sum_k ρ_k \\|P_k d_k\\|^2}, \\qquad
+        w = \\min\\big(w(e_0),\\ w(ρ^{\\mathrm{rel}})\\big),
 
-    the minimiser over ``[0, 1]`` of ``‖P_k (y − (1 − w) p^a_k − w p^l_k)‖²`` (a convex
-    quadratic in ``w``: the unconstrained minimiser, clipped; ``0`` where the two agree on the
-    held-out rows), and then the smallest over the folds, ``w = min_k w_k``. The minimum, not
-    a pooled least-squares weight: pooled, the fold trained on the fewest rows dominates
-    (its held-out rows carry the most energy), and where the first estimator recovers the
-    image almost exactly from all rows but not yet from the fewest (anisotropic TV with a box
-    on a binary character), that fold asks for a weight that costs several dB on all rows
-    (measured in ``docs/auto.md``).
+    the smaller of the weight of fold 0 alone (the fold trained on the most rows, the most
+    like the full problem: :func:`~torchtof.recon.tval3.holdout_split` puts it first) and the
+    weight over every fold with each fold's rows divided by the first estimator's error
+    there, ``ρ^rel_k ∝ 1 / ‖P_k r_k‖²`` (every fold counts alike, as in :func:`auto`'s
+    score). ``0`` where the predictions agree on the held-out rows.
+
+    Why these two (measured in ``docs/auto.md``, "Stacking with the learned network"): the
+    plain pooled weight (``ρ = 1``) follows the fold trained on the fewest rows, whose
+    held-out rows carry the most energy, and where the first estimator recovers the image
+    almost exactly from all rows but not yet from the fewest (anisotropic TV with a box on a
+    binary character) it cost 6 dB; fold 0 alone sees that regime, and the relative pooled
+    weight keeps a single noisy fold from asking for too much.
 
     Args:
         pred_a, pred_l: predictions ``A x̂`` of the two estimators fitted on each fold,
-            ``(R, F, M)``.
+            ``(R, F, M)``, fold 0 the one trained on the most rows.
         y: buckets ``(R, 1, M)``.
         held: ``(F, M)`` bool, the held-out rows ``P_k`` of each fold.
 
@@ -722,8 +730,16 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
     d = (pred_l - pred_a) * h
     r = (y - pred_a) * h
     num, den = (d * r).sum(dim=-1), (d * d).sum(dim=-1)  # (R, F)
-    w = num / den.clamp_min(torch.finfo(y.dtype).tiny)
-    return torch.where(den > 0, w, torch.zeros_like(w)).clamp(0.0, 1.0).amin(dim=-1)
+    tiny = torch.finfo(y.dtype).tiny
+
+    def clipped(nu, de):
+        w = nu / de.clamp_min(tiny)
+        return torch.where(de > 0, w, torch.zeros_like(w)).clamp(0.0, 1.0)
+
+    err = r.square().sum(dim=-1).clamp_min(tiny)  # (R, F): the first estimator's errors
+    rho = err.amin(dim=-1, keepdim=True) / err  # relative weights in (0, 1]
+    w_rel = clipped((rho * num).sum(-1), (rho * den).sum(-1))
+    return torch.minimum(clipped(num[:, 0], den[:, 0]), w_rel)
 
 
 def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
