@@ -29,6 +29,10 @@ weights ``w ∈ {0.25, 0.5, 1}`` and the per-cell oracle weight for reference.
         sequency
     OMP_NUM_THREADS=1 python benchmarks/auto_stack_rules.py --n 32 --noise 0.05 --sr 0.125 0.375
     OMP_NUM_THREADS=1 python benchmarks/auto_stack_rules.py --n 64 --sr 0.125 0.25 0.375
+    python benchmarks/auto_stack_rules.py --table "n = 32::p32.json" "n = 64::p64.json"
+
+(``--out FILE`` keeps the per-cell rows; ``--table LABEL::FILE ...`` prints one table of the
+rules over several such files, as in ``docs/auto.md``.)
 """
 
 from __future__ import annotations
@@ -93,6 +97,41 @@ def rule_weights(pa, pl, y, held, am) -> dict:
     return w
 
 
+def table(groups: list[str]) -> str:
+    """Markdown: per rule, the mean (worst) change against ``auto`` without the network in each
+    ``LABEL::FILE`` group of ``--out`` rows, over all of them, and the gap to the best tuned
+    peer where the rows have one."""
+    data = []
+    for g in groups:
+        label, path = g.split("::")
+        data.append((label, json.loads(Path(path).read_text())))
+    everything = [r for _, rows in data for r in rows]
+
+    def val(r, k):
+        return {"no network (w = 0)": r["auto"], "oracle w (ground truth)": r["oracle"]}.get(
+            k, r["fixed"].get(k[len("fixed w = "):], r["rules"].get(k)))
+
+    keys = (["no network (w = 0)", *everything[0]["rules"]]
+            + [f"fixed w = {w}" for w in everything[0]["fixed"]] + ["oracle w (ground truth)"])
+    out = ["| rule | " + " | ".join(f"{lab} ({len(rows)})" for lab, rows in data)
+           + " | all: mean change | worst change | gap to the best tuned peer | cells ≥ 0 |",
+           "|---" * (len(data) + 5) + "|"]
+    peers = [r for r in everything if r["peer"] == r["peer"]]  # not nan
+    for k in keys:
+        cells = []
+        for _, rows in data:
+            d = [val(r, k) - r["auto"] for r in rows]
+            cells.append(f"{statistics.mean(d):+.2f} ({min(d):+.2f})")
+        d = [val(r, k) - r["auto"] for r in everything]
+        gap = (f"{statistics.mean(val(r, k) - r['peer'] for r in peers):+.2f} | "
+               f"{sum(val(r, k) >= r['peer'] for r in peers)} of {len(peers)}" if peers
+               else "– | –")
+        name = f"**{k}** (`auto`)" if k == "latest∧relative" else k
+        out.append(f"| {name} | " + " | ".join(cells)
+                   + f" | {statistics.mean(d):+.2f} | {min(d):+.2f} | {gap} |")
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = ps.cell_parser(__doc__.splitlines()[0])
     p.add_argument("--peers", default=str(ROOT / "docs" / "peers.json"))
@@ -100,7 +139,12 @@ def main(argv: list[str] | None = None) -> dict:
                    help="the cells of benchmarks/auto_eval.py (--n, --sr; its six scenes, "
                         "cake-cutting rows, --noise × the bucket spread) instead of the peers'")
     p.add_argument("--out", default=None, help="JSON file of the per-cell rows")
+    p.add_argument("--table", nargs="+", default=None, metavar="LABEL::FILE",
+                   help="print the rules table of these --out files and exit")
     a = p.parse_args(argv)
+    if a.table:
+        print(table(a.table))
+        return {}
     if a.auto_eval:
         import auto_eval as ae
 
