@@ -10,7 +10,7 @@ python benchmarks/eval_learned.py --sizes 32 64 128 --srs 0.0625 0.125 $S --out 
 python benchmarks/eval_learned.py --sizes 32 64 --srs 0.25 0.375 $S --out $P/main_b.json
 python benchmarks/eval_learned.py --sizes 128 --srs 0.25 0.375 $S --out $P/main_c.json
 python benchmarks/eval_learned.py --sizes 256 --srs 0.0625 0.125 --levels 0 0.01 --methods learned tval3 --out $P/main_d.json
-python benchmarks/eval_learned.py --sizes 32 64 --srs 0.0625 0.125 --levels 0.01 --methods auto --out $P/auto_a.json
+python benchmarks/eval_learned.py --sizes 32 64 --srs 0.0625 0.125 --levels 0.01 --methods tval3 auto --out $P/auto_a.json
 python benchmarks/eval_learned.py --speed --out $P/speed.json
 python benchmarks/eval_learned.py --onnx --out $P/onnx.json
 python benchmarks/eval_learned.py --paper --out $P/paper.json
