@@ -32,7 +32,7 @@ demo: $(STAMP)
 # threads oversubscribe the cores (measured: 10 s alone, 22 s beside a one-thread job with two
 # threads, 10 s with one)
 test: $(STAMP)
-	$(PYTEST) -n 2 -m "not slow" tests
+	$(PYTEST) -n 2 --dist worksteal -m "not slow" tests
 	OMP_NUM_THREADS=1 $(PYTEST) --doctest-modules torchtof
 
 doctest: $(STAMP)

@@ -488,15 +488,13 @@ def test_stack_weight_from_the_held_out_losses():
     for f in range(F):
         held[f, 40 + 5 * f:45 + 5 * f] = True
     w = stack_weight(pa, pl, y, held)
-    grid = torch.linspace(0, 1, 10001, dtype=torch.float64)
+    grid = torch.linspace(0, 1, 10001, dtype=torch.float64)[:, None, None]  # (G, 1, 1)
     for i in range(R):
-        def loss(t, f, i=i):
-            blend = (1 - t) * pa[i, f] + t * pl[i, f]
-            return float(((blend - y[i, 0]) * held[f]).square().sum())
-
-        e = [loss(0.0, f) for f in range(F)]
-        best0 = min(grid.tolist(), key=lambda t: loss(t, 0))
-        best_rel = min(grid.tolist(), key=lambda t: sum(loss(t, f) / e[f] for f in range(F)))
+        blend = (1 - grid) * pa[i] + grid * pl[i]  # (G, F, M)
+        loss = ((blend - y[i, 0]) * held).square().sum(-1)  # (G, F): each fold's held-out loss
+        e = loss[0]  # w = 0: the first estimator's errors
+        best0 = float(grid[loss[:, 0].argmin()])
+        best_rel = float(grid[(loss / e).sum(-1).argmin()])
         assert abs(float(w[i]) - min(best0, best_rel)) <= 1e-4
     # rows outside the held-out sets do not count
     y2 = y.clone()
