@@ -48,7 +48,6 @@ import torch
 
 from torchtof.operators import Hadamard
 from torchtof.recon import auto, learned
-from torchtof.recon.tval3 import MaskedRows, holdout_split
 
 ROOT = Path(__file__).resolve().parents[1]
 RULES = ("pooled", "relative", "latest", "min", "median", "mean", "latest∧pooled",
@@ -58,22 +57,11 @@ FIXED = (0.25, 0.5, 1.0)
 
 def fold_predictions(y, A, choice, am):
     """``(pa, pl, held)``: the chosen candidate's and the network's predictions ``A x̂`` fitted
-    on each of ``auto``'s default tail folds ``(1, F, M)``, and the held-out rows ``(F, M)``."""
-    held, train = holdout_split(A, am.TAIL_FOLDS, y, 0, "tail")
-    held, train = held[:am.TAIL_USE], train[:am.TAIL_USE]
-    nf = held.shape[0]
-    g, mu = am._key(choice)[:4], choice["mu"]
-    yt = y * train.to(y.dtype)
-    if mu is None:
-        xa = am._fit(g, yt, MaskedRows(A, train), am._CONSTRAINED_MU, False, 100)[0]
-    else:
-        xa = am._fit(g, yt, MaskedRows(A, train), y.new_full((1, nf), mu), True, 100)[0]
-    xl = []
-    for f in range(nf):
-        k = int(train[f].sum())
-        assert bool(train[f, :k].all()), "a tail fold trains on a prefix"
-        xl.append(learned(y[..., :k], Hadamard(A.n, m=k, order=A.order)))
-    return A(xa), A(torch.cat(xl, dim=1)), held
+    on each of ``auto``'s default tail folds ``(1, F, M)`` (``auto``'s own
+    :func:`~torchtof.recon.auto.stack_predictions`), and the held-out rows ``(F, M)``."""
+    held, train = am.cv_folds(A, y, None, 0, "tail")
+    pa, pl = am.stack_predictions(y, A, [choice], train, 100)
+    return pa, pl, held
 
 
 def rule_weights(pa, pl, y, held, am) -> dict:

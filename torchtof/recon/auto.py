@@ -159,7 +159,8 @@ from .tval3 import (
 
 __all__ = [
     "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_PRIORS", "AUTO_TVS", "AUTO_BOUNDARIES",
-    "candidates", "stackable", "stack_weight", "LEARNED_MIN_N",
+    "candidates", "cv_folds", "stackable", "stack_predictions", "stack_weight",
+    "LEARNED_MIN_N",
 ]
 
 #: First-stage TV-L2 weights (on the buckets scaled as TVAL3's ``Scaleb``), a factor 4 apart;
@@ -490,8 +491,6 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
     reused where this call's candidates and choice coincide with it, and the box-only test is
     not run (the inferred box, module doc)."""
     split = default_split(A) if split is None else split
-    use = TAIL_USE if folds is None and split == "tail" else None
-    folds = (TAIL_FOLDS if split == "tail" else RANDOM_FOLDS) if folds is None else folds
     b, c, m = y.shape
     cands = candidates(bounds, priors)
     if b * c == 0:
@@ -505,9 +504,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
     bc = b * c
     ys = y.reshape(bc, 1, m)
     index = {_key(k): i for i, k in enumerate(cands)}
-    held, train = holdout_split(A, folds, y, seed, split)  # (F, M), latest fold first
-    if use is not None:
-        held, train = held[:use], train[:use]
+    held, train = cv_folds(A, y, folds, seed, split)  # (F, M), latest fold first
     nf = held.shape[0]
     hm, tm = held.to(y.dtype), train.to(y.dtype)
     cv_err = y.new_full((bc, nf, len(cands)), float("nan"))  # per fold
@@ -628,6 +625,18 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
     return res
 
 
+def cv_folds(A: LinearOperator, like: torch.Tensor, folds: int | None, seed: int,
+             split: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(held, train)`` ``(F, M)`` bool: :func:`auto`'s folds for ``folds`` (``None``: the
+    defaults, :data:`TAIL_FOLDS` of which the latest :data:`TAIL_USE` for the tail split,
+    :data:`RANDOM_FOLDS` for a random one), the latest fold first."""
+    k = (TAIL_FOLDS if split == "tail" else RANDOM_FOLDS) if folds is None else folds
+    held, train = holdout_split(A, k, like, seed, split)
+    if folds is None and split == "tail":
+        held, train = held[:TAIL_USE], train[:TAIL_USE]
+    return held, train
+
+
 def _two_level(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per sample of ``x (R, 1, n, n)``: two levels ``lo, hi`` (the medians of the pixels below
     and above the midpoint of the range) and the fraction of pixels within
@@ -742,6 +751,30 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
     return torch.minimum(clipped(num[:, 0], den[:, 0]), w_rel)
 
 
+def stack_predictions(ys: torch.Tensor, A: Hadamard, choices: list, train: torch.Tensor,
+                      cv_iter: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Held-out predictions of the stacking (module doc, "Stacking"): for ``ys (R, 1, M)`` and
+    its chosen candidates ``choices`` (``R`` dicts of :func:`candidates`), the predictions
+    ``A x̂`` ``(R, F, M)`` of each choice fitted on each fold's training rows ``train (F, M)``
+    (one batched solve per distinct choice, ``cv_iter`` iterations; zeros for the box-only
+    solution, which is not stacked) and of the learned network fitted on each fold's first
+    ``k`` rows (a tail split's training rows are a prefix: a plain ``Hadamard(n, m=k)``)."""
+    nf, n = train.shape[0], A.n
+    xa = ys.new_zeros(ys.shape[0], nf, n, n)
+    by_key: dict = {}
+    for i, ch in enumerate(choices):
+        if ch["prior"] != "box":
+            by_key.setdefault(_key(ch), []).append(i)
+    tm, masked = train.to(ys.dtype), MaskedRows(A, train)
+    for key, rows in by_key.items():
+        idx = torch.tensor(rows, device=ys.device)
+        mu = (_CONSTRAINED_MU if key[4] is None else ys.new_full((len(rows), nf), key[4]))
+        xa[idx] = _fit(key[:4], ys[idx] * tm, masked, mu, key[4] is not None, cv_iter)[0]
+    xl = [learned_recon(ys[..., :k], Hadamard(n, m=k, order=A.order).to(ys.device))
+          for k in train.sum(-1).tolist()]
+    return A(xa), A(torch.cat(xl, dim=1))
+
+
 def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
                   ) -> AutoResult:
     """Stage 4 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
@@ -751,37 +784,11 @@ def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: d
     ``bounds``, if any)."""
     b, c, m = y.shape
     bc, n = b * c, A.n
-    folds = opts["folds"]
-    held, train = holdout_split(A, TAIL_FOLDS if folds is None else folds, y, opts["seed"],
-                                "tail")
-    if folds is None:
-        held, train = held[:TAIL_USE], train[:TAIL_USE]
-    nf = held.shape[0]
+    held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
     ys = y.reshape(bc, 1, m)
     choice = [ch for row in res.choice for ch in row]
-    # the chosen candidate on every fold: one batched solve per distinct choice
-    xa = y.new_zeros(bc, nf, n, n)
-    by_key: dict = {}
-    for i, ch in enumerate(choice):
-        if ch["prior"] != "box":  # the box-only solution is not stacked (weight 0)
-            by_key.setdefault(_key(ch), []).append(i)
-    tm = train.to(y.dtype)
-    for key, rows in by_key.items():
-        idx = torch.tensor(rows, device=y.device)
-        g, mu = key[:4], key[4]
-        if mu is None:
-            xa[idx] = _fit(g, ys[idx] * tm, MaskedRows(A, train), _CONSTRAINED_MU, False,
-                           opts["cv_iter"])[0]
-        else:
-            xa[idx] = _fit(g, ys[idx] * tm, MaskedRows(A, train),
-                           ys.new_full((len(rows), nf), mu), True, opts["cv_iter"])[0]
-    # the network on every fold: the first k rows of the same order
-    xl = []
-    for f in range(nf):
-        k = int(train[f].sum())
-        xl.append(learned_recon(ys[..., :k], Hadamard(n, m=k, order=A.order).to(y.device)))
-    xl = torch.cat(xl, dim=1)  # (BC, F, n, n)
-    w = stack_weight(A(xa), A(xl), ys, held)
+    pa, pl = stack_predictions(ys, A, choice, train, opts["cv_iter"])
+    w = stack_weight(pa, pl, ys, held)
     w = torch.where(torch.tensor([ch["prior"] != "box" for ch in choice], device=y.device), w,
                     torch.zeros_like(w))
     x_full = learned_recon(ys, A).reshape(b, c, n, n)
