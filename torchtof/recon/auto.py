@@ -160,7 +160,8 @@ from .tval3 import (
 __all__ = [
     "auto", "Auto", "AutoResult", "AUTO_WEIGHTS", "AUTO_PRIORS", "AUTO_TVS", "AUTO_BOUNDARIES",
     "candidates", "cv_folds", "stackable", "stack_predictions", "stack_weight",
-    "LEARNED_MIN_N",
+    "LEARNED_MIN_N", "GAUSS_ELLS", "GAUSS_GAMMAS", "GAUSS_MIN_N", "GAUSS_MAX_M", "gauss_applies",
+    "gauss_covariance", "gauss_cv", "gauss_fit", "choice_predictions",
 ]
 
 #: First-stage TV-L2 weights (on the buckets scaled as TVAL3's ``Scaleb``), a factor 4 apart;
@@ -196,6 +197,14 @@ TWO_LEVEL_TOL = 0.05
 #: Smallest ``n`` at which the learned network is stacked (the sizes it was trained and
 #: evaluated on: 32–256).
 LEARNED_MIN_N = 32
+#: The Gaussian prior (module doc): correlation lengths ``ℓ`` (pixels) and weights ``γ``
+#: relative to the mean eigenvalue of the prior covariance in the measurements, ``4^{-1…-12}``.
+GAUSS_ELLS = (1.0, 2.0, 4.0, 8.0, 16.0)
+GAUSS_GAMMAS = tuple(4.0**-j for j in range(1, 13))
+#: It is tried for Hadamard rows at ``n ≥ GAUSS_MIN_N`` and ``M ≤ GAUSS_MAX_M`` (its cost
+#: grows as ``M³``; it won only at low SR, ``docs/auto.md``).
+GAUSS_MIN_N = 32
+GAUSS_MAX_M = 1024
 _CONSTRAINED_MU = 2.0**8
 _INF = float("inf")
 
@@ -299,8 +308,8 @@ def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tupl
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS,
-           infer_box=True, learned=True):
-    for name, v in (("infer_box", infer_box), ("learned", learned)):
+           infer_box=True, learned=True, gauss=True):
+    for name, v in (("infer_box", infer_box), ("learned", learned), ("gauss", gauss)):
         if not isinstance(v, bool):
             raise TypeError(f"{fn}: expected {name} to be a bool, got {type(v).__name__}")
     if (not isinstance(priors, (tuple, list)) or not priors
@@ -403,6 +412,7 @@ def auto(
     seed: int = 0,
     priors: tuple[str, ...] = AUTO_PRIORS,
     infer_box: bool = True,
+    gauss: bool = True,
     learned: bool = True,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
@@ -446,6 +456,10 @@ def auto(
             ``("tgv",)`` for depth maps of planes.
         infer_box: without ``bounds``, choose again with the box of the image's two levels
             when the refit is two-level (module doc, "The inferred box").
+        gauss: let the Gaussian-prior posterior mean replace the TV/TGV choice where it scores
+            better on the same folds, where it applies (:func:`gauss_applies`: a Hadamard
+            operator, ``n ≥ 32``, ``M ≤ 1024``, the tail split; module doc, "The Gaussian
+            prior"); ``choice["prior"]`` is then ``"gauss"`` with its ``ell`` and ``gamma``.
         learned: stack the shipped learned network (:func:`~torchtof.recon.learned`) with the
             choice, weighted by cross-validation, where it applies (:func:`stackable`: a
             Hadamard operator, ``n ≥ 32``, the tail split; module doc, "Stacking");
@@ -467,15 +481,20 @@ def auto(
     """
     fn = "auto"
     check_buckets(y, A, fn)
-    _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned)
+    _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned,
+           gauss)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
                 seed=seed, priors=tuple(priors))
     res = _auto(y, A, bounds, **opts)
-    if bounds is None and infer_box and y.shape[0] * y.shape[1] > 0:
+    nonempty = y.shape[0] * y.shape[1] > 0
+    if bounds is None and infer_box and nonempty:
         res = _with_inferred_box(res, y, A, opts)
-    if learned and stackable(A, split) and y.shape[0] * y.shape[1] > 0:
+    pa = None
+    if gauss and gauss_applies(A, split) and nonempty:
+        res, pa = _with_gauss(res, y, A, bounds, opts)
+    if learned and stackable(A, split) and nonempty:
         if _learned_mod.WEIGHTS_FILE.is_file():
-            res = _with_learned(res, y, A, bounds, opts)
+            res = _with_learned(res, y, A, bounds, opts, pa)
         else:
             warnings.warn(f"{fn}: the learned network's weights "
                           f"({_learned_mod.WEIGHTS_FILE}) are missing: returning the TV/TGV "
@@ -690,6 +709,153 @@ def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
                         stop_reason=nest(reasons), choice=nest(choice))
 
 
+def gauss_applies(A: LinearOperator, split: str | None = None) -> bool:
+    """Whether :func:`auto` tries the Gaussian prior for ``A`` (module doc, "The Gaussian
+    prior"): a :class:`~torchtof.operators.Hadamard` operator with ``n ≥``
+    :data:`GAUSS_MIN_N` and ``M ≤`` :data:`GAUSS_MAX_M` rows, cross-validated on the tail
+    split."""
+    split = default_split(A) if split is None else split
+    return (isinstance(A, Hadamard) and split == "tail" and A.n >= GAUSS_MIN_N
+            and A.m <= GAUSS_MAX_M)
+
+
+def gauss_covariance(A: Hadamard, ell: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The separable exponential covariance of the Gaussian prior and its image in the
+    measurements, float64: ``(S, K)`` with ``S[i, j] = exp(−|i − j| / ℓ)`` ``(n, n)`` (the
+    pixel covariance is ``S ⊗ S``) and ``K = A (S ⊗ S) Aᵀ`` ``(M, M)``.
+
+    Row ``a·n + b`` of the Sylvester Hadamard operator is the pattern
+    ``H[a, i] H[b, j] / n`` (:func:`~torchtof.operators.hadamard_forward`: the coefficients of
+    ``H X H / n``), so with ``Ĥ = H / √n`` and ``T = Ĥ S Ĥᵀ`` the covariance of rows
+    ``r = a·n + b`` and ``r' = a'·n + b'`` separates, ``K[r, r'] = T[a, a'] T[b, b']``: ``O(M²)``
+    to build, no ``n² × n²`` matrix."""
+    n = A.n
+    dev = A.index.device
+    t = torch.arange(n, dtype=torch.float64, device=dev)
+    s = torch.exp(-(t[:, None] - t[None, :]).abs() / float(ell))
+    h = torch.ones(1, 1, dtype=torch.float64, device=dev)
+    while h.shape[0] < n:  # Sylvester's construction
+        h = torch.cat([torch.cat([h, h], 1), torch.cat([h, -h], 1)], 0)
+    h = h / math.sqrt(n)
+    tt = h @ s @ h.T
+    a, b = A.index // n, A.index % n
+    return s, tt[a][:, a] * tt[b][:, b]
+
+
+def _gauss_mean(ys: torch.Tensor, ones: torch.Tensor) -> torch.Tensor:
+    """``(R, 1)`` least-squares constant ``m̂`` of ``ys (R, k) ≈ m̂ · ones (k,)`` (0 where no
+    row sees a constant)."""
+    den = (ones * ones).sum()
+    return torch.where(den > 0, (ys @ ones)[:, None] / den.clamp_min(1e-300),
+                       torch.zeros_like(ys[:, :1]))
+
+
+def _gauss_fold_preds(ys: torch.Tensor, A: Hadamard, train: torch.Tensor, ell: float,
+                      gammas: tuple) -> torch.Tensor:
+    """Predictions ``A x̂`` ``(R, F, G, M)`` (float64) of the Gaussian prior with length ``ell``
+    and each relative weight in ``gammas``, fitted on each fold's training rows alone (its own
+    mean and ``γ`` scale) for buckets ``ys (R, M)``: ``A x̂ = m̂ A·1 + K[:, t] α`` in closed
+    form, one eigendecomposition of ``K[t, t]`` per fold serving every ``γ`` and sample."""
+    y64 = ys.to(torch.float64)
+    ones = A(torch.ones(1, 1, A.n, A.n, dtype=torch.float64, device=ys.device)).reshape(-1)
+    g = torch.tensor(gammas, dtype=torch.float64, device=ys.device)
+    k_full = gauss_covariance(A, ell)[1]
+    out = []
+    for f in range(train.shape[0]):
+        t = torch.nonzero(train[f]).reshape(-1)
+        lam, q = torch.linalg.eigh(k_full[t][:, t])
+        mh = _gauss_mean(y64[:, t], ones[t])
+        z = (y64[:, t] - mh * ones[t]) @ q  # (R, k)
+        alpha = (z[:, None, :] / (lam + g[:, None] * lam.mean())) @ q.T  # (R, G, k)
+        out.append(alpha @ k_full[:, t].T + mh[:, :, None] * ones)  # (R, G, M)
+    return torch.stack(out, dim=1)
+
+
+def gauss_cv(ys: torch.Tensor, A: Hadamard, held: torch.Tensor, train: torch.Tensor
+             ) -> torch.Tensor:
+    """Held-out errors of every Gaussian-prior candidate on every fold, ``(R, F, L·G)``
+    (``ℓ``-major over :data:`GAUSS_ELLS` × :data:`GAUSS_GAMMAS`), for buckets ``ys (R, M)``
+    and the folds ``held``, ``train`` ``(F, M)`` of :func:`cv_folds`."""
+    y64 = ys.to(torch.float64)[:, None, None, :]
+    hm = held.to(torch.float64)[None, :, None, :]
+    errs = [((_gauss_fold_preds(ys, A, train, ell, GAUSS_GAMMAS) - y64).square() * hm).sum(-1)
+            for ell in GAUSS_ELLS]
+    return torch.cat(errs, dim=-1).to(ys.dtype)
+
+
+def gauss_fit(ys: torch.Tensor, A: Hadamard, ell: float, gamma: float) -> torch.Tensor:
+    """The Gaussian-prior posterior mean from every row (module doc, "The Gaussian prior"):
+    ``x̂ = m̂ + (S ⊗ S) Aᵀ α``, ``(K + γ λ̄ I) α = y − m̂ A·1`` (``λ̄`` the mean eigenvalue of
+    ``K``), for buckets ``ys (R, M)`` -> ``(R, 1, n, n)`` in the dtype of ``ys``."""
+    s, k = gauss_covariance(A, ell)
+    y64 = ys.to(torch.float64)
+    ones = A(torch.ones(1, 1, A.n, A.n, dtype=torch.float64,
+                        device=ys.device)).reshape(-1)
+    mh = _gauss_mean(y64, ones)
+    lam_bar = torch.diagonal(k).mean()  # the trace over M: the mean eigenvalue
+    reg = k + float(gamma) * lam_bar * torch.eye(k.shape[0], dtype=k.dtype, device=k.device)
+    alpha = torch.linalg.solve(reg, (y64 - mh * ones).T).T  # (R, M)
+    img = A.adjoint(alpha[:, None, :])  # (R, 1, n, n)
+    return (mh[:, :, None, None] + s @ img @ s).to(ys.dtype)
+
+
+def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
+                ) -> tuple[AutoResult, torch.Tensor]:
+    """Stage 4 of :func:`auto` (module doc, "The Gaussian prior"): every sample whose best
+    Gaussian-prior candidate scores below its TV/TGV choice on the same tail folds takes the
+    Gaussian posterior mean instead. Returns the result and the held-out predictions
+    ``(R, F, M)`` of each sample's (possibly new) choice, for the stacking."""
+    b, c, m = y.shape
+    bc, n = b * c, A.n
+    held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
+    ys = y.reshape(bc, 1, m)
+    choice = [ch for row in res.choice for ch in row]
+    pa = choice_predictions(ys, A, choice, train, opts["cv_iter"])
+    hm = held.to(y.dtype)
+    err_a = ((pa - ys).square() * hm).sum(-1)  # (R, F)
+    err_g = gauss_cv(ys[:, 0], A, held, train)  # (R, F, L·G)
+    tiny = torch.finfo(y.dtype).tiny
+    best = torch.minimum(err_a, err_g.amin(-1)).clamp_min(tiny)  # (R, F)
+    s_a = (err_a / best).sum(-1)
+    s_g = (err_g / best[:, :, None]).sum(1)  # (R, L·G)
+    sg_min, j = s_g.min(-1)
+    boxed = torch.tensor([ch["prior"] == "box" for ch in choice], device=y.device)
+    win = ((sg_min < s_a) & ~boxed).tolist()  # one host read: which samples change
+    if not any(win):
+        return res, pa
+    ng = len(GAUSS_GAMMAS)
+    x = res.x.reshape(bc, 1, n, n).clone()
+    n_iter, conv = res.n_iter.reshape(bc).clone(), res.converged.reshape(bc).clone()
+    reasons = [r for row in res.stop_reason for r in row]
+    js, cv_l, sc_l = j.tolist(), err_g.sum(1).tolist(), sg_min.tolist()
+    groups: dict = {}
+    for i, w in enumerate(win):
+        if w:
+            groups.setdefault(js[i], []).append(i)
+    for jj, rows in groups.items():
+        ell, gamma = GAUSS_ELLS[jj // ng], GAUSS_GAMMAS[jj % ng]
+        idx = torch.tensor(rows, device=y.device)
+        xg = gauss_fit(ys[idx, 0], A, ell, gamma)
+        if bounds is not None:  # the image obeys the caller's box
+            xg = project_box(xg, bounds[0], bounds[1])
+        x[idx] = xg
+        n_iter[idx], conv[idx] = 0, True
+        for i in rows:
+            reasons[i] = "tol"
+            choice[i] = dict(prior="gauss", tv=None, boundary=None, bounds=bounds, mu=None,
+                             stage=1, cv=cv_l[i][jj], score=sc_l[i], inferred=False,
+                             learned_weight=None, ell=ell, gamma=gamma)
+        # the held-out predictions of the new choice, for the stacking: the same closed form
+        pa[idx] = _gauss_fold_preds(ys[idx, 0], A, train, ell, (gamma,))[:, :, 0].to(y.dtype)
+    x = x.reshape(b, c, n, n)
+    ynorm = y.norm(dim=-1)
+    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    nest = lambda v: tuple(tuple(v[k * c:(k + 1) * c]) for k in range(b))  # noqa: E731
+    return res._replace(x=x, n_iter=n_iter.reshape(b, c), residual=residual,
+                        converged=conv.reshape(b, c), stop_reason=nest(reasons),
+                        choice=nest(choice)), pa
+
+
 def stackable(A: LinearOperator, split: str | None = None) -> bool:
     """Whether :func:`auto` stacks the learned network for ``A`` (module doc, "Stacking"):
     a :class:`~torchtof.operators.Hadamard` operator with ``n ≥`` :data:`LEARNED_MIN_N`
@@ -751,43 +917,67 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
     return torch.minimum(clipped(num[:, 0], den[:, 0]), w_rel)
 
 
-def stack_predictions(ys: torch.Tensor, A: Hadamard, choices: list, train: torch.Tensor,
-                      cv_iter: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Held-out predictions of the stacking (module doc, "Stacking"): for ``ys (R, 1, M)`` and
-    its chosen candidates ``choices`` (``R`` dicts of :func:`candidates`), the predictions
-    ``A x̂`` ``(R, F, M)`` of each choice fitted on each fold's training rows ``train (F, M)``
-    (one batched solve per distinct choice, ``cv_iter`` iterations; zeros for the box-only
-    solution, which is not stacked) and of the learned network fitted on each fold's first
-    ``k`` rows (a tail split's training rows are a prefix: a plain ``Hadamard(n, m=k)``)."""
+def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
+                       train: torch.Tensor, cv_iter: int) -> torch.Tensor:
+    """Held-out predictions ``A x̂`` ``(R, F, M)`` of each sample's chosen candidate
+    (``choices``: ``R`` dicts of :func:`candidates`) fitted on each fold's training rows
+    ``train (F, M)``: one batched solve per distinct TV/TGV choice (``cv_iter``
+    iterations), the closed form of a Gaussian-prior choice, zeros for the box-only solution
+    (which is neither replaced nor stacked)."""
     nf, n = train.shape[0], A.n
     xa = ys.new_zeros(ys.shape[0], nf, n, n)
     by_key: dict = {}
     for i, ch in enumerate(choices):
-        if ch["prior"] != "box":
+        if ch["prior"] == "gauss":
+            by_key.setdefault(("gauss", ch["ell"], ch["gamma"]), []).append(i)
+        elif ch["prior"] != "box":
             by_key.setdefault(_key(ch), []).append(i)
     tm, masked = train.to(ys.dtype), MaskedRows(A, train)
+    gauss_rows = []
     for key, rows in by_key.items():
         idx = torch.tensor(rows, device=ys.device)
+        if key[0] == "gauss":
+            gauss_rows.append((idx, key))
+            continue
         mu = (_CONSTRAINED_MU if key[4] is None else ys.new_full((len(rows), nf), key[4]))
         xa[idx] = _fit(key[:4], ys[idx] * tm, masked, mu, key[4] is not None, cv_iter)[0]
-    xl = [learned_recon(ys[..., :k], Hadamard(n, m=k, order=A.order).to(ys.device))
+    pa = A(xa)
+    for idx, (_, ell, gamma) in gauss_rows:
+        pa[idx] = _gauss_fold_preds(ys[idx, 0], A, train, ell, (gamma,))[:, :, 0].to(ys.dtype)
+    return pa
+
+
+def stack_predictions(ys: torch.Tensor, A: Hadamard, choices: list, train: torch.Tensor,
+                      cv_iter: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Held-out predictions of the stacking (module doc, "Stacking"): for ``ys (R, 1, M)`` and
+    its chosen candidates ``choices``, those of :func:`choice_predictions` and those of the
+    learned network fitted on each fold's first ``k`` rows (a tail split's training rows are
+    a prefix: a plain ``Hadamard(n, m=k)``), each ``(R, F, M)``."""
+    return choice_predictions(ys, A, choices, train, cv_iter), _learned_predictions(ys, A, train)
+
+
+def _learned_predictions(ys: torch.Tensor, A: Hadamard, train: torch.Tensor) -> torch.Tensor:
+    xl = [learned_recon(ys[..., :k], Hadamard(A.n, m=k, order=A.order).to(ys.device))
           for k in train.sum(-1).tolist()]
-    return A(xa), A(torch.cat(xl, dim=1))
+    return A(torch.cat(xl, dim=1))
 
 
-def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
-                  ) -> AutoResult:
+def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict,
+                  pa: torch.Tensor | None = None) -> AutoResult:
     """Stage 4 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
     network are fitted on the same tail folds, the weight of the network is the least-squares
     stacking weight of their held-out predictions (:func:`stack_weight`), and the result is
     that convex combination of the two full-row reconstructions (projected onto the caller's
-    ``bounds``, if any)."""
+    ``bounds``, if any). ``pa``: the choice's held-out predictions when already computed
+    (:func:`_with_gauss`)."""
     b, c, m = y.shape
     bc, n = b * c, A.n
     held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
     ys = y.reshape(bc, 1, m)
     choice = [ch for row in res.choice for ch in row]
-    pa, pl = stack_predictions(ys, A, choice, train, opts["cv_iter"])
+    if pa is None:
+        pa = choice_predictions(ys, A, choice, train, opts["cv_iter"])
+    pl = _learned_predictions(ys, A, train)
     w = stack_weight(pa, pl, ys, held)
     w = torch.where(torch.tensor([ch["prior"] != "box" for ch in choice], device=y.device), w,
                     torch.zeros_like(w))
@@ -809,7 +999,7 @@ class Auto(nn.Module):
 
     Args:
         A: the operator (a submodule). bounds, folds, cv_iter, max_iter, split, slack, seed,
-            priors, infer_box, learned: as :func:`auto`.
+            priors, infer_box, gauss, learned: as :func:`auto`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -820,16 +1010,16 @@ class Auto(nn.Module):
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int | None = None,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
                  slack: float = 0.0, seed: int = 0, priors: tuple = AUTO_PRIORS,
-                 infer_box: bool = True, learned: bool = True) -> None:
+                 infer_box: bool = True, gauss: bool = True, learned: bool = True) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
         _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box,
-               learned)
+               learned, gauss)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
                             split=split, slack=slack, seed=seed, priors=tuple(priors),
-                            infer_box=infer_box, learned=learned)
+                            infer_box=infer_box, gauss=gauss, learned=learned)
 
     def solve(self, y: torch.Tensor) -> AutoResult:
         return auto(y, self.A, return_result=True, **self.options)
@@ -840,4 +1030,5 @@ class Auto(nn.Module):
     def extra_repr(self) -> str:
         o = self.options
         return (f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}, "
-                f"priors={o['priors']}, infer_box={o['infer_box']}, learned={o['learned']}")
+                f"priors={o['priors']}, infer_box={o['infer_box']}, gauss={o['gauss']}, "
+                f"learned={o['learned']}")
