@@ -383,10 +383,13 @@ def main(argv=None) -> list[dict]:
                 row = dict(scene=name, n=n, sr=sr, default=psnr(d.x, x)[0],
                            auto=psnr(r.x, x)[0], best=best, median=median,
                            chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
-                                       mu=ch["mu"], learned_weight=ch.get("learned_weight")),
+                                       mu=ch["mu"], learned_weight=ch.get("learned_weight"),
+                                       ell=ch.get("ell"), gamma=ch.get("gamma")),
                            t_default=t_def, t_auto=t_auto)
                 rows.append(row)
                 mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
+                if ch["prior"] == "gauss":
+                    mu = f"ℓ={ch['ell']:g} γ=4^{round(math.log(ch['gamma'], 4))}"
                 bd = _bounds(ch["bounds"])
                 print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
                       f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
