@@ -602,3 +602,112 @@ def test_missing_weights_warn_and_return_the_choice(monkeypatch, tmp_path):
     assert r.choice[0][0]["learned_weight"] is None
     off = auto(y, A, cv_iter=10, max_iter=50, learned=False)
     torch.testing.assert_close(r.x, off)
+
+
+# -- the Gaussian prior ---------------------------------------------------------------------
+
+
+def _dense(A):
+    n = A.n
+    eye = torch.eye(n * n, dtype=torch.float64).reshape(-1, 1, n, n)
+    return A(eye)[:, 0, :].T  # (M, n²)
+
+
+def _exp_cov(n, ell):
+    t = torch.arange(n, dtype=torch.float64)
+    return torch.exp(-(t[:, None] - t[None, :]).abs() / ell)
+
+
+@pytest.mark.parametrize("order", ["cake_cutting", "sequency", "natural"])
+def test_gauss_covariance_is_the_dense_a_sigma_at(order):
+    from torchtof.recon.auto import gauss_covariance
+
+    A = Hadamard(8, sr=0.5, order=order).double()
+    s, k = gauss_covariance(A, 2.0)
+    torch.testing.assert_close(s, _exp_cov(8, 2.0))
+    a = _dense(A)
+    torch.testing.assert_close(k, a @ torch.kron(s, s) @ a.T, rtol=1e-12, atol=1e-12)
+
+
+def test_gauss_fit_and_fold_predictions_are_the_dense_posterior_mean():
+    from torchtof.recon.auto import _gauss_fold_preds, gauss_fit
+
+    A = Hadamard(8, sr=0.5).double()
+    g = torch.Generator().manual_seed(3)
+    y = torch.randn(2, A.m, dtype=torch.float64, generator=g)
+    a = _dense(A)
+    sig = torch.kron(_exp_cov(8, 4.0), _exp_cov(8, 4.0))
+    ones = a.sum(1)  # A·1
+
+    def posterior(yt, at, onest, gamma):  # written from the formula, dense
+        m = (yt @ onest) / (onest @ onest)
+        k = at @ sig @ at.T
+        reg = k + gamma * torch.trace(k) / k.shape[0] * torch.eye(k.shape[0], dtype=k.dtype)
+        alpha = torch.linalg.solve(reg, (yt - m[:, None] * onest).T).T
+        return m[:, None] + alpha @ at @ sig  # (R, n²)
+
+    want = posterior(y, a, ones, 0.1).reshape(2, 1, 8, 8)
+    torch.testing.assert_close(gauss_fit(y, A, 4.0, 0.1), want, rtol=1e-9, atol=1e-9)
+    # a fold fitted on its training rows alone predicts A x̂ of that fit (its own λ̄)
+    train = torch.zeros(1, A.m, dtype=torch.bool)
+    train[0, :20] = True
+    got = _gauss_fold_preds(y, A, train, 4.0, (0.1, 0.01))
+    for j, gamma in enumerate((0.1, 0.01)):
+        xh = posterior(y[:, :20], a[:20], ones[:20], gamma)
+        torch.testing.assert_close(got[:, 0, j], xh @ a.T, rtol=1e-9, atol=1e-9)
+
+
+def _field(n, ell, seed):
+    """A sample of the separable exponential Gaussian field (mean 0.5, std 0.15)."""
+    g = torch.Generator().manual_seed(seed)
+    lo = torch.linalg.cholesky(_exp_cov(n, ell))
+    z = torch.randn(n, n, dtype=torch.float64, generator=g)
+    return (0.5 + 0.15 * lo @ z @ lo.T)[None, None]
+
+
+def test_gauss_chosen_for_a_gaussian_field_and_not_for_a_silhouette():
+    """A sample of the prior itself at low SR: the folds choose the Gaussian posterior mean,
+    which beats the TV/TGV choice; on a binary square the TV choice stays. Batch = singles."""
+    from torchtof.metrics import psnr
+
+    A = Hadamard(32, sr=0.125, order="sequency").double()
+    sq = torch.zeros(1, 1, 32, 32, dtype=torch.float64)
+    sq[..., 8:24, 6:20] = 1.0
+    x = torch.cat([_field(32, 4.0, 0), sq])
+    y = _noisy(A, x, 0.002)
+    kw = dict(cv_iter=50, max_iter=300, learned=False, return_result=True)
+    on = auto(y, A, **kw)
+    off = auto(y, A, gauss=False, **kw)
+    ch = on.choice[0][0]
+    assert ch["prior"] == "gauss" and ch["ell"] in (2.0, 4.0, 8.0)
+    assert on.n_iter[0, 0] == 0 and bool(on.converged[0, 0])
+    assert on.stop_reason[0][0] == "tol"
+    assert float(psnr(on.x[:1], x[:1], bits=None)[0]) > \
+        float(psnr(off.x[:1], x[:1], bits=None)[0]) + 0.5
+    assert on.choice[1][0]["prior"] != "gauss"
+    torch.testing.assert_close(on.x[1:], off.x[1:])
+    for i in range(2):
+        one = auto(y[i:i + 1], A, **kw)
+        torch.testing.assert_close(one.x, on.x[i:i + 1], rtol=1e-6, atol=1e-6)
+        assert one.choice[0][0] == on.choice[i][0]
+    # the caller's box projects it
+    xb = auto(y[:1], A, bounds=(0.4, 0.6), cv_iter=50, max_iter=300, learned=False)
+    assert float(xb.min()) >= 0.4 and float(xb.max()) <= 0.6
+
+
+def test_gauss_applies_only_where_measured():
+    from torchtof.operators import DMDSplit
+    from torchtof.recon.auto import gauss_applies
+
+    assert gauss_applies(Hadamard(32, sr=0.25))
+    assert gauss_applies(Hadamard(64, sr=0.25))  # M = 1024
+    assert not gauss_applies(Hadamard(64, sr=0.375))  # M = 1536 > GAUSS_MAX_M
+    assert not gauss_applies(Hadamard(16, sr=0.5))  # n < GAUSS_MIN_N
+    assert not gauss_applies(Hadamard(32, sr=0.25), "random")
+    assert not gauss_applies(Hadamard(32, sr=0.25, order="natural"))  # random split
+    assert not gauss_applies(DMDSplit(Hadamard(32, sr=0.25)))
+    A = Hadamard(32, sr=0.25)
+    with pytest.raises(TypeError, match="auto: expected gauss to be a bool"):
+        auto(torch.zeros(1, 1, A.m), A, gauss=1)
+    with pytest.raises(TypeError, match="Auto: expected gauss to be a bool"):
+        Auto(A, gauss="yes")
