@@ -118,7 +118,10 @@ and a fold's held-out predictions ``A x̂ = m̂ A1 + K[:, t] α`` need no image:
 eigendecomposition of ``K[t, t]`` per ``(ℓ, fold)`` gives every ``γ``. The ``5 × 12``
 candidates ``ℓ ∈`` :data:`GAUSS_ELLS`, ``γ ∈`` :data:`GAUSS_GAMMAS` are scored on the same
 tail folds as the TV/TGV choice (after the inferred box), with the same relative score over
-the choice and them; where the best of them scores lower, its posterior mean from all rows
+the choice and them; where the best of them predicts the held-out rows of **every** fold
+better than the choice (a win in each fold, not only in the sum: with three folds of a few
+rows the summed score is noisy, and a 3 % lower sum let it replace TGV² on the smooth ``moon``
+image at n = 32, SR 6.25 % with a 2.4 dB loss), its posterior mean from all rows
 replaces the choice (``choice["prior"] == "gauss"``, with ``ell`` and ``gamma``; projected
 onto the caller's ``bounds``; ``n_iter`` 0, ``stop_reason`` ``"tol"``: a direct solve). It
 competes with the one chosen candidate, not with each TV/TGV candidate, so the TV/TGV choice
@@ -848,11 +851,13 @@ def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dic
     err_g = gauss_cv(ys[:, 0], A, held, train)  # (R, F, L·G)
     tiny = torch.finfo(y.dtype).tiny
     best = torch.minimum(err_a, err_g.amin(-1)).clamp_min(tiny)  # (R, F)
-    s_a = (err_a / best).sum(-1)
     s_g = (err_g / best[:, :, None]).sum(1)  # (R, L·G)
     sg_min, j = s_g.min(-1)
+    # it replaces the choice only where it predicts every fold's held-out rows better
+    every = (err_g.gather(-1, j[:, None, None].expand(-1, err_g.shape[1], 1))[..., 0]
+             < err_a).all(-1)
     boxed = torch.tensor([ch["prior"] == "box" for ch in choice], device=y.device)
-    win = ((sg_min < s_a) & ~boxed).tolist()  # one host read: which samples change
+    win = (every & ~boxed).tolist()  # one host read: which samples change
     if not any(win):
         return res, pa
     ng = len(GAUSS_GAMMAS)
