@@ -71,6 +71,7 @@ def test_evaluate_depth_sky_object_only_and_bad_method():
         evaluate_depth(data, 0.25, methods=("CGI",))
 
 
+@pytest.mark.slow  # 13 s; the depth demo itself: test_demo_depth_writes_png_and_table
 def test_depth_curves_quick(tmp_path):
     res = depth_curves(tmp_path, quick=True, scenes=("slanted",))
     assert (tmp_path / "depth_rmse_slanted.png").exists()

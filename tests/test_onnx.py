@@ -89,7 +89,16 @@ def test_registry_covers_every_inference_stage():
         assert set(spec.shapes) == set(spec.inputs) | set(spec.outputs)
 
 
-@pytest.mark.parametrize("name", list(MODELS))
+#: Exported in the slow run only: each is a thin variant of a model exported in the default
+#: run (the adjoint and pseudo-inverse of ``hadamard``, TGI and DGI of ``g2``, the U-Net inside
+#: ``dip``, the intensity bucket beside ``depth_bucket``); the default suite keeps under five
+#: minutes on a 2-core machine.
+SLOW_EXPORTS = {"hadamard_adjoint", "hadamard_pinv", "tgi", "dgi", "unet", "intensity_bucket"}
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_EXPORTS else k for k in MODELS]
+)
 def test_export_and_parity(name, exported):
     module, path = exported(name)
     model = onnx.load(path)

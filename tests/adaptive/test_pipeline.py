@@ -91,6 +91,7 @@ def test_cli_bench_lists_adaptive():
     assert args.which == "adaptive"
 
 
+@pytest.mark.slow  # two pipeline runs (9 s); the gate's F test: tests/adaptive/test_detect.py
 def test_gate_choice_costs_no_frames():
     # a stop on the ungated buckets: forcing the gate on (every F test rejects) or
     # off (none does) changes the buckets reconstructed but not the patterns acquired
@@ -106,10 +107,15 @@ def test_gate_choice_costs_no_frames():
 def test_auto_stop_reads_the_chosen_buckets():
     data = _data(scattering=True)  # veil: gate kept, the stop reads the gated buckets
     assert run_adaptive(data, 0, block=8, compare_fixed=False).stop_kind == "gated"
+    # air (repeats), the empty field and a far background: the slow tests below
+
+
+@pytest.mark.slow  # three pipeline runs (12 s)
+def test_auto_stop_reads_the_ungated_buckets_where_the_gate_changes_nothing():
     air = dict(block=8, compare_fixed=False, noise="repeat")
     assert run_adaptive(_data(), 0, **air).stop_kind == "depth"
     # default (pair sums): the empty field, where the gate changes nothing, reads the
-    # ungated buckets; a far background keeps the gate (a second realisation: the slow test)
+    # ungated buckets; a far background keeps the gate
     _empty_and_far_background((0,))
 
 
@@ -125,6 +131,7 @@ def test_auto_stop_reads_the_chosen_buckets_second_realisation():
     _empty_and_far_background((1,))
 
 
+@pytest.mark.slow  # two pipeline runs (6 s)
 def test_lower_discrepancy_bound_never_stops_earlier():
     # q σ̂² shrinks with disc_level: a tighter Morozov bound can only stop TVAL3 later
     data = _data()

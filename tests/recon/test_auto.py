@@ -129,6 +129,8 @@ def test_chooses_per_sample_and_batch_equals_singles():
         assert one.choice[0][0] == both.choice[i][0]
 
 
+# slow (8 s): the anisotropic choice is test_picks_anisotropic_where_it_recovers_a_pixel_grid_...
+@pytest.mark.slow
 def test_beats_the_isotropic_default_on_a_noisy_binary_silhouette():
     # a binary pixel-grid object at 1 % noise: the cross-validated choice (anisotropic TV,
     # x ≥ 0, a finite weight) beats TVAL3's isotropic default
@@ -263,6 +265,7 @@ def test_discrepancy_bound_drops_underfitting_candidates():
     assert am._pick(s, rank, 2.0).tolist() == [1, 0]  # within 3×: least regularised wins
 
 
+@pytest.mark.slow  # every candidate refitted (9 s); measured per cell: benchmarks/auto_eval.py
 def test_regret_against_its_own_candidates_on_a_small_cell():
     # a noisy two-rectangle scene (n = 16, SR 25 %): auto's pick, refitted, must not fall
     # more than 0.5 dB below the median of its first-stage candidates refitted the same way
