@@ -102,7 +102,7 @@ On textured grey images at low SR (coins at 6.25–12.5 %) no TV/TGV candidate i
 model: a smooth Gaussian prior completes the unmeasured rows better (the tuned Tikhonov and
 DCT peers beat the TV choice there by up to 1.5 dB, ``docs/peers.md``). The prior is the
 separable exponential (first-order Markov) covariance, the classical model of image
-correlation (Jain, *Fundamentals of Digital Image Processing*, 1989, §2.10),
+correlation (Jain, *Fundamentals of Digital Image Processing*, 1989),
 ``Cov(x_{ij}, x_{i'j'}) ∝ exp(−|i − i'|/ℓ) exp(−|j − j'|/ℓ)``, i.e. ``Σ = S ⊗ S``, around a
 constant mean ``m``; the estimate is its posterior mean under white noise (the Bayesian
 linear model, Kay 1993, *Estimation Theory*, Thm. 10.3; the Tikhonov/Wiener solution),
@@ -491,8 +491,8 @@ def auto(
             ``("tgv",)`` for depth maps of planes.
         infer_box: without ``bounds``, choose again with the box of the image's two levels
             when the refit is two-level (module doc, "The inferred box").
-        gauss: let the Gaussian-prior posterior mean replace the TV/TGV choice where it scores
-            better on the same folds, where it applies (:func:`gauss_applies`: a Hadamard
+        gauss: let the Gaussian-prior posterior mean replace the TV/TGV choice where it
+            predicts every fold's held-out rows better, where it applies (:func:`gauss_applies`: a Hadamard
             operator, ``n ≥ 32``, ``M ≤ 1024``, the tail split; module doc, "The Gaussian
             prior"); ``choice["prior"]`` is then ``"gauss"`` with its ``ell`` and ``gamma``.
         learned: stack the shipped learned network (:func:`~torchtof.recon.learned`) with the
