@@ -63,8 +63,10 @@ def test_pinv_is_least_squares(op):
 def test_gradcheck(op):
     x = torch.randn(1, 1, op.n, op.n, dtype=torch.float64, requires_grad=True)
     y = torch.randn(1, 1, op.m, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(op, (x,))
-    assert torch.autograd.gradcheck(op.adjoint, (y,))
+    # fast mode (random projections vᵀ J u of the Jacobian) where the full Jacobian is large
+    fast = op.n >= 32
+    assert torch.autograd.gradcheck(op, (x,), fast_mode=fast)
+    assert torch.autograd.gradcheck(op.adjoint, (y,), fast_mode=fast)
 
 
 @pytest.mark.parametrize("n", [2, 4, 8, 16, 32])

@@ -492,9 +492,10 @@ def auto(
         infer_box: without ``bounds``, choose again with the box of the image's two levels
             when the refit is two-level (module doc, "The inferred box").
         gauss: let the Gaussian-prior posterior mean replace the TV/TGV choice where it
-            predicts every fold's held-out rows better, where it applies (:func:`gauss_applies`: a Hadamard
-            operator, ``n ≥ 32``, ``M ≤ 1024``, the tail split; module doc, "The Gaussian
-            prior"); ``choice["prior"]`` is then ``"gauss"`` with its ``ell`` and ``gamma``.
+            predicts every fold's held-out rows better, where it applies
+            (:func:`gauss_applies`: a Hadamard operator, ``n ≥ 32``, ``M ≤ 1024``, the tail
+            split; module doc, "The Gaussian prior"); ``choice["prior"]`` is then ``"gauss"``
+            with its ``ell`` and ``gamma``.
         learned: stack the shipped learned network (:func:`~torchtof.recon.learned`) with the
             choice, weighted by cross-validation, where it applies (:func:`stackable`: a
             Hadamard operator, ``n ≥ 32``, the tail split; module doc, "Stacking");
