@@ -195,7 +195,8 @@ def test_bench_onnx_progress_line_has_three_significant_digits():
 
 @pytest.mark.parametrize(("script", "argv", "expect"), [
     ("benchmarks/time_dip.py", ["--help"], "usage: time_dip.py"),
-    ("benchmarks/time_dip.py", ["--iters", "0"], "time_dip.py: error: argument --iters:"),
+    pytest.param("benchmarks/time_dip.py", ["--iters", "0"],
+                 "time_dip.py: error: argument --iters:", marks=pytest.mark.slow),
     ("examples/train_unrolled.py", ["--n", "48"],
      "train_unrolled.py: error: argument --n/--size: expected a power of two"),
 ])

@@ -119,6 +119,7 @@ def test_the_sweep_counts_a_changed_bit_as_a_wrong_bucket(clean, tmp_path):
     assert out["wrong"] == 1 and out["error"] is None
 
 
+@pytest.mark.slow  # 4 s; every single and double fault: benchmarks/fault_sweep.py
 def test_a_seeded_sample_of_single_and_double_faults_gives_zero_wrong_buckets():
     """6 cases drawn from the full sweep's 6328 (seed 19), in both frame-id modes, through
     the sweep's own code (a fresh bench and store per run, buckets read back)."""

@@ -99,6 +99,7 @@ def test_candidates_and_cv_error_layout():
         assert fitted2[0]["mu"] / fitted2[1]["mu"] == pytest.approx(REFINE**2)
 
 
+@pytest.mark.slow  # the same claim at cv_iter=100 is auto's doctest (default run)
 def test_noise_free_binary_square_is_recovered():
     A = Hadamard(16, sr=0.5)
     x = _square()
@@ -385,7 +386,8 @@ def test_two_level_levels_and_fraction_from_arithmetic():
     assert frac[1] == 0.0  # a constant image has no two levels
 
 
-@pytest.mark.parametrize("level,boxed", [(0.005, True), (0.002, False)])
+@pytest.mark.parametrize("level,boxed", [(0.005, True),
+                                         pytest.param(0.002, False, marks=pytest.mark.slow)])
 def test_inferred_box_refines_the_chosen_prior_and_norm(level, boxed):
     # both outcomes: the box refines the choice (measured at 0.5 % noise) or the choice
     # without it stands (0.2 %)
@@ -548,7 +550,12 @@ def test_stacking_is_the_convex_combination_with_the_learned_network():
         for ca, cb in zip(a, b, strict=True):
             assert {k: v for k, v in ca.items() if k != "learned_weight"} == \
                 {k: v for k, v in cb.items() if k != "learned_weight"}
-    # the caller's box holds for the image: the blend is projected onto it
+
+
+@pytest.mark.slow  # 2 s; the Gaussian prior's projection onto the box: default run
+def test_stacked_blend_is_projected_onto_the_callers_box():
+    A = Hadamard(32, sr=0.25)
+    y = _noisy(A, torch.cat([_grey(32, 0), _grey(32, 1).flip(-1)]), 0.01)
     xb = auto(y, A, bounds=(0.2, 0.8), cv_iter=20, max_iter=200)
     assert float(xb.min()) >= 0.2 and float(xb.max()) <= 0.8
 
