@@ -22,7 +22,6 @@ PYTEST := $(BIN)/python -m pytest -q
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
 	# torch first, from TORCH_INDEX when set, so that the extras below do not pull another build
 	$(BIN)/python -m pip install -q --no-compile "torch==$(TORCH_VERSION)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
 	$(BIN)/python -m pip install -q --no-compile -e ".[dev,all]"

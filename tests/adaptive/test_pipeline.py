@@ -43,6 +43,7 @@ def test_veil_keeps_the_gate_and_compensates():
     data = _data(scattering=True)
     res = run_adaptive(data, 1, block=8, compare_fixed=False)
     assert res.veil.present and res.kind == "gated"
+    assert res.stop_kind == "gated"  # the gate kept: the stop reads the gated buckets
     assert any("depth gate" in s for s in res.stages)
     assert res.fixed is None and res.time_saved_s is None
 
@@ -106,6 +107,7 @@ def test_gate_choice_costs_no_frames():
     assert on.patterns_used == off.patterns_used
 
 
+@pytest.mark.slow  # the veil case, realisation 1: test_veil_keeps_the_gate_and_compensates
 def test_auto_stop_reads_the_chosen_buckets():
     data = _data(scattering=True)  # veil: gate kept, the stop reads the gated buckets
     assert run_adaptive(data, 0, block=8, compare_fixed=False).stop_kind == "gated"

@@ -698,10 +698,16 @@ def test_gauss_chosen_for_a_gaussian_field_and_not_for_a_silhouette():
     one = auto(y[:1], A, **kw)  # the batch's Gaussian sample alone
     torch.testing.assert_close(one.x, on.x[:1], rtol=1e-6, atol=1e-6)
     assert one.choice[0][0] == ch
-    # the caller's box projects it
-    xb = auto(y[:1], A, bounds=(0.4, 0.6), cv_iter=20, max_iter=100, priors=("tv",),
-              learned=False)
-    assert float(xb.min()) >= 0.4 and float(xb.max()) <= 0.6
+
+
+@pytest.mark.slow  # 2 s
+def test_gauss_choice_is_projected_onto_the_callers_box():
+    A = Hadamard(32, sr=0.125, order="sequency").double()
+    y = _noisy(A, _field(32, 4.0, 0), 0.002)
+    r = auto(y, A, bounds=(0.4, 0.6), cv_iter=20, max_iter=100, priors=("tv",),
+             learned=False, return_result=True)
+    assert r.choice[0][0]["prior"] == "gauss"
+    assert float(r.x.min()) >= 0.4 and float(r.x.max()) <= 0.6
 
 
 def test_gauss_applies_only_where_measured():
