@@ -11,7 +11,7 @@ from torchtof.apps.bench.adaptive import _SceneExperiment, flatness_psnr, scene_
 N = 16
 
 
-@functools.lru_cache(maxsize=None)  # read-only in every test: one simulation per worker
+@functools.cache  # read-only in every test: one simulation per worker
 def _data(scene="sky", scattering=False, realisations=2):
     exp = _SceneExperiment(scene_type(scene, N), sr=0.375, srs=(0.375,), n=N, roi_px=2 * N,
                            scattering=scattering)
