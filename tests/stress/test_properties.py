@@ -170,7 +170,10 @@ def _rel(a, b):
 
 @SLOW
 @given(k=st.floats(-30, 30))
-@pytest.mark.parametrize("name", sorted(SCALE_LAW))
+@pytest.mark.parametrize("name", [
+    # TVAL3's 16 solves take 6 s; its scale law at 1e±30: the float32 test below (default run)
+    pytest.param(n, marks=pytest.mark.slow) if n == "TVAL3" else n for n in sorted(SCALE_LAW)
+])
 def test_reconstructor_scale_law_float64(name, k):
     out, base = _scaled(name, F64, 10.0**k)
     assert bool(torch.isfinite(out).all())
