@@ -161,7 +161,10 @@ refit. That is 17,400 (25,800 with a box; 20,100 and a second refit for a two-le
 whose box is inferred) single-channel iterations (TVAL3 or TGV primal-dual, each one ``A``,
 one ``Aᵀ`` and a few differences) besides the refit; stacking adds 300 (the choice on the
 3 folds) and four passes of the learned network (3 folds and all rows; each 6 steps of one
-``A``, one ``Aᵀ`` and a small CNN); bounded and independent of the data (3/4 of the same
+``A``, one ``Aᵀ`` and a small CNN); the Gaussian prior (where it applies) 15 symmetric
+eigendecompositions of at most ``M × M`` (5 lengths × 3 folds; the 300 iterations of the
+choice on the folds are shared with the stacking) and one ``M × M`` solve where it wins;
+bounded and independent of the data (3/4 of the same
 candidates on 4 eighth-folds; a random split also has 3 folds); the measured time against
 one default TVAL3 solve is in ``docs/auto.md``.
 """
@@ -254,8 +257,9 @@ class AutoResult(NamedTuple):
         converged: ``(B, C)`` bool.
         stop_reason: names ``[b][c]`` (see :data:`~torchtof.recon.tval3.STOP_REASONS`).
         choice: the chosen candidate per sample ``[b][c]``, a dict ``prior`` (``"tv"``,
-            ``"tgv"`` or ``"box"``: the box-only candidate), ``tv`` (the norm; ``None`` for
-            the box-only candidate), ``boundary``, ``bounds``, ``mu`` (``None``: the
+            ``"tgv"``, ``"box"``: the box-only candidate, or ``"gauss"``: the Gaussian prior,
+            with its ``ell`` and ``gamma``), ``tv`` (the norm; ``None`` for the box-only and
+            Gaussian choices), ``boundary``, ``bounds``, ``mu`` (``None``: the
             constrained model or the box-only candidate), ``cv``, ``score``, ``inferred``
             (``True``: chosen again with the inferred box ``bounds``; ``cv`` and ``score``
             are then that choice's, while ``cv_error``, ``score`` and the other fields below
@@ -838,9 +842,10 @@ def gauss_fit(ys: torch.Tensor, A: Hadamard, ell: float, gamma: float) -> torch.
 def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict
                 ) -> tuple[AutoResult, torch.Tensor]:
     """Stage 4 of :func:`auto` (module doc, "The Gaussian prior"): every sample whose best
-    Gaussian-prior candidate scores below its TV/TGV choice on the same tail folds takes the
-    Gaussian posterior mean instead. Returns the result and the held-out predictions
-    ``(R, F, M)`` of each sample's (possibly new) choice, for the stacking."""
+    Gaussian-prior candidate (smallest relative score) predicts the held-out rows of every
+    tail fold better than its TV/TGV choice takes the Gaussian posterior mean instead.
+    Returns the result and the held-out predictions ``(R, F, M)`` of each sample's (possibly
+    new) choice, for the stacking."""
     b, c, m = y.shape
     bc, n = b * c, A.n
     held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
@@ -1002,7 +1007,7 @@ def _learned_predictions(ys: torch.Tensor, A: Hadamard, train: torch.Tensor) -> 
 
 def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict,
                   pa: torch.Tensor | None = None) -> AutoResult:
-    """Stage 4 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
+    """Stage 5 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
     network are fitted on the same tail folds, the weight of the network is the least-squares
     stacking weight of their held-out predictions (:func:`stack_weight`), and the result is
     that convex combination of the two full-row reconstructions (projected onto the caller's
