@@ -182,6 +182,7 @@ from .._checks import check_positive
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
+from .base import relative_residual
 from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
 from .tv import box_bounds, largest_eig_normal, project_box
@@ -666,8 +667,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors,
         conv[idx] = False
         codes[idx] = STOP_REASONS.index("max_iter")
     x = x.reshape(b, c, A.n, A.n)
-    ynorm = y.norm(dim=-1)
-    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    residual = relative_residual(x, y, A)
     cv_sum = cv_err.sum(dim=1)  # nan where not fitted
     cv_l, sc_l = cv_sum.tolist(), score.tolist()
     choice = tuple(
@@ -721,6 +721,11 @@ def _sample(res: AutoResult, i: int, c: int) -> AutoResult:
                         score=one(res.score), cv_fold=one(res.cv_fold))
 
 
+def _nest(v: list, b: int, c: int) -> tuple:
+    """A flat per-sample list over ``(B, C)`` as a tuple of tuples ``[b][c]``."""
+    return tuple(tuple(v[k * c:(k + 1) * c]) for k in range(b))
+
+
 def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
                        opts: dict) -> AutoResult:
     """Stage 3 of :func:`auto` without ``bounds`` (module doc, "The inferred box"): every
@@ -743,10 +748,9 @@ def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
         x[i], n_iter[i], residual[i], conv[i] = r.x[0], r.n_iter[0, 0], r.residual[0, 0], \
             r.converged[0, 0]
         reasons[i], choice[i] = r.stop_reason[0][0], dict(r.choice[0][0], inferred=True)
-    nest = lambda v: tuple(tuple(v[k * c:(k + 1) * c]) for k in range(b))  # noqa: E731
     return res._replace(x=x.reshape(b, c, A.n, A.n), n_iter=n_iter.reshape(b, c),
                         residual=residual.reshape(b, c), converged=conv.reshape(b, c),
-                        stop_reason=nest(reasons), choice=nest(choice))
+                        stop_reason=_nest(reasons, b, c), choice=_nest(choice, b, c))
 
 
 def gauss_applies(A: LinearOperator, split: str | None = None) -> bool:
@@ -782,6 +786,11 @@ def gauss_covariance(A: Hadamard, ell: float) -> tuple[torch.Tensor, torch.Tenso
     return s, tt[a][:, a] * tt[b][:, b]
 
 
+def _ones_row(A: Hadamard, device) -> torch.Tensor:
+    """``A·1`` ``(M,)`` in float64: the buckets of a constant image."""
+    return A(torch.ones(1, 1, A.n, A.n, dtype=torch.float64, device=device)).reshape(-1)
+
+
 def _gauss_mean(ys: torch.Tensor, ones: torch.Tensor) -> torch.Tensor:
     """``(R, 1)`` least-squares constant ``m̂`` of ``ys (R, k) ≈ m̂ · ones (k,)`` (0 where no
     row sees a constant)."""
@@ -797,7 +806,7 @@ def _gauss_fold_preds(ys: torch.Tensor, A: Hadamard, train: torch.Tensor, ell: f
     mean and ``γ`` scale) for buckets ``ys (R, M)``: ``A x̂ = m̂ A·1 + K[:, t] α`` in closed
     form, one eigendecomposition of ``K[t, t]`` per fold serving every ``γ`` and sample."""
     y64 = ys.to(torch.float64)
-    ones = A(torch.ones(1, 1, A.n, A.n, dtype=torch.float64, device=ys.device)).reshape(-1)
+    ones = _ones_row(A, ys.device)
     g = torch.tensor(gammas, dtype=torch.float64, device=ys.device)
     k_full = gauss_covariance(A, ell)[1]
     out = []
@@ -829,8 +838,7 @@ def gauss_fit(ys: torch.Tensor, A: Hadamard, ell: float, gamma: float) -> torch.
     ``K``), for buckets ``ys (R, M)`` -> ``(R, 1, n, n)`` in the dtype of ``ys``."""
     s, k = gauss_covariance(A, ell)
     y64 = ys.to(torch.float64)
-    ones = A(torch.ones(1, 1, A.n, A.n, dtype=torch.float64,
-                        device=ys.device)).reshape(-1)
+    ones = _ones_row(A, ys.device)
     mh = _gauss_mean(y64, ones)
     lam_bar = torch.diagonal(k).mean()  # the trace over M: the mean eigenvalue
     reg = k + float(gamma) * lam_bar * torch.eye(k.shape[0], dtype=k.dtype, device=k.device)
@@ -891,12 +899,10 @@ def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dic
         # the held-out predictions of the new choice, for the stacking: the same closed form
         pa[idx] = _gauss_fold_preds(ys[idx, 0], A, train, ell, (gamma,))[:, :, 0].to(y.dtype)
     x = x.reshape(b, c, n, n)
-    ynorm = y.norm(dim=-1)
-    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
-    nest = lambda v: tuple(tuple(v[k * c:(k + 1) * c]) for k in range(b))  # noqa: E731
+    residual = relative_residual(x, y, A)
     return res._replace(x=x, n_iter=n_iter.reshape(b, c), residual=residual,
-                        converged=conv.reshape(b, c), stop_reason=nest(reasons),
-                        choice=nest(choice)), pa
+                        converged=conv.reshape(b, c), stop_reason=_nest(reasons, b, c),
+                        choice=_nest(choice, b, c)), pa
 
 
 def stackable(A: LinearOperator, split: str | None = None) -> bool:
@@ -1029,8 +1035,7 @@ def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: d
     x = res.x + wi * (x_full - res.x)
     if bounds is not None:  # the caller's box holds for the image: project the blend onto it
         x = project_box(x, bounds[0], bounds[1])
-    ynorm = y.norm(dim=-1)
-    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    residual = relative_residual(x, y, A)
     wl = w.tolist()
     nest = tuple(tuple(dict(choice[i * c + j], learned_weight=wl[i * c + j]) for j in range(c))
                  for i in range(b))
