@@ -452,6 +452,27 @@ def test_resume_continues_the_same_run(tmp_path):
     assert (tmp_path / "recipe.json").is_file() and (tmp_path / "learned.pt").is_file()
 
 
+def test_data_processes_train_the_same_model():
+    """``workers=2`` draws every step's data in two processes, ahead of the optimiser: the
+    steps' data depend only on (seed, step, index), so the model is the one-process model."""
+    kw = dict(steps=5, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+              calibrate=False, seed=4)
+    one = train_learned(**kw)
+    two = train_learned(workers=2, **kw)
+    assert one.losses == two.losses
+    for k, v in one.model.state_dict().items():
+        torch.testing.assert_close(two.model.state_dict()[k], v, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize(("kw", "name"), [({"device": "nope"}, "device"),
+                                          ({"device": 3.5}, "device"),
+                                          ({"workers": -1}, "workers"),
+                                          ({"workers": 1.0}, "workers")])
+def test_train_rejects_bad_device_and_workers(kw, name):
+    with pytest.raises(ValueError, match=name):
+        train_learned(steps=1, batch_size=1, sizes=(16,), progress=False, calibrate=False, **kw)
+
+
 # -- ONNX ----------------------------------------------------------------------------------
 
 

@@ -60,6 +60,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="steps between log records" + d)
     p.add_argument("--max-minutes", type=positive_float, default=None,
                    help="stop and save after this wall time (default: no limit)")
+    p.add_argument("--device", default="cpu",
+                   help="torch device the model trains on, e.g. cuda; the data are drawn on the "
+                        "CPU" + d)
+    p.add_argument("--workers", type=nonneg_int, default=0,
+                   help="processes drawing the data ahead of the optimiser, 0: none (the same "
+                        "run either way)" + d)
     p.add_argument("--no-progress", action="store_true", help="no tqdm progress bar")
     p.add_argument("--no-calibrate", action="store_true",
                    help="leave the final data-consistency step off (no calibrate_tau)")
@@ -112,7 +118,8 @@ def main(args: argparse.Namespace) -> int:
         out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
-        command=command, calibrate=not args.no_calibrate,
+        command=command, calibrate=not args.no_calibrate, device=args.device,
+        workers=args.workers,
     )
     print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
     return 0

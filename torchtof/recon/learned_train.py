@@ -169,6 +169,48 @@ def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
     return A, x, y
 
 
+def _step_data(args: tuple) -> tuple:
+    """``(n, m, order, x, y)`` of one training step (a top-level function, so that data
+    processes can run it): ``args = (seed, step, sizes, p_large, sr_range, orders, indices,
+    noise_ref, p_clean, p_noise_ref)``."""
+    seed, step, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref = args
+    n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
+    _, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref)
+    return n, m, order, x, y
+
+
+def _one_thread() -> None:  # initializer of the data processes
+    torch.set_num_threads(1)
+
+
+def _step_stream(steps: range, workers: int, common: tuple):
+    """Yield :func:`_step_data` for every step of ``steps`` in order: in this process
+    (``workers = 0``) or computed ahead by ``workers`` processes, at most ``2 · workers`` steps
+    in flight (bounded memory). Every step's data depends only on ``(seed, step, index)``, so
+    the stream is the same either way."""
+    seed, rest = common[0], common[1:]
+    if workers == 0:
+        for s in steps:
+            yield _step_data((seed, s, *rest))
+        return
+    import collections
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(workers, initializer=_one_thread) as pool:
+        pending: collections.deque = collections.deque()
+        it = iter(steps)
+        for s in it:
+            pending.append(pool.apply_async(_step_data, ((seed, s, *rest),)))
+            if len(pending) >= 2 * workers:
+                break
+        while pending:
+            out = pending.popleft().get()
+            s = next(it, None)
+            if s is not None:
+                pending.append(pool.apply_async(_step_data, ((seed, s, *rest),)))
+            yield out
+
+
 def calibrate_tau(
     model: Learned,
     seed: int = 0,
@@ -193,12 +235,14 @@ def calibrate_tau(
     """
     outs = []
     model.final_dc = False
+    device = model.log_tau.device
     with torch.no_grad():
         for k in range(batches):
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
             A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean,
                              p_noise_ref)
+            A, x, y = A.to(device), x.to(device), y.to(device)
             model.A = A
             outs.append((A, x, y, model(y)))
     model.final_dc = True
@@ -241,6 +285,8 @@ def train_learned(
     max_minutes: float | None = None,
     command: str | None = None,
     calibrate: bool = True,
+    device: str | torch.device = "cpu",
+    workers: int = 0,
 ) -> LearnedTrainResult:
     """Train :class:`Learned` from its random initialisation (module docstring).
 
@@ -270,6 +316,10 @@ def train_learned(
         command: the command line recorded in ``recipe.json``.
         calibrate: set the final step's ``τ`` by :func:`calibrate_tau` at the end (else the
             final step stays off).
+        device: where the model trains (``"cpu"``, ``"cuda"``, ...); the data are drawn on
+            the CPU and moved there. The returned model and the weights file are on the CPU.
+        workers: processes that draw the data ahead of the optimiser (0: this process). The
+            draws depend only on ``(seed, step, index)``, so the run is the same.
 
     Returns:
         :class:`LearnedTrainResult`.
@@ -279,7 +329,8 @@ def train_learned(
     """
     func = "train_learned"
     for name, v, least in (("steps", steps, 1), ("batch_size", batch_size, 1),
-                           ("checkpoint_every", checkpoint_every, 0), ("log_every", log_every, 1)):
+                           ("checkpoint_every", checkpoint_every, 0), ("log_every", log_every, 1),
+                           ("workers", workers, 0)):
         if isinstance(v, bool) or not isinstance(v, int) or v < least:
             raise ValueError(f"{func}: expected {name} to be an int >= {least}, got {v!r}")
     if noise_ref is not None and (isinstance(noise_ref, bool) or not isinstance(noise_ref, int)
@@ -299,10 +350,16 @@ def train_learned(
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
     sizes = tuple(sorted(sizes))
+    try:
+        device = torch.device(device)
+        torch.empty(0, device=device)
+    except (RuntimeError, TypeError, AssertionError) as e:
+        raise ValueError(f"{func}: expected device to be an available torch device, got "
+                         f"{device!r} ({e})") from None
 
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
-                    width=width, shuffle=shuffle)
+                    width=width, shuffle=shuffle).to(device)
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
     model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
@@ -314,7 +371,7 @@ def train_learned(
     start, log, wall0 = 0, [], 0.0
     ckpt = outdir / "checkpoint.pt" if outdir is not None else None
     if resume and ckpt is not None and ckpt.is_file():
-        state = torch.load(ckpt, weights_only=False)
+        state = torch.load(ckpt, weights_only=False, map_location=device)
         missing, unexpected = model.load_state_dict(state["model"], strict=False)
         if unexpected or set(missing) - {"log_tau"}:  # log_tau: calibrated after training
             raise ValueError(f"{func}: checkpoint {ckpt} does not match the model: "
@@ -354,10 +411,11 @@ def train_learned(
         if is_dist:  # A has no parameters: swapping it per step leaves DDP's buckets intact
             net = nn.parallel.DistributedDataParallel(model, broadcast_buffers=False)
         step = start
-        for step in range(start, steps):
-            n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
-            A, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref)
-            model.A = A
+        stream = _step_stream(range(start, steps), workers, (
+            seed, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref))
+        for step, (n, m, order, x, y) in zip(range(start, steps), stream):
+            x, y = x.to(device), y.to(device)
+            model.A = Hadamard(n, m=m, order=order).to(device)
             loss = psnr_loss(net(y), x)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -384,6 +442,7 @@ def train_learned(
                 break
         else:
             step = steps
+        stream.close()  # stops the data processes (a --max-minutes stop leaves steps queued)
         save_checkpoint(step)
         if bar is not None:
             bar.close()
@@ -425,7 +484,10 @@ def train_learned(
                 "wall_s": round(wall, 1),
                 "load_avg_end": list(os.getloadavg()),
                 "threads": torch.get_num_threads(),
+                "device": str(device),
+                "data_workers": workers,
             }
+            model.to("cpu")
             model.A = Hadamard(sizes[0], sr=0.25)
             model.save_weights(outdir / "learned.pt", seed=seed, steps=step,
                                torch_version=str(torch.__version__), noise_ref=noise_ref,
@@ -437,4 +499,4 @@ def train_learned(
     finally:
         if created:
             dist.destroy_process_group()
-    return LearnedTrainResult(model=model, losses=losses, wall_s=wall)
+    return LearnedTrainResult(model=model.to("cpu"), losses=losses, wall_s=wall)
