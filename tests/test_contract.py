@@ -189,5 +189,10 @@ def test_state_dict_carries_random_patterns(name, device):
     a, b = _build(spec, op(0).to(device)), _build(spec, op(1).to(device))
     y = a.A(_scene(1, device, torch.float64))
     b.load_state_dict(a.state_dict())
+    # on CUDA two dense float64 products of equal operands may differ in the last bit (cuBLAS
+    # picks its kernel by the operands' memory alignment); TVAL3's iterations amplify that to
+    # ~1e-11 (measured on an H200): still 1e8 times below the gap to op(1)'s output
+    tol = 1e-12 if device.type == "cpu" else 1e-9
     with torch.enable_grad() if spec.per_sample else torch.no_grad():
-        torch.testing.assert_close(b(y), a(y), rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(b(y), a(y), rtol=tol, atol=tol)
+    assert not torch.allclose(_build(spec, op(1).to(device))(y), a(y), rtol=1e-3, atol=1e-3)

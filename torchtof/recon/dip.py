@@ -469,7 +469,11 @@ def fit_dip(
 
         steps = tqdm(steps, desc=func)
     t, reason = 0, "max_iter"
-    with unchecked():  # inputs checked above: no NaN/Inf host sync in the loop's operator calls
+    # inputs checked above: no NaN/Inf host sync in the loop's operator calls. cuDNN's
+    # deterministic convolution algorithms, so that a seeded fit repeats bit for bit on CUDA too
+    # (PyTorch notes, "Reproducibility": the default ones may accumulate with atomics)
+    with unchecked(), torch.backends.cudnn.flags(enabled=torch.backends.cudnn.enabled,
+                                                 benchmark=False, deterministic=True):
         for t in steps:
             out = net(x0)
             ax = A(out)

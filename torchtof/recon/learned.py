@@ -185,16 +185,15 @@ class LearnedPrior(nn.Module):
 
     @staticmethod
     def _conv(layer: nn.Module, x: torch.Tensor, **kw) -> torch.Tensor:
-        w, b = layer.weight.to(x.dtype), layer.bias.to(x.dtype)
+        w, b = layer.weight.to(x), layer.bias.to(x)  # dtype and device of the input
         if isinstance(layer, nn.ConvTranspose2d):
             return F.conv_transpose2d(x, w, b, stride=layer.stride)
         return F.conv2d(x, w, b, stride=layer.stride, padding=layer.padding)
 
     def forward(self, z: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        dt = z.dtype
         lin1, lin2 = self.film[0], self.film[2]
-        h = F.silu(F.linear(c, lin1.weight.to(dt), lin1.bias.to(dt)))
-        mod = F.linear(h, lin2.weight.to(dt), lin2.bias.to(dt))
+        h = F.silu(F.linear(c, lin1.weight.to(z), lin1.bias.to(z)))
+        mod = F.linear(h, lin2.weight.to(z), lin2.bias.to(z))
         scales, shifts = mod.split(sum(self.film_sizes), dim=-1)
         sc = scales.split(self.film_sizes, dim=-1)
         sh = shifts.split(self.film_sizes, dim=-1)
@@ -368,7 +367,7 @@ def _unrolled(
     log_sigma = torch.log(sigma_n.clamp_min(0) + SIGMA_FLOOR)
     log_sr = torch.full_like(log_sigma, math.log(m / (n * n)))
     K = step_raw.shape[0]
-    steps = 2 * torch.sigmoid(step_raw.to(y.dtype))
+    steps = 2 * torch.sigmoid(step_raw.to(y))
 
     flat = (B * C, 1, n, n)
     bf = b
@@ -381,7 +380,7 @@ def _unrolled(
         x = z + prior(z, torch.cat((base, tk), dim=-1))
     x = x.reshape(B, C, n, n)
     if log_tau is not None:  # final noise-weighted data consistency
-        w = 1 / (1 + (sigma_n / torch.exp(log_tau.to(y.dtype))) ** 2)  # (B, C)
+        w = 1 / (1 + (sigma_n / torch.exp(log_tau.to(y))) ** 2)  # (B, C)
         x = x + w[..., None, None] * adj(bf - fwd(x))
     x = x * s[..., None]
     if flips > 1:  # flip every estimate back and average them
