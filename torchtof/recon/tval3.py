@@ -887,14 +887,20 @@ def _solve(
             )
         return out
 
+    n_samples = st["done"].numel() if adaptive else 0  # (no shape read while tracing)
     for _ in range(max_iter):
         # adaptive: the one host read per iteration (converged samples are frozen, so the
-        # read only decides whether another iteration can change anything)
-        if adaptive and bool(st["done"].all()):
+        # read decides whether another iteration can change anything, and whether any
+        # sample is frozen at all: if none is, the new state is taken whole, unmasked)
+        n_done = int(st["done"].sum()) if adaptive else -1
+        if n_done == n_samples:
             break
         new = step(st)
-        active = ~st["done"]
-        st = {k: _where(active, new[k], st[k]) for k in st}
+        if n_done == 0:
+            st = new
+        else:
+            active = ~st["done"]
+            st = {k: _where(active, new[k], st[k]) for k in st}
     return _Out(st["u"], st["n_iter"], st["done"], st["count"], st["disc"])
 
 
