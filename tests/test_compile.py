@@ -30,8 +30,12 @@ def _check(name, backend, device):
     fn, inp = _models(device)[name]
     torch._dynamo.reset()
     compiled = torch.compile(fn, fullgraph=True, backend=backend)
+    # float32: on CUDA, cuDNN convolutions run in TF32 by default (10-bit mantissa), and the
+    # compiled and eager graphs may pick different algorithms: the U-Net differed by 7e-6
+    # (1.4e-5 relative) on an H200, within TF32's 1e-3
+    tol = dict(rtol=1e-5, atol=1e-6) if device.type == "cpu" else dict(rtol=1e-3, atol=1e-4)
     with torch.no_grad():
-        torch.testing.assert_close(compiled(inp), fn(inp), rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(compiled(inp), fn(inp), **tol)
 
 
 def test_hadamard_compiles_fullgraph(device):

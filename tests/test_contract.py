@@ -50,6 +50,15 @@ def _setup(name, device, dtype=torch.float64, b=3):
     return spec, A, y
 
 
+def _repeat_tol(name, device):
+    """Two runs of one model agree bit for bit, except DIP on CUDA: its fit accumulates in
+    kernels whose last bit is not reproducible even with cuDNN's deterministic algorithms
+    (1e-13 relative after the fit, measured on an H200)."""
+    if name == "dip" and device.type != "cpu":
+        return dict(rtol=1e-10, atol=1e-12)
+    return dict(rtol=0, atol=0)
+
+
 def _build(spec, A):
     return spec.build(A, **FAST.get(spec.name, {}))
 
@@ -98,7 +107,7 @@ def test_solve_typed_result(name, device, request):
         x = rec(y)
     assert isinstance(res, tuple) and hasattr(type(res), "_fields"), type(res)
     assert {"x", "n_iter", "residual", "converged", "stop_reason"} <= set(res._fields)
-    torch.testing.assert_close(res.x, x, rtol=0, atol=0)
+    torch.testing.assert_close(res.x, x, **_repeat_tol(name, device))
     assert res.residual.shape == (2, 1) and bool((res.residual >= 0).all())
     assert res.converged.shape == (2, 1) and res.converged.dtype == torch.bool
     n_iter = torch.as_tensor(res.n_iter)
@@ -125,7 +134,7 @@ def test_state_dict_round_trip(name, device):
     b = b.to(device)
     assert set(a.state_dict()) == set(b.state_dict())
     with torch.enable_grad() if spec.per_sample else torch.no_grad():
-        torch.testing.assert_close(b(y), a(y), rtol=0, atol=0)
+        torch.testing.assert_close(b(y), a(y), **_repeat_tol(name, device))
 
 
 @pytest.mark.parametrize("name", SPECS)
