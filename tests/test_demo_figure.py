@@ -1,5 +1,7 @@
 """The demo's picture and its tap-bucket row."""
 
+import functools
+
 import torch
 
 from torchtof.apps.demo import _merge_identical, demo_figure, evaluate_taps
@@ -7,6 +9,7 @@ from torchtof.experiment import PaperExperiment
 from torchtof.methods import evaluate
 
 
+@functools.cache  # one simulated experiment per worker, read-only in every test
 def _data():
     return PaperExperiment(sr=0.25, n=16, roi_px=32, srs=(0.25,)).run(seed=0)
 
