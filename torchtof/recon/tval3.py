@@ -761,6 +761,12 @@ def _solve(
         rcd=u,
         done=zero.clone(),
         disc=torch.zeros_like(zero),
+        # the multiplier update of an outer iteration, applied at the start of the next step
+        # (see ``multipliers``): its mask and the inner iteration's values it reads
+        p_outer=torch.zeros_like(zero),
+        p_lam1=lam1,
+        p_v=v,
+        p_r=au - b,
     )
 
     def sd_length(d, rho):
@@ -853,14 +859,26 @@ def _solve(
             first=outer,
             done=st["done"] | stop,
             n_iter=st["n_iter"] + 1,
+            p_outer=outer,
+            p_lam1=lam1,
+            p_v=v,
+            p_r=r,
         )
-        # masked by ``outer``: no host read
-        # multiplier update, continuation, reset of the nonmonotone reference
+        return out
+
+    def multipliers(st: dict) -> dict:
+        """The multiplier update, continuation and reset of the nonmonotone reference of the
+        samples whose last step ended an outer iteration (``p_outer``; masked, no host read).
+        It runs at the start of the next step, before anything reads what it changes, so the
+        arithmetic is that of ``ftvcs_alp``; deferred, the loop's one host read can skip it
+        when no sample needs it."""
+        outer, lam1, v, r = st["p_outer"], st["p_lam1"], st["p_v"], st["p_r"]
+        sig, dlt, dts, bet, mu, g2 = st["sig"], st["dlt"], st["dts"], st["bet"], st["mu"], st["g2"]
         if exact:
-            g = adj(au) - atb
-            d = g2 + _i(rho) * g - dts
+            g = adj(st["au"]) - atb
+            d = g2 + _i(mu / bet) * g - dts
         else:
-            d = out["d"]
+            g, d = st["g"], st["d"]
         sig_o = sig - _f(bet) * v
         dlt_o = dlt - (mu * mu_dlt)[..., None] * r
         bet_o = torch.minimum(bet * rate_ctn, beta_f)
@@ -869,32 +887,40 @@ def _solve(
         # constrained: (Dᵀσ⁺ + Aᵀδ⁺)/β⁺ = −(β/β⁺) d; TV-L2: (β/β⁺)(Dᵀσ/β − Dᵀ(Du − w))
         dts_o = torch.where(_i(constrained), -ratio * d, ratio * (dts - g2))
         d_o = g2 + _i(mu_o / bet_o) * g - dts_o
-        out.update(
+        out = dict(
+            st,
             sig=_where(outer, sig_o, sig),
             dlt=_where(outer, dlt_o, dlt),
             bet=torch.where(outer, bet_o, bet),
             mu=torch.where(outer, mu_o, mu),
             dts=_where(outer, dts_o, dts),
-            d=_where(outer, d_o, out["d"]),
+            d=_where(outer, d_o, st["d"]),
         )
         if not exact:
             f_o = objective(lam1, v, r, sig_o, dlt_o, bet_o, mu_o)
             out.update(
-                f=torch.where(outer, f_o, out["f"]),
-                cref=torch.where(outer, f_o, out["cref"]),
-                q=torch.where(outer, torch.ones_like(f_o), out["q"]),
-                gam=torch.where(outer, torch.full_like(f_o, gam0), out["gam"]),
+                f=torch.where(outer, f_o, st["f"]),
+                cref=torch.where(outer, f_o, st["cref"]),
+                q=torch.where(outer, torch.ones_like(f_o), st["q"]),
+                gam=torch.where(outer, torch.full_like(f_o, gam0), st["gam"]),
             )
         return out
 
     n_samples = st["done"].numel() if adaptive else 0  # (no shape read while tracing)
     for _ in range(max_iter):
-        # adaptive: the one host read per iteration (converged samples are frozen, so the
-        # read decides whether another iteration can change anything, and whether any
-        # sample is frozen at all: if none is, the new state is taken whole, unmasked)
-        n_done = int(st["done"].sum()) if adaptive else -1
-        if n_done == n_samples:
-            break
+        if adaptive:
+            # the one host read per iteration: whether another iteration can change anything
+            # (converged samples are frozen), whether any sample is frozen at all (if none
+            # is, the new state is taken whole, unmasked) and whether any has a multiplier
+            # update pending
+            n_done, n_outer = torch.stack((st["done"].sum(), st["p_outer"].sum())).tolist()
+            if n_done == n_samples:
+                break
+            if n_outer:
+                st = multipliers(st)
+        else:
+            n_done = -1
+            st = multipliers(st)
         new = step(st)
         if n_done == 0:
             st = new
