@@ -13,7 +13,11 @@ learning rate (Loshchilov & Hutter, 2017) to 5 % of its peak and gradient-norm c
 
 Data parallel under ``torchrun`` exactly as :func:`torchtof.recon.train_unrolled` (same
 set-up, :func:`torchtof.recon.train.dist_setup`): rank ``r`` of ``W`` draws scenes
-``[r B/W, (r+1) B/W)`` of the same global batch, and DDP averages the gradients.
+``[r B/W, (r+1) B/W)`` of the same global batch, and DDP averages the gradients. The model
+trains on ``device`` (e.g. a GPU; the data are drawn on the CPU and moved there), and
+``workers`` processes can draw the steps' data ahead of the optimiser (at most two steps per
+process in flight): since each step's data depend only on ``(seed, step, index)``, the run
+is the same with or without them.
 
 The final data-consistency step of :class:`Learned` is off while the prior trains; its one
 scalar ``τ`` is then set by :func:`calibrate_tau`: a grid search of the mean PSNR on batches
