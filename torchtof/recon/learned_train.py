@@ -200,7 +200,9 @@ def _step_stream(steps: range, workers: int, common: tuple):
     import collections
     import multiprocessing
 
-    with multiprocessing.get_context("fork").Pool(workers, initializer=_one_thread) as pool:
+    # fork where the platform has it (no re-import per process); spawn elsewhere
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with multiprocessing.get_context(method).Pool(workers, initializer=_one_thread) as pool:
         pending: collections.deque = collections.deque()
         it = iter(steps)
         for s in it:
