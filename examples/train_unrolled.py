@@ -31,6 +31,7 @@ import torch
 
 from torchtof.apps.args import (
     OneLineParser,
+    nonneg_int,
     positive_float,
     positive_int,
     power_of_two,
@@ -71,8 +72,8 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="regenerate every shipped file in torchtof/weights/ (ignores --n/--sr/--out)",
     )
-    p.add_argument("--log-every", type=positive_int, default=50,
-                   help="print the loss every N steps")
+    p.add_argument("--log-every", type=nonneg_int, default=50,
+                   help="print the loss every N steps, 0: never (default: %(default)s)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
 
