@@ -24,7 +24,7 @@ from torchtof.data import (
     noisy_buckets,
 )
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
-from torchtof.recon.learned import WEIGHTS_FILE, Learned, LearnedResult, learned
+from torchtof.recon.learned import DEFAULT_N_LAYERS, WEIGHTS_FILE, Learned, LearnedResult, learned
 from torchtof.recon.learned_train import (
     _batch,
     _recipes,
@@ -278,6 +278,11 @@ def test_weights_file_sets_the_architecture_and_old_files_load_as_shuffle_1(tmp_
     torch.testing.assert_close(b(y), a(y))
     with pytest.raises(ValueError, match="shuffle"):
         Learned(A, n_layers=2, width=4, shuffle=2, pretrained=path)
+    c = Learned(A, pretrained=path)  # the depth from the file too (default 6 would not match)
+    assert c.n_layers == 2
+    torch.testing.assert_close(c(y), a(y))
+    torch.testing.assert_close(learned(y, A, pretrained=path), a(y))
+    assert Learned(A, pretrained=False).n_layers == DEFAULT_N_LAYERS
 
 
 # -- bad inputs ----------------------------------------------------------------------------

@@ -406,7 +406,8 @@ class Learned(nn.Module):
         A: :class:`~torchtof.operators.Hadamard` (any ``n`` divisible by 2, any SR and
             order), another operator with orthonormal rows, or a
             :class:`~torchtof.operators.DMDSplit` of a Hadamard operator; held inside.
-        n_layers: unrolled steps ``K`` (the shipped weights: :data:`DEFAULT_N_LAYERS`).
+        n_layers: unrolled steps ``K``; ``None``: the weights file's (:data:`DEFAULT_N_LAYERS`,
+            the shipped weights', without one); given, it must match it.
         noise_sigma: bucket noise std in the units of ``y`` (float, ``(B,)`` or ``(B, C)``
             tensor; for a DMD split the std of one frame) or ``"auto"`` (estimated from the
             high-order tail of ``y``, :func:`~torchtof.recon.tval3.bucket_noise_sigma`; meant
@@ -451,7 +452,7 @@ class Learned(nn.Module):
     def __init__(
         self,
         A: LinearOperator,
-        n_layers: int = DEFAULT_N_LAYERS,
+        n_layers: int | None = None,
         noise_sigma: float | torch.Tensor | str = "auto",
         pretrained: bool | str | os.PathLike = True,
         width: int | None = None,
@@ -461,7 +462,8 @@ class Learned(nn.Module):
         super().__init__()
         func = "Learned"
         _check_operator(A, func)
-        check_n_layers(n_layers, func)
+        if n_layers is not None:
+            check_n_layers(n_layers, func)
         check_flips(flips, A, func)
         for name, v in (("width", width), ("shuffle", shuffle)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
@@ -480,6 +482,8 @@ class Learned(nn.Module):
             path = pretrained
         # the architecture: the weights file's unless given (a mismatch raises in load_weights)
         file_meta = _load_blob(os.fspath(Path(path).resolve())).get("meta", {}) if path else {}
+        if n_layers is None:
+            n_layers = int(file_meta.get("n_layers", DEFAULT_N_LAYERS))
         if width is None:
             width = int(file_meta.get("width", DEFAULT_WIDTH))
         if shuffle is None:
@@ -588,7 +592,7 @@ class Learned(nn.Module):
 def learned(
     y: torch.Tensor,
     A: LinearOperator,
-    n_layers: int = DEFAULT_N_LAYERS,
+    n_layers: int | None = None,
     noise_sigma: float | torch.Tensor | str = "auto",
     pretrained: bool | str | os.PathLike = True,
     width: int | None = None,
