@@ -24,6 +24,7 @@ __all__ = [
     "check_positive",
     "check_in_range",
     "check_power_of_two",
+    "check_device",
     "is_tracing",
     "unchecked",
 ]
@@ -149,3 +150,16 @@ def check_power_of_two(n: int, name: str, func: str, lo: int = 1, hi: int | None
         rng = f" in [{lo}, {hi}]" if hi is not None else f" >= {lo}"
         raise ValueError(f"{func}: expected {name} to be a power of two{rng}, got {n}")
     return n
+
+
+def check_device(device, name: str, func: str) -> torch.device:
+    """``torch.device(device)`` if torch can allocate on it, else ``ValueError`` naming
+    ``name`` and torch's reason (e.g. a CUDA device in a CPU-only build)."""
+    try:
+        dev = torch.device(device)
+        torch.empty(0, device=dev)
+    except (RuntimeError, TypeError, AssertionError) as e:
+        reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise ValueError(f"{func}: expected {name} to be an available torch device, got "
+                         f"{device!r} ({reason})") from None
+    return dev

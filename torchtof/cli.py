@@ -21,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from ._checks import check_device
 from .apps.args import (
     OneLineParser,
     check_patterns,
@@ -369,11 +370,7 @@ def _check_train(args: argparse.Namespace) -> None:
     lo, hi = args.sr_range
     if lo > hi:
         raise ValueError(f"argument --sr-range: expected LO <= HI, got {lo:g} {hi:g}")
-    try:
-        torch.empty(0, device=args.device)
-    except (RuntimeError, TypeError, AssertionError) as e:
-        raise ValueError(f"argument --device: expected an available torch device, got "
-                         f"{args.device!r} ({_one_line(e)})") from None
+    check_device(args.device, "the device", "argument --device")
 
 
 def _check_export(args: argparse.Namespace) -> None:

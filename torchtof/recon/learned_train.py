@@ -47,6 +47,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from .._checks import check_device
 from ..data import FAMILIES, TRAIN_IMAGES, TRAIN_LEVELS, draw_scenes, noisy_buckets, training_noise
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
@@ -356,12 +357,7 @@ def train_learned(
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
     sizes = tuple(sorted(sizes))
-    try:
-        device = torch.device(device)
-        torch.empty(0, device=device)
-    except (RuntimeError, TypeError, AssertionError) as e:
-        raise ValueError(f"{func}: expected device to be an available torch device, got "
-                         f"{device!r} ({e})") from None
+    device = check_device(device, "device", func)
 
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
