@@ -97,11 +97,12 @@ def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
     for g in groups:
         prior, tv, bd, box = g
         solve = tgv if prior == "tgv" else tval3
-        r = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        r = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box,
+                  return_result=True)
         out[(*g, None)] = psnr(r.x, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
         r = solve(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
-                  boundary=bd, bounds=box)
+                  boundary=bd, bounds=box, return_result=True)
         for j, p in enumerate(psnr(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
             out[(*g, finite[j])] = p
     key = [(c["prior"], c["tv"], c["boundary"], c["bounds"], c["mu"]) for c in cands]
@@ -133,13 +134,13 @@ def fold_study_cell(x, A, y, score) -> dict:
     finite = [w for w in AUTO_WEIGHTS if w != inf]
     for tv, box in STUDY_GROUPS:
         r = tval3(y * mask1.to(y.dtype), MaskedRows(A, mask1), mu=mus.repeat(4)[None],
-                  tvl2=tvl2.repeat(4)[None], max_iter=100, tv=tv, boundary="neumann", bounds=box)
+                  tvl2=tvl2.repeat(4)[None], max_iter=100, tv=tv, boundary="neumann", bounds=box, return_result=True)
         r2 = (A(r.x) - y).square()[0].reshape(4, w_n, m)
         blocks = torch.stack([r2[..., edges[b]:edges[b + 1]].sum(-1) for b in range(8)], -1)
         fit = (r2 * masks[:, None].to(y.dtype)).sum(-1)
-        rc = tval3(y, A, mu=2.0**8, max_iter=100, tv=tv, boundary="neumann", bounds=box)
+        rc = tval3(y, A, mu=2.0**8, max_iter=100, tv=tv, boundary="neumann", bounds=box, return_result=True)
         rl = tval3(y.expand(1, len(finite), -1), A, mu=torch.tensor(finite, dtype=y.dtype)[None],
-                   tvl2=True, max_iter=1025, tv=tv, boundary="neumann", bounds=box)
+                   tvl2=True, max_iter=1025, tv=tv, boundary="neumann", bounds=box, return_result=True)
         ps = [score(rc.x, x)] + [score(rl.x[:, j : j + 1], x) for j in range(len(finite))]
         out["groups"][f"{tv[:3]}{'+' if box else ''}"] = dict(
             blocks=blocks.tolist(), fit=fit.tolist(), psnr=ps)
@@ -218,7 +219,7 @@ def noise_table(ns, srs, scenes, levels=(0.0, 0.01, 0.03)) -> list[dict]:
                     g = torch.Generator().manual_seed(0)
                     y = y0 + lev * spread * torch.randn(y0.shape, dtype=y0.dtype, generator=g)
                     est = 100 * float(bucket_noise_sigma(y)) / spread
-                    d = psnr(tval3(y, A).x, x)[0] - psnr(tval3(y, A, mu=2.0**8).x, x)[0]
+                    d = psnr(tval3(y, A), x)[0] - psnr(tval3(y, A, mu=2.0**8), x)[0]
                     rows.append(dict(n=n, sr=sr, noise=lev, scene=name, est_pct=est, dpsnr=d))
                     cells.append(f"{est:.2f} ({d:+.1f})")
                 print(f"| {n} | {100 * sr:g} | {100 * lev:g} | " + " | ".join(cells) + " |",
@@ -243,8 +244,8 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
                 g = torch.Generator().manual_seed(0)
                 y = y0 + noise * (y0.max() - y0.min()) * torch.randn(y0.shape, dtype=y0.dtype,
                                                                       generator=g)
-                pb = psnr(basis_pursuit(y, A, eps="auto").x, x)[0]
-                pt = psnr(tval3(y, A).x, x)[0]
+                pb = psnr(basis_pursuit(y, A, eps="auto"), x)[0]
+                pt = psnr(tval3(y, A), x)[0]
                 rows.append(dict(n=n, sr=sr, scene=name, bp=pb, tval3=pt))
                 cells.append(f"{pb:.2f} / {pt:.2f}")
             print(f"| {n} | {100 * sr:g} | " + " | ".join(cells) + " |", flush=True)
@@ -368,7 +369,7 @@ def main(argv=None) -> list[dict]:
             for name in args.scenes:
                 x, y = noisy(name, A, args.noise)
                 t0 = time.perf_counter()
-                d = tval3(y, A)
+                d = tval3(y, A, return_result=True)
                 t_def = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 r = auto(y, A, cv_iter=args.cv_iter, return_result=True)

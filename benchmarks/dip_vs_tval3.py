@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(a.threads)
     methods = {
         "dip": lambda y, A: dip(y, A),
-        "tval3": lambda y, A: tval3(y, A).x,
+        "tval3": lambda y, A: tval3(y, A),
         "auto": lambda y, A: auto(y, A),
     }
     start, rows = machine_load(), []

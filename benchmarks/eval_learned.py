@@ -124,7 +124,7 @@ def run_cell(n, sr, order, level, cls, methods=METHODS, weights=True, oracle_sig
         xl, row["t_learned"] = timed(fn, y)
         row["learned"] = score(xl, x)
     if "tval3" in methods:
-        xt, row["t_tval3"] = timed(lambda v: tval3(v, A).x, y)
+        xt, row["t_tval3"] = timed(lambda v: tval3(v, A), y)
         row["tval3"] = score(xt, x)
     if "auto" in methods:
         with torch.no_grad():
@@ -342,7 +342,7 @@ def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True,
         y = buckets(A, x, 0.01, salt=n)
         fns = {"learned" if k == 1 else f"learned_f{k}": Learned(A, pretrained=weights, flips=k)
                for k in flips_options}
-        fns["tval3"] = lambda v, A=A: tval3(v, A).x
+        fns["tval3"] = lambda v, A=A: tval3(v, A)
         t = {k: [] for k in fns}
         with torch.no_grad():
             for fn in fns.values():
@@ -379,7 +379,7 @@ def paper(realisations: int = 3) -> list[dict]:
             pol = data.polarity(gate)
             row = {"sr": sr, "gate": gate}
             for name, fn in (("learned", lambda v, A=A: Learned(A)(v)),
-                             ("tval3", lambda v, A=A: tval3(v, A).x)):
+                             ("tval3", lambda v, A=A: tval3(v, A))):
                 with torch.no_grad():
                     s = compare(fn(y), x, pol)
                 row[name] = (float(s["psnr"].mean()), float(s["ssim"].mean()))

@@ -76,7 +76,7 @@ def oracle(P, ratio: float) -> dict:
     for tv in TVS:
         mu, l2 = _mu_args(ORACLE_WEIGHTS, P.y)
         yy = P.y.expand(1, len(ORACLE_WEIGHTS), -1)
-        r = tt.recon.tgv(yy, P.A, mu=mu[None], tvl2=l2[None], alpha=ratio, tv=tv)
+        r = tt.recon.tgv(yy, P.A, mu=mu[None], tvl2=l2[None], alpha=ratio, tv=tv, return_result=True)
         for k, w in enumerate(ORACLE_WEIGHTS):
             rows.append(dict(tv=tv, mu=None if w == INF else w,
                              psnr=ps.score(r.x[:, k : k + 1], P.x), n_iter=int(r.n_iter[0, k])))
@@ -90,9 +90,9 @@ def oracle(P, ratio: float) -> dict:
 def _solve(y, A, cand, ratio, max_iter=2000):
     nonneg = bool(cand.get("nonneg", False))
     if cand["mu"] is None:
-        return tt.recon.tgv(y, A, alpha=ratio, tv=cand["tv"], max_iter=max_iter, nonneg=nonneg)
+        return tt.recon.tgv(y, A, alpha=ratio, tv=cand["tv"], max_iter=max_iter, nonneg=nonneg, return_result=True)
     return tt.recon.tgv(y, A, mu=cand["mu"], tvl2=True, alpha=ratio, tv=cand["tv"],
-                        max_iter=max_iter, nonneg=nonneg)
+                        max_iter=max_iter, nonneg=nonneg, return_result=True)
 
 
 def cv_choice(P, ratio: float, cv_iter: int = CV_ITER, nonneg: tuple = (False,)) -> dict:
@@ -113,7 +113,7 @@ def cv_choice(P, ratio: float, cv_iter: int = CV_ITER, nonneg: tuple = (False,))
         yt = y.reshape(1, 1, -1) * mask.to(y.dtype)[None]
         r = tt.recon.tgv(yt, MaskedRows(A, mask), mu=mu.repeat(nf)[None],
                          tvl2=l2.repeat(nf)[None], alpha=ratio, tv=tv, max_iter=cv_iter,
-                         nonneg=nn)
+                         nonneg=nn, return_result=True)
         r2 = (A(r.x) - y).square()[0]  # (F·W, M)
         cv = (r2 * hm.repeat_interleave(nw, 0)).sum(-1).reshape(nf, nw).sum(0)
         fit = (r2 * tm.repeat_interleave(nw, 0)).sum(-1).reshape(nf, nw).sum(0)

@@ -121,6 +121,25 @@ def test_solve_typed_result(name, device, request):
         torch.testing.assert_close(res.residual, want)
 
 
+@pytest.mark.parametrize("name", [s for s in SPECS if s != "unrolled"])
+def test_function_returns_x_of_the_module(name):
+    # name(y, A, **options) -> x, the module's forward with the registry's defaults
+    # (unrolled: the function takes the per-layer scalars the module loads); the typed
+    # result only on request
+    spec, A, y = _setup(name, "cpu", b=2)
+    # learned: the shipped weights (two untrained builds draw two initialisations)
+    opts = {**spec.defaults, **(FAST.get(name, {}) if name != "learned" else {})}
+    with torch.enable_grad() if spec.per_sample else torch.no_grad():
+        x = spec.function(y, A, **opts)
+        want = spec.build(A, **opts)(y)
+    assert isinstance(x, torch.Tensor), (name, type(x))
+    torch.testing.assert_close(x, want, rtol=0, atol=0)
+    if "return_result" in inspect.signature(spec.function).parameters:
+        with torch.no_grad():
+            res = spec.function(y, A, **opts, return_result=True)
+        assert hasattr(type(res), "_fields") and torch.equal(res.x, x), name
+
+
 @pytest.mark.parametrize("name", SPECS)
 def test_state_dict_round_trip(name, device):
     spec, A, y = _setup(name, device, b=1)

@@ -147,7 +147,7 @@ def test_tval3_fixed_iterations_no_sync_per_iteration():
     A, y = _data()
 
     def make(k):
-        return lambda: tval3(y, A, max_iter=k, adaptive=False)
+        return lambda: tval3(y, A, max_iter=k, adaptive=False, return_result=True)
 
     assert _per_extra_iterations(make, 5) == 0
 
@@ -158,7 +158,7 @@ def test_bp_fixed_iterations_no_sync_per_iteration():
     A, y = _data()
 
     def make(k):
-        return lambda: basis_pursuit(y, A, n_iter=k, adaptive=False)
+        return lambda: basis_pursuit(y, A, n_iter=k, adaptive=False, return_result=True)
 
     assert _per_extra_iterations(make, 5) == 0
 

@@ -19,8 +19,8 @@ def _data(sigma, b=1, seed=0):
 
 def test_tval3_default_unchanged_and_reports_a_reason():
     A, _, y = _data(0.01, b=2)
-    ref = tval3(y, A)
-    off = tval3(y, A, discrepancy=None)
+    ref = tval3(y, A, return_result=True)
+    off = tval3(y, A, discrepancy=None, return_result=True)
     assert torch.equal(ref.x, off.x) and torch.equal(ref.n_iter, off.n_iter)
     assert ref.stop_code.shape == (2, 1) and ref.stop_code.dtype == torch.int64
     assert all(r in STOP_REASONS for row in ref.reasons() for r in row)
@@ -32,8 +32,8 @@ def test_tval3_discrepancy_stops_at_the_noise_level():
     # the first inner convergence whose residual is within tau M sigma^2
     sigma = 0.05
     A, x, y = _data(sigma)
-    full = tval3(y, A, mu=2**8)
-    early = tval3(y, A, mu=2**8, discrepancy=sigma)
+    full = tval3(y, A, mu=2**8, return_result=True)
+    early = tval3(y, A, mu=2**8, discrepancy=sigma, return_result=True)
     assert early.reasons() == [["discrepancy"]]
     assert int(early.n_iter) < int(full.n_iter)
     res = (A(early.x) - y).pow(2).sum()
@@ -43,14 +43,14 @@ def test_tval3_discrepancy_stops_at_the_noise_level():
 
 def test_tval3_auto_discrepancy_and_max_iter_reason():
     A, _, y = _data(0.05)
-    r = tval3(y, A, mu=2**8, discrepancy="auto")
+    r = tval3(y, A, mu=2**8, discrepancy="auto", return_result=True)
     assert r.converged.all()
-    short = tval3(y, A, max_iter=3)
+    short = tval3(y, A, max_iter=3, return_result=True)
     assert short.reasons() == [["max_iter"]]
     with pytest.raises(ValueError, match="discrepancy"):
-        tval3(y, A, discrepancy="sometimes")
+        tval3(y, A, discrepancy="sometimes", return_result=True)
     with pytest.raises(ValueError, match="noise_sigma"):
-        tval3(y, A, discrepancy=-1.0)
+        tval3(y, A, discrepancy=-1.0, return_result=True)
 
 
 @pytest.mark.parametrize("method", ["PINV", "TVAL3", "BP"])
@@ -87,7 +87,7 @@ def test_tau_scales_the_discrepancy_bound_only():
     # tau: Morozov's factor on the bound, ‖Ax − y‖² ≤ τ M σ² = M (√τ σ)²; the μ model keeps σ
     A, _, y = _data(0.05)
     res = solve_at_noise("TVAL3", y, A, 0.05, tau=0.5)
-    ref = tval3(y, A, noise_sigma=0.05, discrepancy=0.05 * 0.5**0.5)
+    ref = tval3(y, A, noise_sigma=0.05, discrepancy=0.05 * 0.5**0.5, return_result=True)
     assert torch.equal(res.x, ref.x) and torch.equal(res.n_iter, ref.n_iter)
 
 
@@ -95,7 +95,7 @@ def test_model_sigma_false_leaves_the_model_to_tval3():
     # model_sigma=False: σ only bounds the residual; TVAL3 chooses its model as without σ
     A, _, y = _data(0.05)
     res = solve_at_noise("TVAL3", y, A, 0.05, model_sigma=False)
-    ref = tval3(y, A, noise_sigma=None, discrepancy=0.05)
+    ref = tval3(y, A, noise_sigma=None, discrepancy=0.05, return_result=True)
     assert torch.equal(res.x, ref.x) and list(map(list, res.stop_reason)) == ref.reasons()
 
 

@@ -88,7 +88,7 @@ def test_matches_lp_optimum(op, basis, scene):
     else:
         x = _sparse_image(basis, b=2, k=4)
     y = A(x)
-    res = basis_pursuit(y, A, basis=basis, tol=1e-7)
+    res = basis_pursuit(y, A, basis=basis, tol=1e-7, return_result=True)
     assert bool(res.converged.all())
     a = A.matrix().numpy()
     for i in range(y.shape[0]):
@@ -102,7 +102,7 @@ def test_matches_lp_optimum(op, basis, scene):
 def test_exact_recovery_of_dct_sparse_image():
     A = _gaussian()
     x = _sparse_image("dct", k=3)
-    res = basis_pursuit(A(x), A, tol=1e-8)
+    res = basis_pursuit(A(x), A, tol=1e-8, return_result=True)
     err = (res.x - x).flatten(1).norm(dim=1) / x.flatten(1).norm(dim=1)
     assert float(err.max()) < 1e-6
 
@@ -110,7 +110,7 @@ def test_exact_recovery_of_dct_sparse_image():
 def test_full_hadamard_is_exact_inverse():
     A = Hadamard(N_SIDE)  # M = N: {Ax = y} is a single point
     x = torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(4), dtype=torch.float64)
-    torch.testing.assert_close(basis_pursuit(A(x), A, n_iter=3).x, x, rtol=0, atol=1e-12)
+    torch.testing.assert_close(basis_pursuit(A(x), A, n_iter=3), x, rtol=0, atol=1e-12)
 
 
 def _soft(c, t):
@@ -125,7 +125,7 @@ def test_lagrangian_form_closed_form(scale):
     x = torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(5), dtype=torch.float64)
     A = PatternOperator(scale * H.matrix().reshape(-1, N_SIDE, N_SIDE)) if scale != 1 else H
     lam = 0.3
-    res = basis_pursuit(A(x), A, lam=lam, tol=1e-12)
+    res = basis_pursuit(A(x), A, lam=lam, tol=1e-12, return_result=True)
     want = idct2(_soft(dct2(x), lam / scale**2))
     torch.testing.assert_close(res.x, want, rtol=0, atol=1e-10)
     assert bool(res.converged.all())
@@ -142,7 +142,7 @@ def test_constraint_form_closed_form():
     for _ in range(200):
         t = (lo + hi) / 2
         lo, hi = (t, hi) if float((_soft(c, t) - c).norm()) < eps else (lo, t)
-    res = basis_pursuit(A(x), A, eps=eps, tol=1e-10)
+    res = basis_pursuit(A(x), A, eps=eps, tol=1e-10, return_result=True)
     torch.testing.assert_close(res.x, idct2(_soft(c, t)), rtol=0, atol=1e-9)
     torch.testing.assert_close(res.residual, torch.full_like(res.residual, eps))
 
@@ -153,8 +153,8 @@ def test_constraint_form_general_path_matches_orthonormal():
     A2 = PatternOperator(2 * H.matrix().reshape(-1, N_SIDE, N_SIDE))
     assert not A2.orthonormal_rows
     x = torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(7), dtype=torch.float64)
-    r1 = basis_pursuit(H(x), H, eps=0.2, tol=1e-10)
-    r2 = basis_pursuit(A2(x), A2, eps=0.4, tol=1e-10)
+    r1 = basis_pursuit(H(x), H, eps=0.2, tol=1e-10, return_result=True)
+    r2 = basis_pursuit(A2(x), A2, eps=0.4, tol=1e-10, return_result=True)
     torch.testing.assert_close(r2.x, r1.x, rtol=0, atol=1e-7)
     torch.testing.assert_close(r1.residual, torch.full_like(r1.residual, 0.2))
 
@@ -196,8 +196,8 @@ def test_equality_general_path_invariant_to_row_mixing():
     r = torch.randn(M, M, generator=_gen(11), dtype=torch.float64) + 4 * torch.eye(M)
     A = PatternOperator((r @ H.matrix()).reshape(-1, N_SIDE, N_SIDE))
     x = torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(12), dtype=torch.float64)
-    r1 = basis_pursuit(H(x), H, tol=1e-9)
-    r2 = basis_pursuit(A(x), A, tol=1e-9)
+    r1 = basis_pursuit(H(x), H, tol=1e-9, return_result=True)
+    r2 = basis_pursuit(A(x), A, tol=1e-9, return_result=True)
     torch.testing.assert_close(_l1(r2.x, "dct"), _l1(r1.x, "dct"), rtol=1e-6, atol=0)
     torch.testing.assert_close(H(r2.x), H(x), rtol=0, atol=1e-9)
 
@@ -207,8 +207,8 @@ def test_rank_deficient_patterns_project_onto_least_squares_set():
     p = H.matrix().reshape(-1, N_SIDE, N_SIDE)
     A = PatternOperator(torch.cat([p, p[:3]]))  # repeated rows: A Aᵀ singular
     x = torch.rand(1, 1, N_SIDE, N_SIDE, generator=_gen(13), dtype=torch.float64)
-    res = basis_pursuit(A(x), A, tol=1e-9)
-    ref = basis_pursuit(H(x), H, tol=1e-9)
+    res = basis_pursuit(A(x), A, tol=1e-9, return_result=True)
+    ref = basis_pursuit(H(x), H, tol=1e-9, return_result=True)
     assert bool(torch.isfinite(res.x).all())
     torch.testing.assert_close(_l1(res.x, "dct"), _l1(ref.x, "dct"), rtol=1e-6, atol=0)
 
@@ -220,7 +220,7 @@ def test_auto_eps_from_the_tail():
     y = torch.zeros(1, 1, 16, dtype=torch.float64)
     y[..., 0] = 100.0
     y[..., -4:] = torch.tensor([1.0, -2.0, 3.0, -4.0], dtype=torch.float64)
-    res = basis_pursuit(y, A, eps="auto", tol=1e-10)
+    res = basis_pursuit(y, A, eps="auto", tol=1e-10, return_result=True)
     eps = 4 * 2.0 / 0.6744897501960817  # lower median of (1, 2, 3, 4) is 2
     torch.testing.assert_close(float(res.residual), eps, rtol=1e-8, atol=0)
 
@@ -231,11 +231,11 @@ def test_auto_eps_from_the_tail():
 def test_scale_invariance():
     A = _hadamard()
     y = A(torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(14), dtype=torch.float64))
-    r = basis_pursuit(y, A)
-    assert torch.equal(basis_pursuit(8 * y, A).x, 8 * r.x)  # power of two: bit-exact
-    fixed = basis_pursuit(y, A, n_iter=50, adaptive=False).x
+    r = basis_pursuit(y, A, return_result=True)
+    assert torch.equal(basis_pursuit(8 * y, A), 8 * r.x)  # power of two: bit-exact
+    fixed = basis_pursuit(y, A, n_iter=50, adaptive=False)
     torch.testing.assert_close(
-        basis_pursuit(3.7e3 * y, A, n_iter=50, adaptive=False).x, 3.7e3 * fixed, rtol=1e-9, atol=0
+        basis_pursuit(3.7e3 * y, A, n_iter=50, adaptive=False), 3.7e3 * fixed, rtol=1e-9, atol=0
     )
 
 
@@ -244,8 +244,9 @@ def test_scale_invariance():
 def test_batched_equals_stacked_singles(op, kw):
     A = _hadamard() if op == "hadamard" else _gaussian()
     y = A(torch.rand(3, 2, N_SIDE, N_SIDE, generator=_gen(15), dtype=torch.float64))
-    res = basis_pursuit(y, A, n_iter=100, **kw)
-    singles = [basis_pursuit(y[i : i + 1, c : c + 1], A, n_iter=100, **kw) for i in range(3)
+    res = basis_pursuit(y, A, n_iter=100, **kw, return_result=True)
+    singles = [basis_pursuit(y[i : i + 1, c : c + 1], A, n_iter=100, **kw,
+                             return_result=True) for i in range(3)
                for c in range(2)]  # fmt: skip
     x = torch.stack([s.x[0, 0] for s in singles]).reshape(3, 2, N_SIDE, N_SIDE)
     torch.testing.assert_close(res.x, x, rtol=1e-6, atol=1e-8)
@@ -260,35 +261,35 @@ def test_zero_measurements_give_zero_image():
         y = A(x)
         y[1] = 0
         for kw in ({}, {"eps": 0.1}, {"lam": 0.1}):
-            res = basis_pursuit(y, A, n_iter=300, **kw)
+            res = basis_pursuit(y, A, n_iter=300, **kw, return_result=True)
             assert torch.equal(res.x[1], torch.zeros_like(res.x[1]))
             assert bool(res.converged[1].all()) and bool(torch.isfinite(res.x).all())
-            other = basis_pursuit(y[[0, 2]], A, n_iter=300, **kw).x
+            other = basis_pursuit(y[[0, 2]], A, n_iter=300, **kw)
             torch.testing.assert_close(res.x[[0, 2]], other, rtol=1e-6, atol=1e-9)
-        assert torch.equal(basis_pursuit(torch.zeros_like(y), A).x, torch.zeros_like(x))
+        assert torch.equal(basis_pursuit(torch.zeros_like(y), A), torch.zeros_like(x))
         for kw in ({}, {"eps": 0.1}, {"lam": 0.1}):  # finite gradients at y = 0
             yg = y.clone().requires_grad_()
-            basis_pursuit(yg, A, n_iter=20, **kw).x.square().sum().backward()
+            basis_pursuit(yg, A, n_iter=20, **kw).square().sum().backward()
             assert bool(torch.isfinite(yg.grad).all())
 
 
 def test_eps_larger_than_signal_gives_zero():
     A = _hadamard()
     y = A(torch.rand(1, 1, N_SIDE, N_SIDE, generator=_gen(17), dtype=torch.float64))
-    res = basis_pursuit(y, A, eps=1.01 * float(y.norm()))
+    res = basis_pursuit(y, A, eps=1.01 * float(y.norm()), return_result=True)
     assert float(res.x.abs().max()) < 1e-12
 
 
 def test_fixed_mode_runs_exactly_n_iter():
     A = _hadamard()
     y = A(torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(18), dtype=torch.float64))
-    res = basis_pursuit(y, A, n_iter=7, adaptive=False)
+    res = basis_pursuit(y, A, n_iter=7, adaptive=False, return_result=True)
     assert res.n_iter.tolist() == [[7], [7]] and not bool(res.converged.any())
-    short = basis_pursuit(y, A, n_iter=7, tol=1e-12)
+    short = basis_pursuit(y, A, n_iter=7, tol=1e-12, return_result=True)
     assert short.n_iter.tolist() == [[7], [7]] and not bool(short.converged.any())
-    one = basis_pursuit(y, A, n_iter=1, adaptive=False)
+    one = basis_pursuit(y, A, n_iter=1, adaptive=False, return_result=True)
     assert one.x.shape == (2, 1, N_SIDE, N_SIDE)
-    easy = basis_pursuit(y, A, tol=1e-4)
+    easy = basis_pursuit(y, A, tol=1e-4, return_result=True)
     assert bool(easy.converged.all()) and int(easy.n_iter.max()) < 5000
 
 
@@ -298,7 +299,7 @@ def test_shapes_dtype_and_input_untouched(B, dtype):
     A = _hadamard()
     y = A(torch.rand(B, 1, N_SIDE, N_SIDE, generator=_gen(19), dtype=dtype))
     y0 = y.clone()
-    res = basis_pursuit(y, A, n_iter=200)
+    res = basis_pursuit(y, A, n_iter=200, return_result=True)
     assert isinstance(res, BPResult)
     assert res.x.shape == (B, 1, N_SIDE, N_SIDE) and res.x.dtype == dtype
     assert res.x.device == y.device and res.residual.dtype == dtype
@@ -309,8 +310,8 @@ def test_shapes_dtype_and_input_untouched(B, dtype):
 def test_float32_close_to_float64():
     A = _gaussian()
     y = A(_sparse_image("dct", k=3))
-    x64 = basis_pursuit(y, A).x
-    x32 = basis_pursuit(y.float(), A).x
+    x64 = basis_pursuit(y, A)
+    x32 = basis_pursuit(y.float(), A)
     assert x32.dtype == torch.float32
     torch.testing.assert_close(x32.double(), x64, rtol=0, atol=1e-4)
 
@@ -320,7 +321,7 @@ def test_module_equals_function_and_holds_gram():
     y = A(torch.rand(2, 1, N_SIDE, N_SIDE, generator=_gen(20), dtype=torch.float64))
     bp = BasisPursuit(A, basis="haar", n_iter=100, eps=0.01)
     assert hasattr(bp, "gram_u") and "gram_u" not in bp.state_dict()
-    ref = basis_pursuit(y, A, basis="haar", n_iter=100, eps=0.01)
+    ref = basis_pursuit(y, A, basis="haar", n_iter=100, eps=0.01, return_result=True)
     torch.testing.assert_close(bp(y), ref.x, rtol=0, atol=1e-12)
     res = bp.solve(y)
     assert torch.equal(res.n_iter, ref.n_iter)
@@ -345,7 +346,7 @@ def test_gradcheck(adaptive, kw, op):
     A = Hadamard(4, m=6) if op == "hadamard" else PatternOperator(torch.randn(6, 4, 4).double())
     y = A(torch.rand(1, 1, 4, 4, generator=_gen(22), dtype=torch.float64)).requires_grad_()
     assert torch.autograd.gradcheck(
-        lambda y: basis_pursuit(y, A, n_iter=5, adaptive=adaptive, **kw).x, (y,)
+        lambda y: basis_pursuit(y, A, n_iter=5, adaptive=adaptive, **kw), (y,)
     )
 
 
@@ -404,13 +405,13 @@ def test_errors():
     for exc, msg, kw in cases:
         args = dict(y=y, A=A) | kw
         with pytest.raises(exc, match=msg):
-            basis_pursuit(**args)
+            basis_pursuit(**args, return_result=True)
     g = _gaussian()
     with pytest.raises(ValueError, match=r"basis_pursuit: eps='auto' .* orthonormal rows"):
-        basis_pursuit(g(torch.rand(1, 1, 8, 8).double()), g, eps="auto")
+        basis_pursuit(g(torch.rand(1, 1, 8, 8).double()), g, eps="auto", return_result=True)
     p6 = PatternOperator(torch.rand(10, 6, 6))
     with pytest.raises(ValueError, match=r"basis_pursuit: expected A.n \(image side\) for "):
-        basis_pursuit(p6(torch.rand(1, 1, 6, 6)), p6, basis="haar")
+        basis_pursuit(p6(torch.rand(1, 1, 6, 6)), p6, basis="haar", return_result=True)
     with pytest.raises(ValueError, match=r"BasisPursuit: expected rho > 0"):
         BasisPursuit(A, rho=0.0)
     with pytest.raises(ValueError, match=r"BasisPursuit: expected n_iter >= 1"):
@@ -455,7 +456,7 @@ def test_default_exact_model_against_the_auto_radius():
         y = A(x)
         g = torch.Generator().manual_seed(0)
         y = y + noise * (y.max() - y.min()) * torch.randn(y.shape, dtype=y.dtype, generator=g)
-        p = [float(psnr(basis_pursuit(y, A, eps=e).x.clamp(0, 1), x, bits=8))
+        p = [float(psnr(basis_pursuit(y, A, eps=e).clamp(0, 1), x, bits=8))
              for e in (None, "auto")]
         return p[1] - p[0]
 

@@ -128,7 +128,7 @@ def test_exact_u_step_over_the_memory_limit_is_refused_at_the_entry(memory_limit
         JointTV(A)
     y = torch.zeros(1, 2, A.m)
     with pytest.raises(ValueError, match="tval3: the exact u-step's 16384x16384"):
-        tval3(y, A, u_step="exact")
+        tval3(y, A, u_step="exact", return_result=True)
     with pytest.raises(ValueError, match="joint_tv: the exact u-step's 16384x16384"):
         joint_tv(y, A)
     TVAL3(A)  # the default BB u-step needs no factorisation

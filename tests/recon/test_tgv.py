@@ -96,8 +96,8 @@ def test_planes_beat_tv_staircase():
     x = planar_depth(n).reshape(1, 1, n, n)
     A = Hadamard(n, sr=0.125)
     y = A(x)
-    p_tgv = _psnr(tgv(y, A).x, x)
-    p_tv = max(_psnr(recon.tval3(y, A, mu=2.0**8, boundary=b).x, x) for b in B_RULES)
+    p_tgv = _psnr(tgv(y, A), x)
+    p_tv = max(_psnr(recon.tval3(y, A, mu=2.0**8, boundary=b), x) for b in B_RULES)
     assert p_tgv > p_tv + 10.0, (p_tgv, p_tv)
 
 
@@ -109,7 +109,7 @@ def test_affine_image_from_random_patterns():
     x = (0.2 + 0.03 * j + 0.01 * i)[None, None]
     g = torch.Generator().manual_seed(0)
     A = PatternOperator(torch.rand(64, n, n, generator=g, dtype=torch.float64) - 0.5)
-    r = tgv(A(x), A, tol=1e-6, max_iter=5000)
+    r = tgv(A(x), A, tol=1e-6, max_iter=5000, return_result=True)
     assert r.stop_reason == (("tol",),)
     assert float((r.x - x).abs().max()) < 1e-3 * float(x.max() - x.min())
 
@@ -123,7 +123,7 @@ def test_constrained_model_fits_the_buckets(bounds):
     g = torch.Generator().manual_seed(1)
     y = A(planar_depth(n).reshape(1, 1, n, n))
     y = y + 0.01 * float(y.abs().max()) * torch.randn(y.shape, generator=g, dtype=y.dtype)
-    r = tgv(y, A, bounds=bounds, tol=1e-6, max_iter=5000)
+    r = tgv(y, A, bounds=bounds, tol=1e-6, max_iter=5000, return_result=True)
     assert r.stop_reason == (("tol",),)
     assert float(r.residual) < (1e-12 if bounds is None else 5e-5)
 
@@ -135,7 +135,7 @@ def test_tvl2_weight_moves_between_fit_and_smoothing():
     g = torch.Generator().manual_seed(2)
     y = A(planar_depth(n).reshape(1, 1, n, n))
     y = y + 0.02 * float(y.abs().max()) * torch.randn(y.shape, generator=g, dtype=y.dtype)
-    res = [float(tgv(y, A, mu=m, tvl2=True, max_iter=300).residual)
+    res = [float(tgv(y, A, mu=m, tvl2=True, max_iter=300, return_result=True).residual)
            for m in (2.0**2, 2.0**6, 2.0**10)]
     assert res[0] > res[1] > res[2] > 0
 
@@ -144,9 +144,10 @@ def test_bounds_respected():
     n = 16
     A = Hadamard(n, sr=0.25)
     y = A(planar_depth(n).reshape(1, 1, n, n))
-    r = tgv(y, A, bounds=(0.3, 0.6), max_iter=300)
+    r = tgv(y, A, bounds=(0.3, 0.6), max_iter=300, return_result=True)
     assert float(r.x.min()) >= 0.3 and float(r.x.max()) <= 0.6
-    r = tgv(-y, A, nonneg=True, max_iter=300)  # a negative image projected onto x ≥ 0
+    # a negative image projected onto x ≥ 0
+    r = tgv(-y, A, nonneg=True, max_iter=300, return_result=True)
     assert float(r.x.min()) >= 0.0
 
 
@@ -154,17 +155,17 @@ def test_scale_invariant_for_orthonormal_rows():
     n = 16
     A = Hadamard(n, sr=0.25)
     y = A(planar_depth(n).reshape(1, 1, n, n))
-    a = tgv(y, A, mu=2.0**8, tvl2=True, max_iter=200, adaptive=False).x
-    b = tgv(7.5 * y, A, mu=2.0**8, tvl2=True, max_iter=200, adaptive=False).x
+    a = tgv(y, A, mu=2.0**8, tvl2=True, max_iter=200, adaptive=False)
+    b = tgv(7.5 * y, A, mu=2.0**8, tvl2=True, max_iter=200, adaptive=False)
     torch.testing.assert_close(b, 7.5 * a, rtol=1e-9, atol=1e-12)
 
 
 def test_zero_buckets_and_empty_batch():
     A = Hadamard(8, sr=0.5)
-    r = tgv(torch.zeros(2, 1, 32, dtype=torch.float64), A)
+    r = tgv(torch.zeros(2, 1, 32, dtype=torch.float64), A, return_result=True)
     assert float(r.x.abs().max()) == 0.0 and r.n_iter.tolist() == [[0], [0]]
     assert bool(r.converged.all()) and float(r.residual.abs().max()) == 0.0
-    e = tgv(torch.zeros(0, 1, 32), A)
+    e = tgv(torch.zeros(0, 1, 32), A, return_result=True)
     assert e.x.shape == (0, 1, 8, 8) and e.x.dtype == torch.float32
 
 
@@ -186,10 +187,10 @@ def test_alpha_auto_is_n_over_sqrt_m():
     assert auto_ratio(A) == 2.0 and auto_ratio(Hadamard(32, sr=0.0625)) == 4.0
     y = A(planar_depth(16).reshape(1, 1, 16, 16))
     kw = dict(mu=2.0**8, tvl2=True, max_iter=60, adaptive=False)
-    a = tgv(y, A, **kw).x
-    torch.testing.assert_close(tgv(y, A, alpha=2.0, **kw).x, a, rtol=0, atol=0)
-    torch.testing.assert_close(tgv(y, A, alpha=(1.0, 2.0), **kw).x, a, rtol=0, atol=0)
-    assert float((tgv(y, A, alpha=8.0, **kw).x - a).abs().max()) > 1e-6
+    a = tgv(y, A, **kw)
+    torch.testing.assert_close(tgv(y, A, alpha=2.0, **kw), a, rtol=0, atol=0)
+    torch.testing.assert_close(tgv(y, A, alpha=(1.0, 2.0), **kw), a, rtol=0, atol=0)
+    assert float((tgv(y, A, alpha=8.0, **kw) - a).abs().max()) > 1e-6
 
 
 # -- batching per-sample weights (what cross-validation needs) ----------------------------------
@@ -211,10 +212,11 @@ def test_per_sample_weights_equal_separate_calls(nonneg):
     Am = MaskedRows(A, mask)
     yb = (y * mask.to(y.dtype)).reshape(1, 3, A.m)
     r = tgv(yb, Am, mu=torch.tensor([mus]), tvl2=torch.tensor([tvl2]), max_iter=400,
-            nonneg=nonneg)
+            nonneg=nonneg, return_result=True)
     for c in range(3):
         Ac = MaskedRows(A, mask[c : c + 1])
-        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400, nonneg=nonneg)
+        s = tgv(yb[:, c : c + 1], Ac, mu=mus[c], tvl2=tvl2[c], max_iter=400, nonneg=nonneg,
+                return_result=True)
         torch.testing.assert_close(r.x[:, c : c + 1], s.x, rtol=1e-10, atol=1e-12)
         assert int(r.n_iter[0, c]) == int(s.n_iter)
 
@@ -227,7 +229,7 @@ def test_fixed_iterations_make_no_host_reads():
 
     def syncs(k):
         with count_syncs() as n:
-            tgv(y, A, max_iter=k, adaptive=False)
+            tgv(y, A, max_iter=k, adaptive=False, return_result=True)
         return n[0]
 
     syncs(5)
@@ -264,19 +266,19 @@ def test_bad_options_raise_naming_the_argument(kw, exc, name):
     A = Hadamard(8, sr=0.5)
     y = torch.zeros(1, 2, 32)
     with pytest.raises(exc, match=name):
-        tgv(y, A, **kw)
+        tgv(y, A, **kw, return_result=True)
 
 
 def test_bad_y_and_operator_raise():
     A = Hadamard(8, sr=0.5)
     with pytest.raises(ValueError, match="y"):
-        tgv(torch.zeros(1, 1, 31), A)
+        tgv(torch.zeros(1, 1, 31), A, return_result=True)
     with pytest.raises(TypeError, match="y"):
-        tgv(torch.zeros(1, 1, 32, dtype=torch.int64), A)
+        tgv(torch.zeros(1, 1, 32, dtype=torch.int64), A, return_result=True)
     with pytest.raises(ValueError, match="y"):
-        tgv(torch.full((1, 1, 32), float("nan")), A)
+        tgv(torch.full((1, 1, 32), float("nan")), A, return_result=True)
     with pytest.raises(TypeError, match="A"):
-        tgv(torch.zeros(1, 1, 32), "A")
+        tgv(torch.zeros(1, 1, 32), "A", return_result=True)
     with pytest.raises(TypeError, match="A"):
         TGV(None)
     with pytest.raises(ValueError, match="alpha"):

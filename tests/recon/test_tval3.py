@@ -251,9 +251,9 @@ def test_iterates_match_reference(case):
         tv="anisotropic" if extra["tvnorm"] == 1 else "isotropic",
     )
     for k in sorted({1, 2, 3, 5, 8, 13, itr - 1}):
-        xk = tval3(y, A, max_iter=k, **kw).x[0, 0].numpy()
+        xk = tval3(y, A, max_iter=k, **kw)[0, 0].numpy()
         np.testing.assert_allclose(xk, hist[k - 1], rtol=0, atol=1e-11)
-    full = tval3(y, A, max_iter=200, **kw)
+    full = tval3(y, A, max_iter=200, **kw, return_result=True)
     assert int(full.n_iter) == itr and bool(full.converged)
     np.testing.assert_allclose(full.x[0, 0].numpy(), hist[-1], rtol=0, atol=1e-11)
 
@@ -268,9 +268,9 @@ def test_stopping_rule_max_outer_and_max_iter():
     A = Hadamard(8, sr=0.5)
     y = A(_small(4))
     hist, itr, conv, _ = _ref(A, y, max_outer=2, tol=1e-12)
-    r = tval3(y, A, max_iter=200, **dict(REF_KW, max_outer=2, tol=1e-12))
+    r = tval3(y, A, max_iter=200, **dict(REF_KW, max_outer=2, tol=1e-12), return_result=True)
     assert conv and int(r.n_iter) == itr and bool(r.converged)
-    r2 = tval3(y, A, max_iter=itr - 1, **dict(REF_KW, max_outer=2, tol=1e-12))
+    r2 = tval3(y, A, max_iter=itr - 1, **dict(REF_KW, max_outer=2, tol=1e-12), return_result=True)
     assert int(r2.n_iter) == itr - 1 and not bool(r2.converged)
 
 
@@ -281,7 +281,7 @@ def test_stopping_rule_max_outer_and_max_iter():
 def test_noise_free_rectangles_40db(u_step):
     A = Hadamard(32, sr=0.375)
     x = _rects(32)
-    res = tval3(A(x), A, u_step=u_step)  # defaults, mu="auto"
+    res = tval3(A(x), A, u_step=u_step, return_result=True)  # defaults, mu="auto"
     assert _psnr(res.x, x) >= 40.0
     assert bool(res.converged) and float(res.residual) < 1e-3
 
@@ -294,15 +294,15 @@ def test_general_operator_scale_a():
     pats = random_binary_patterns(40, 8, generator=g).double()
     A, A3 = PatternOperator(pats), PatternOperator(3 * pats)
     y = A(_rects(8, torch.float64))
-    r10 = tval3(y, A, mu=2**8)
-    r100 = tval3(y, A, mu=2**8, max_outer=100)
+    r10 = tval3(y, A, mu=2**8, return_result=True)
+    r100 = tval3(y, A, mu=2**8, max_outer=100, return_result=True)
     assert float(r100.residual) < 5e-4 < 1e-3 < float(r10.residual)
     # BB steps amplify rounding (s2 of 3A is 9 s2 up to rounding): compare early iterates
     torch.testing.assert_close(
-        tval3(3 * y, A3, mu=2**8, max_iter=20).x, tval3(y, A, mu=2**8, max_iter=20).x
+        tval3(3 * y, A3, mu=2**8, max_iter=20), tval3(y, A, mu=2**8, max_iter=20)
     )
-    ex = tval3(y, A, mu=2**8, u_step="exact")
-    torch.testing.assert_close(tval3(3 * y, A3, mu=2**8, u_step="exact").x, ex.x)
+    ex = tval3(y, A, mu=2**8, u_step="exact", return_result=True)
+    torch.testing.assert_close(tval3(3 * y, A3, mu=2**8, u_step="exact"), ex.x)
 
 
 def _admm_tv_l2(y, A, lam, rho=1.0, iters=1500):
@@ -340,7 +340,8 @@ def test_tvl2_converges_to_the_tv_l2_minimiser():
     g = torch.Generator().manual_seed(0)
     y = A(_rects(8, torch.float64)) + 0.05 * torch.randn(1, 1, 32, generator=g, dtype=torch.float64)
     mu = 16.0
-    res = tval3(y, A, mu=mu, tvl2=True, tol=1e-12, tol_inner=1e-6, max_outer=400, max_iter=20000)
+    res = tval3(y, A, mu=mu, tvl2=True, tol=1e-12, tol_inner=1e-6, max_outer=400,
+                max_iter=20000, return_result=True)
     gain = 1.5 / float(y.max() - y.min())  # TVAL3 works on b = gain*y: lam = 1/(mu*gain)
     ref = _admm_tv_l2(y, A, 1.0 / (mu * gain))
     torch.testing.assert_close(res.x, ref, rtol=0, atol=1e-4)
@@ -352,8 +353,8 @@ def test_noise_aware_default_beats_constrained_on_noise():
     y0 = A(x)
     g = torch.Generator().manual_seed(0)
     y = y0 + 0.03 * (y0.max() - y0.min()) * torch.randn(y0.shape, generator=g)
-    p_auto = _psnr(tval3(y, A).x, x)
-    p_con = _psnr(tval3(y, A, mu=2**8).x, x)
+    p_auto = _psnr(tval3(y, A), x)
+    p_con = _psnr(tval3(y, A, mu=2**8), x)
     assert p_auto > p_con + 3.0
 
 
@@ -368,7 +369,7 @@ def test_bucket_noise_sigma_on_pure_noise():
 def test_explicit_noise_sigma_zero_is_constrained():
     A = Hadamard(16, sr=0.5)
     y = A(_rects(16, torch.float64))
-    torch.testing.assert_close(tval3(y, A, noise_sigma=0.0).x, tval3(y, A, mu=2**8).x)
+    torch.testing.assert_close(tval3(y, A, noise_sigma=0.0), tval3(y, A, mu=2**8))
 
 
 # -- API, shapes, dtypes, batching ----------------------------------------------------------------
@@ -378,7 +379,7 @@ def test_explicit_noise_sigma_zero_is_constrained():
 def test_shapes_and_dtype(b, c, dtype):
     A = Hadamard(8, sr=0.5)
     y = torch.randn(b, c, A.m, dtype=dtype)
-    res = tval3(y, A, max_iter=20)
+    res = tval3(y, A, max_iter=20, return_result=True)
     assert isinstance(res, TVAL3Result)
     assert res.x.shape == (b, c, 8, 8) and res.x.dtype == dtype
     assert res.n_iter.shape == (b, c) and res.n_iter.dtype == torch.int64
@@ -391,7 +392,7 @@ def test_module_equals_function_and_keeps_no_state():
     y = A(_small(0, b=2, dtype=torch.float32))
     rec = TVAL3(A, mu=2**6, max_iter=60)
     x = rec(y)
-    res = tval3(y, A, mu=2**6, max_iter=60)
+    res = tval3(y, A, mu=2**6, max_iter=60, return_result=True)
     torch.testing.assert_close(x, res.x, rtol=0, atol=0)
     sol = rec.solve(y)
     assert torch.equal(sol.n_iter, res.n_iter)
@@ -409,10 +410,10 @@ def test_batched_equals_stacked_singles_and_frozen():
     A = Hadamard(8, sr=0.5)
     y = A(_small(5, b=3))
     y[1] *= 0.0  # an all-zero sample in the batch
-    res = tval3(y, A, **REF_KW)
+    res = tval3(y, A, **REF_KW, return_result=True)
     assert len(set(res.n_iter.flatten().tolist())) == 3
     for i in range(3):
-        r1 = tval3(y[i : i + 1], A, **REF_KW)
+        r1 = tval3(y[i : i + 1], A, **REF_KW, return_result=True)
         torch.testing.assert_close(res.x[i : i + 1], r1.x, rtol=0, atol=1e-12)
         assert torch.equal(res.n_iter[i : i + 1], r1.n_iter)
     assert res.n_iter[1, 0] == 0 and bool(res.converged[1, 0]) and res.residual[1, 0] == 0
@@ -421,7 +422,7 @@ def test_batched_equals_stacked_singles_and_frozen():
 
 def test_all_zero_returns_zeros(dtype):
     A = Hadamard(8, sr=0.5)
-    res = tval3(torch.zeros(2, 1, A.m, dtype=dtype), A)
+    res = tval3(torch.zeros(2, 1, A.m, dtype=dtype), A, return_result=True)
     assert torch.equal(res.x, torch.zeros(2, 1, 8, 8, dtype=dtype))
     assert res.n_iter.sum() == 0 and bool(res.converged.all()) and bool((res.residual == 0).all())
 
@@ -430,7 +431,7 @@ def test_input_not_modified():
     A = Hadamard(8, sr=0.5)
     y = A(_small(0))
     y0 = y.clone()
-    tval3(y, A, max_iter=30)
+    tval3(y, A, max_iter=30, return_result=True)
     assert torch.equal(y, y0)
 
 
@@ -440,9 +441,9 @@ def test_scale_invariance(mu):
     g = torch.Generator().manual_seed(1)
     y0 = A(_rects(16, torch.float64))
     y = y0 + 0.02 * (y0.max() - y0.min()) * torch.randn(y0.shape, generator=g, dtype=torch.float64)
-    base = tval3(y, A, mu=mu, max_iter=300)
+    base = tval3(y, A, mu=mu, max_iter=300, return_result=True)
     for c in (1e-3, 0.37, 25.0):
-        r = tval3(c * y, A, mu=mu, max_iter=300)
+        r = tval3(c * y, A, mu=mu, max_iter=300, return_result=True)
         torch.testing.assert_close(r.x, c * base.x, rtol=1e-9, atol=1e-9 * c)
         assert torch.equal(r.n_iter, base.n_iter)
 
@@ -450,23 +451,23 @@ def test_scale_invariance(mu):
 def test_float32_close_to_float64():
     A = Hadamard(16, sr=0.5)
     x = _rects(16, torch.float64)
-    r64 = tval3(A(x), A, mu=2**8)
-    r32 = tval3(A(x).float(), A, mu=2**8)
+    r64 = tval3(A(x), A, mu=2**8, return_result=True)
+    r32 = tval3(A(x).float(), A, mu=2**8, return_result=True)
     assert (r32.x.double() - r64.x).abs().max() < 1e-3
 
 
 def test_nonneg_and_anisotropic():
     A = Hadamard(16, sr=0.5)
     x = _rects(16)
-    r = tval3(A(x), A, mu=2**8, nonneg=True, tv="anisotropic")
+    r = tval3(A(x), A, mu=2**8, nonneg=True, tv="anisotropic", return_result=True)
     assert bool((r.x >= 0).all()) and _psnr(r.x, x) > 35
 
 
 def test_fixed_iter_equals_adaptive():
     A = Hadamard(8, sr=0.5)
     y = A(_small(5, b=3))
-    a = tval3(y, A, max_iter=40, **REF_KW)
-    f = tval3(y, A, max_iter=40, adaptive=False, **REF_KW)
+    a = tval3(y, A, max_iter=40, **REF_KW, return_result=True)
+    f = tval3(y, A, max_iter=40, adaptive=False, **REF_KW, return_result=True)
     torch.testing.assert_close(a.x, f.x, rtol=0, atol=1e-12)
     assert torch.equal(a.n_iter, f.n_iter) and torch.equal(a.converged, f.converged)
 
@@ -476,7 +477,7 @@ def test_gradcheck_float64():
     y = A(_small(0)[..., :4, :4] + 1.0).detach().requires_grad_(True)
 
     def fn(yy):
-        return tval3(yy, A, mu=2**4, beta=2**3, max_iter=4, adaptive=False).x
+        return tval3(yy, A, mu=2**4, beta=2**3, max_iter=4, adaptive=False)
 
     assert torch.autograd.gradcheck(fn, (y,), eps=1e-6, atol=1e-5)
 
@@ -525,53 +526,53 @@ def test_errors():
     A = Hadamard(8, sr=0.5)
     y = torch.randn(1, 1, A.m)
     with pytest.raises(ValueError, match=r"tval3: expected y of shape \(\*, \*, 32\)"):
-        tval3(torch.randn(1, 1, 31), A)
+        tval3(torch.randn(1, 1, 31), A, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected y of rank 3"):
-        tval3(torch.randn(1, 32), A)
+        tval3(torch.randn(1, 32), A, return_result=True)
     bad = y.clone()
     bad[0, 0, 3] = float("nan")
     with pytest.raises(ValueError, match="tval3: y contains non-finite values"):
-        tval3(bad, A)
+        tval3(bad, A, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected mu > 0"):
-        tval3(y, A, mu=0.0)
+        tval3(y, A, mu=0.0, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected mu to be a positive number or 'auto'"):
-        tval3(y, A, mu="big")
+        tval3(y, A, mu="big", return_result=True)
     with pytest.raises(ValueError, match="tval3: expected beta > 0"):
-        tval3(y, A, beta=-1.0)
+        tval3(y, A, beta=-1.0, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected max_iter >= 1"):
-        tval3(y, A, max_iter=0)
+        tval3(y, A, max_iter=0, return_result=True)
     with pytest.raises(TypeError, match="tval3: expected max_iter to be an int"):
-        tval3(y, A, max_iter=2.0)
+        tval3(y, A, max_iter=2.0, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected tv in"):
-        tval3(y, A, tv="l1")
+        tval3(y, A, tv="l1", return_result=True)
     with pytest.raises(ValueError, match="tval3: expected u_step in"):
-        tval3(y, A, u_step="cg")
+        tval3(y, A, u_step="cg", return_result=True)
     with pytest.raises(ValueError, match="tval3: tvl2=True needs a numeric mu"):
-        tval3(y, A, tvl2=True)
+        tval3(y, A, tvl2=True, return_result=True)
     with pytest.raises(ValueError, match="tval3: expected noise_sigma >= 0"):
-        tval3(y, A, noise_sigma=-1.0)
+        tval3(y, A, noise_sigma=-1.0, return_result=True)
     with pytest.raises(TypeError, match="tval3: expected A to be a LinearOperator"):
-        tval3(y, torch.eye(4))
+        tval3(y, torch.eye(4), return_result=True)
     with pytest.raises(TypeError, match="tval3: expected y of dtype float32 or float64"):
-        tval3(y.half(), A)
+        tval3(y.half(), A, return_result=True)
     with pytest.raises(TypeError, match="tval3: expected y to be a floating-point tensor"):
-        tval3(y.long(), A)
+        tval3(y.long(), A, return_result=True)
     with pytest.raises(ValueError, match="TVAL3: expected beta > 0"):
         TVAL3(A, beta=0.0)
     with pytest.raises(TypeError, match="TVAL3: unexpected options"):
         TVAL3(A, foo=1)
     with pytest.raises(ValueError, match="tval3: expected boundary in"):
-        tval3(y, A, boundary="mirror")
+        tval3(y, A, boundary="mirror", return_result=True)
     with pytest.raises(ValueError, match="TVAL3: expected boundary in"):
         TVAL3(A, boundary="zero")
     with pytest.raises(ValueError, match="tval3: expected bounds with lo < hi"):
-        tval3(y, A, bounds=(1.0, 0.0))
+        tval3(y, A, bounds=(1.0, 0.0), return_result=True)
     with pytest.raises(ValueError, match="tval3: expected bounds to be a pair"):
-        tval3(y, A, bounds=1.0)
+        tval3(y, A, bounds=1.0, return_result=True)
     with pytest.raises(ValueError, match="TVAL3: expected bounds lo finite"):
         TVAL3(A, bounds=(float("nan"), 1.0))
     with pytest.raises(ValueError, match="tval3: expected noise_sigma a number"):
-        tval3(y, A, noise_sigma="guess")
+        tval3(y, A, noise_sigma="guess", return_result=True)
 
 
 @pytest.mark.parametrize("u_step", ["bb", "exact"])
@@ -585,12 +586,12 @@ def test_box_known_answer_is_the_clipped_image(u_step):
     g = torch.Generator().manual_seed(3)
     x = torch.rand(1, 1, n, n, dtype=torch.float64, generator=g) * 2 - 0.5  # in [-0.5, 1.5)
     kw = dict(mu=2.0**16, tvl2=True, beta=2.0**3, u_step=u_step, max_iter=3000)
-    r = tval3(A(x), A, bounds=(0.0, 1.0), **kw)
+    r = tval3(A(x), A, bounds=(0.0, 1.0), **kw, return_result=True)
     assert r.x.min() >= 0 and r.x.max() <= 1
     assert (r.x - x.clamp(0, 1)).abs().max() < 2e-3
-    free = tval3(A(x), A, **kw)
+    free = tval3(A(x), A, **kw, return_result=True)
     assert (free.x - x).abs().max() < 2e-3  # without the box: x itself (it is the box at work)
-    nn_ = tval3(A(x), A, nonneg=True, **kw)
+    nn_ = tval3(A(x), A, nonneg=True, **kw, return_result=True)
     assert (nn_.x - x.clamp_min(0)).abs().max() < 2e-3
 
 
@@ -602,7 +603,7 @@ def test_boundary_known_answer(boundary):
     A = Hadamard(n, sr=0.5)
     x = torch.zeros(1, 1, n, n, dtype=torch.float64)
     x[..., 3:10, 0:6] = 1.0
-    r = tval3(A(x), A, mu=2**8, boundary=boundary, max_iter=3000)
+    r = tval3(A(x), A, mu=2**8, boundary=boundary, max_iter=3000, return_result=True)
     assert _psnr(r.x, x) > 40
     # the solution's TV under its own boundary rule is the step's hand-computed TV
     from torchtof.recon.tv import tv_norm
@@ -621,8 +622,8 @@ def test_auto_mu_keeps_the_published_model_on_noise_free_smooth_buckets():
     y = A(x)
     spread = float(y.max() - y.min())
     assert float(bucket_noise_sigma(y)) > 0.005 * spread  # the estimate reads signal as noise
-    auto_ = tval3(y, A)
-    pub = tval3(y, A, mu=2**8)
+    auto_ = tval3(y, A, return_result=True)
+    pub = tval3(y, A, mu=2**8, return_result=True)
     assert abs(_psnr(auto_.x, x) - _psnr(pub.x, x)) < 0.5
 
 
@@ -639,9 +640,9 @@ def test_auto_mu_loses_at_most_half_a_db_on_noise_free_buckets_at_low_sr(scene, 
     x = skimage_scene("coins", n, dtype=torch.float64) if scene == "coins" else planar_depth(n)
     y = A(x)
     assert float(bucket_noise_sigma(y)) > 0.005 * float(y.max() - y.min())
-    r = tval3(y, A)
+    r = tval3(y, A, return_result=True)
     assert r.stop_reason[0][0] != "max_iter"
-    assert _psnr(r.x, x) >= _psnr(tval3(y, A, mu=2**8).x, x) - 0.5
+    assert _psnr(r.x, x) >= _psnr(tval3(y, A, mu=2**8), x) - 0.5
 
 
 def test_adaptive_mode_reads_the_host_once_per_iteration():
@@ -653,7 +654,7 @@ def test_adaptive_mode_reads_the_host_once_per_iteration():
 
     def syncs(k):
         with count_syncs() as n:
-            tval3(y, A, mu=2**8, max_iter=k, tol=1e-300, tol_inner=1e-300)
+            tval3(y, A, mu=2**8, max_iter=k, tol=1e-300, tol_inner=1e-300, return_result=True)
         return n[0]
 
     syncs(5)  # warm caches
@@ -668,7 +669,8 @@ def test_float_and_tensor_mu_solve_alike(tvl2):
     A = Hadamard(16, sr=0.25)
     g = torch.Generator().manual_seed(3)
     y = A(torch.rand(1, 1, 16, 16, generator=g, dtype=torch.float64))
-    a = tval3(y, A, mu=2.0**10, tvl2=tvl2, max_iter=60)
-    b = tval3(y, A, mu=torch.full((1, 1), 2.0**10, dtype=torch.float64), tvl2=tvl2, max_iter=60)
+    a = tval3(y, A, mu=2.0**10, tvl2=tvl2, max_iter=60, return_result=True)
+    b = tval3(y, A, mu=torch.full((1, 1), 2.0**10, dtype=torch.float64), tvl2=tvl2,
+              max_iter=60, return_result=True)
     torch.testing.assert_close(a.x, b.x, rtol=0, atol=1e-12)
     assert a.n_iter.tolist() == b.n_iter.tolist()

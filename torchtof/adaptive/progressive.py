@@ -227,7 +227,7 @@ class ProgressiveStop:
             return self._cache[1]
         A = Hadamard(self.n, m=y.shape[-1], order=self.order)
         with torch.no_grad():
-            x = A.adjoint(y) if self.recon == "pinv" else tval3(y, A, noise_sigma=sigma).x
+            x = A.adjoint(y) if self.recon == "pinv" else tval3(y, A, noise_sigma=sigma)
         self._cache = (key, x)
         return x
 

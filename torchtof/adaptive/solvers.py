@@ -134,17 +134,19 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
         kw = {} if n_iter is None else {"max_iter": int(n_iter)}
         with torch.no_grad():
             disc = None if sig is None else sig * float(tau) ** 0.5  # τ M σ² = M (√τ σ)²
-            res = tval3(y, A, noise_sigma=sig if model_sigma else None, discrepancy=disc, **kw)
+            res = tval3(y, A, noise_sigma=sig if model_sigma else None, discrepancy=disc, **kw,
+                        return_result=True)
         x, iters, reasons, conv = res.x, res.n_iter.tolist(), res.reasons(), res.converged
     elif method == "BP":
         kw = {} if n_iter is None else {"n_iter": int(n_iter)}
         eps = "auto" if sig is None else None
         with torch.no_grad():
             if sig is None:
-                res = basis_pursuit(y, A, eps=eps, **kw)
+                res = basis_pursuit(y, A, eps=eps, **kw, return_result=True)
             else:  # per-sample radius: solve the samples one by one (eps is a float)
                 outs = [basis_pursuit(y[i : i + 1, j : j + 1], A,
-                                      eps=float((tau * m) ** 0.5 * sig[i, j]), **kw)
+                                      eps=float((tau * m) ** 0.5 * sig[i, j]), **kw,
+                                      return_result=True)
                         for i in range(b) for j in range(c)]
                 res = type(outs[0])(*(torch.cat([o[k] for o in outs]).reshape(
                     (b, c) + tuple(outs[0][k].shape[2:])) for k in range(4)))

@@ -312,10 +312,12 @@ def _fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: i
     converged, stop code in STOP_REASONS)``; ``mu`` per sample (constrained: ignored)."""
     prior, tv, bd, box = group
     if prior == "tgv":
-        r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box)
+        r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
+                return_result=True)
         to = torch.tensor([STOP_REASONS.index(k) for k in TGV_STOP_REASONS], device=y.device)
         return r.x, r.n_iter, r.converged, to[r.stop_code]
-    r = tval3(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box)
+    r = tval3(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
+              return_result=True)
     return r.x, r.n_iter, r.converged, r.stop_code
 
 

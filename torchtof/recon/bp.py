@@ -288,7 +288,9 @@ def basis_pursuit(
     lam: float | None = None,
     adaptive: bool = True,
     gram: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
-) -> BPResult:
+    *,
+    return_result: bool = False,
+) -> torch.Tensor | BPResult:
     """Basis pursuit ``min ‖Ψᵀx‖₁ s.t. Ax = y`` by ADMM, or BPDN (see the module docstring).
 
     Args:
@@ -307,9 +309,12 @@ def basis_pursuit(
         adaptive: per-sample early stopping (``True``) or exactly ``n_iter`` iterations.
         gram: cached :func:`gram_factor` of ``A`` (computed here when ``None`` and
             ``A Aᵀ ≠ I``).
+        return_result: return the :class:`BPResult` (iterations, residual, convergence and stop
+            reason per sample) instead of ``x``.
 
     Returns:
-        :class:`BPResult` ``(x, n_iter, residual, converged)``.
+        ``x (B, C, n, n)``, or with ``return_result`` the :class:`BPResult`
+        ``(x, n_iter, residual, converged, stop_reason)``.
 
     Raises:
         TypeError: ``A`` not a :class:`LinearOperator`, ``y`` not a float32/float64 tensor,
@@ -327,7 +332,7 @@ def basis_pursuit(
         >>> A = Hadamard(n=8, sr=0.5)
         >>> x = torch.zeros(1, 1, 8, 8, dtype=torch.float64)
         >>> x[..., 2:6, 2:6] = 1.0
-        >>> res = basis_pursuit(A(x), A)
+        >>> res = basis_pursuit(A(x), A, return_result=True)
         >>> res.x.shape, bool(res.converged.all()), float(res.residual.max()) < 1e-10
         (torch.Size([1, 1, 8, 8]), True, True)
     """
@@ -374,7 +379,8 @@ def basis_pursuit(
             f"({n_iter}) without converging; raise n_iter, or, if the buckets are noisy (the "
             "exact fit then fits the noise, slowly), pass eps='auto' (noise from the buckets' "
             "tail) or eps=<noise radius>", UserWarning, stacklevel=2)
-    return BPResult(x, iters, residual, done, names)
+    res = BPResult(x, iters, residual, done, names)
+    return res if return_result else res.x
 
 
 def _stop_names(done: torch.Tensor) -> tuple:
@@ -449,7 +455,7 @@ class BasisPursuit(nn.Module):
         """Full :class:`BPResult` for ``y (B, C, M)``."""
         return basis_pursuit(
             y, self.A, self.basis, self.n_iter, self.rho, self.alpha, self.tol,
-            self.eps, self.lam, self.adaptive, self._gram(),
+            self.eps, self.lam, self.adaptive, self._gram(), return_result=True
         )  # fmt: skip
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:

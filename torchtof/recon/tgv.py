@@ -278,7 +278,8 @@ def tgv(
     tvl2: bool | torch.Tensor = False,
     adaptive: bool = True,
     check_every: int = 20,
-) -> TGVResult:
+    return_result: bool = False,
+) -> torch.Tensor | TGVResult:
     """TGV² reconstruction (module doc): ``min TGV²_α(x) s.t. A x = y`` or TGV-L2.
 
     Args:
@@ -305,9 +306,11 @@ def tgv(
         adaptive: stop each sample at ``tol`` (host read every ``check_every`` iterations);
             ``False``: exactly ``max_iter`` iterations, no host read in the loop.
         check_every: iterations between the host reads of the stopping test.
+        return_result: return the :class:`TGVResult` (iterations, residual, convergence and stop
+            reason per sample) instead of ``x``.
 
     Returns:
-        :class:`TGVResult`.
+        ``x (B, C, n, n)``, or with ``return_result`` the :class:`TGVResult`.
 
     Raises:
         TypeError, ValueError: bad ``y``/``A`` (as :func:`~torchtof.recon.tval3.tval3`) or an
@@ -318,7 +321,7 @@ def tgv(
         >>> A = Hadamard(16, sr=0.25)
         >>> i, j = torch.meshgrid(torch.arange(16.0), torch.arange(16.0), indexing="ij")
         >>> x = (0.2 + 0.03 * j + 0.01 * i)[None, None]          # a tilted plane
-        >>> res = tgv(A(x), A)
+        >>> res = tgv(A(x), A, return_result=True)
         >>> bool((res.x - x).abs().max() < 1e-2), res.stop_reason
         (True, (('tol',),))
     """
@@ -333,9 +336,10 @@ def tgv(
     tvl2_t = _per_sample(tvl2, shape, torch.bool, y.device, "tvl2", fn)
     if b_ * c_ == 0:
         z = torch.zeros(shape, dtype=torch.int64, device=y.device)
-        return TGVResult(y.new_zeros(b_, c_, A.n, A.n), z, y.new_zeros(shape),
-                         torch.ones(shape, dtype=torch.bool, device=y.device), (), z,
-                         y.new_zeros(b_, c_, 2, A.n, A.n))
+        res = TGVResult(y.new_zeros(b_, c_, A.n, A.n), z, y.new_zeros(shape),
+                        torch.ones(shape, dtype=torch.bool, device=y.device), (), z,
+                        y.new_zeros(b_, c_, 2, A.n, A.n))
+        return res if return_result else res.x
 
     # ScaleA and Scaleb as TVAL3 (module doc)
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
@@ -369,7 +373,8 @@ def tgv(
     code = torch.where(done, 0, 1)
     names = () if is_tracing() or y.device.type == "meta" else tuple(
         tuple(TGV_STOP_REASONS[k] for k in row) for row in code.tolist())
-    return TGVResult(x, n_iter, residual, done, names, code, w)
+    res = TGVResult(x, n_iter, residual, done, names, code, w)
+    return res if return_result else res.x
 
 
 def _pdhg(b, A, sq, mu, constrained, alpha, iso, boundary, box, max_iter, tol, adaptive,
@@ -473,7 +478,7 @@ class TGV(nn.Module):
                             adaptive=adaptive, check_every=check_every)
 
     def solve(self, y: torch.Tensor) -> TGVResult:
-        return tgv(y, self.A, **self.options)
+        return tgv(y, self.A, **self.options, return_result=True)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.solve(y).x

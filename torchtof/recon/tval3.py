@@ -307,7 +307,8 @@ def tval3(
     u_step: str = "bb",
     adaptive: bool = True,
     discrepancy: float | str | torch.Tensor | None = None,
-) -> TVAL3Result:
+    return_result: bool = False,
+) -> torch.Tensor | TVAL3Result:
     """TVAL3 reconstruction ``min Σ‖D_i u‖ s.t. A u = y`` (Li, Yin, Jiang, Zhang 2013).
 
     One inner iteration of ``ftvcs_alp`` (TVAL3 v1.0), per sample, all ``B·C`` samples at once:
@@ -435,9 +436,12 @@ def tval3(
             (``τ =`` :data:`DISCREPANCY_TAU`) stops instead of updating its multipliers, which
             would only fit the noise. Checked at inner convergences only: the start
             ``u₀ = Aᵀb`` fits ``y`` exactly for orthonormal rows.
+        return_result: return the :class:`TVAL3Result` (iterations, residual, convergence and stop
+            reason per sample) instead of ``x``.
 
     Returns:
-        :class:`TVAL3Result` ``(x, n_iter, residual, converged)``.
+        ``x (B, C, n, n)``, or with ``return_result`` the :class:`TVAL3Result`
+        ``(x, n_iter, residual, converged, stop_reason, stop_code)``.
 
     Raises:
         TypeError: ``y`` not a floating tensor, ``A`` not a ``LinearOperator``, bad option types.
@@ -451,7 +455,7 @@ def tval3(
         >>> from torchtof.operators import Hadamard
         >>> A = Hadamard(8, sr=0.5)
         >>> x = torch.zeros(1, 1, 8, 8); x[..., 2:6, 2:6] = 1.0
-        >>> res = tval3(A(x), A, mu=2**8)
+        >>> res = tval3(A(x), A, mu=2**8, return_result=True)
         >>> bool((res.x - x).abs().max() < 1e-2), res.x.shape
         (True, torch.Size([1, 1, 8, 8]))
     """
@@ -532,7 +536,8 @@ def tval3(
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
     code = torch.where(u.converged, code, 3)
-    return TVAL3Result(x, u.n_iter, residual, u.converged, stop_names(code), code)
+    res = TVAL3Result(x, u.n_iter, residual, u.converged, stop_names(code), code)
+    return res if return_result else res.x
 
 
 def stop_names(code: torch.Tensor) -> tuple:
@@ -571,7 +576,7 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     tl = torch.tensor([False, True, True], device=y.device).repeat(nf)
     budget = min(max_iter, AUTO_CV_MAX_ITER)
     r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=budget, tv=tv,
-              nonneg=nonneg, bounds=bounds, boundary=boundary)
+              nonneg=nonneg, bounds=bounds, boundary=boundary, return_result=True)
     hm = held.repeat_interleave(nm, dim=0).to(y.dtype)
     err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, nm).sum(1)  # (BC, nm)
     larger = err[:, 2] < err[:, 1]
@@ -1019,7 +1024,7 @@ class TVAL3(nn.Module):
 
     def solve(self, y: torch.Tensor) -> TVAL3Result:
         """Run :func:`tval3`: the :class:`TVAL3Result` (no state is kept between calls)."""
-        return tval3(y, self.A, **self.options)
+        return tval3(y, self.A, **self.options, return_result=True)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         return self.solve(y).x
