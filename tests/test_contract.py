@@ -23,6 +23,7 @@ N = 16
 FAST = {
     "bp": {"n_iter": 60},
     "tval3": {"max_iter": 40},
+    "tgv": {"max_iter": 100},
     "auto": {"cv_iter": 10, "max_iter": 60, "priors": ("tv",)},
     "unrolled": {"n_layers": 3, "pretrained": False},
     "learned": {"n_layers": 2, "pretrained": False},
