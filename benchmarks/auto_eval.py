@@ -9,7 +9,13 @@ of 1 % of the bucket spread, one noise draw per cell (seed 0). PSNR on [0, 1] af
 
     OMP_NUM_THREADS=1 python benchmarks/auto_eval.py --n 32 64 --out auto_eval.json
 
-Prints a Markdown table (docs/auto.md holds the committed one).
+Prints a Markdown table (docs/auto.md holds the committed one). ``--peers-cells
+docs/peers.json`` runs the same table on the cells of the peers benchmark instead (its
+problems and PSNR, ``benchmarks/peers_scenes.py``; the sizes ``--n``), ``--shard I/K`` every
+K-th cell (two processes on two cores)::
+
+    OMP_NUM_THREADS=1 python benchmarks/auto_eval.py --peers-cells docs/peers.json --n 32 64 \\
+        --shard 0/2 --out regret_0.json     # and --shard 1/2
 
 How the fold layout and score were chosen (docs/auto.md, "The fold score"): ``--fold-study``
 fits every first-stage TV candidate on the first 4/8 … 7/8 of the rows and stores its error
@@ -83,10 +89,12 @@ def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:
     return tt.metrics.psnr(a.clamp(0, 1), x, bits=8).reshape(-1).tolist()
 
 
-def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
+def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025, score=None):
     """PSNR of every first-stage candidate of ``auto`` refitted on all buckets as ``auto``
     refits its choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), in the
-    order of ``cands`` (second-stage weights and the box-only candidate are skipped)."""
+    order of ``cands`` (second-stage weights and the box-only candidate are skipped).
+    ``score(x_hat (K, 1, n, n), x (K, 1, n, n)) -> K`` PSNRs (default :func:`psnr`)."""
+    psnr_ = psnr if score is None else score
     out = {}
     groups = []
     for c in cands:
@@ -99,11 +107,11 @@ def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025):
         solve = tgv if prior == "tgv" else tval3
         r = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box,
                   return_result=True)
-        out[(*g, None)] = psnr(r.x, x)[0]
+        out[(*g, None)] = psnr_(r.x, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
         r = solve(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
                   boundary=bd, bounds=box, return_result=True)
-        for j, p in enumerate(psnr(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
+        for j, p in enumerate(psnr_(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
             out[(*g, finite[j])] = p
     key = [(c["prior"], c["tv"], c["boundary"], c["bounds"], c["mu"]) for c in cands]
     return [out[k] for k in key if k in out]
@@ -252,7 +260,11 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
     return rows
 
 
-def fold_study(args, out: str) -> list[dict]:
+def problems(args, batch_score: bool = True) -> list[tuple]:
+    """``(key, x, A, y, score)`` per cell, ``key = (scene, n, sr, order, level)``: the cells of
+    the peers JSON ``args.peers_cells`` (``peers_scenes.make_problem``, its PSNR) at the sizes
+    ``args.n``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch
+    (``batch_score=False``: one PSNR of one image)."""
     if args.peers_cells:
         import sys
         from pathlib import Path
@@ -260,17 +272,24 @@ def fold_study(args, out: str) -> list[dict]:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         import peers_scenes as ps
 
-        probs = [(k, *ps.make_problem(*k, 0)[:3], ps.score) for k in peer_best(args.peers_cells)
-                 if k[1] in args.n]
-    else:
-        probs = []
-        for n in args.n:
-            for sr in args.sr:
-                A = tt.operators.Hadamard(n, sr=sr).double()
-                for name in args.scenes:
-                    x, y = noisy(name, A, args.noise)
-                    probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y,
-                                  lambda a, b: psnr(a, b)[0]))
+        def many(a, b):
+            return [ps.score(a[i : i + 1], b[i : i + 1]) for i in range(a.shape[0])]
+
+        return [(k, *ps.make_problem(*k, 0)[:3], many if batch_score else ps.score)
+                for k in peer_best(args.peers_cells) if k[1] in args.n]
+    probs = []
+    for n in args.n:
+        for sr in args.sr:
+            A = tt.operators.Hadamard(n, sr=sr).double()
+            for name in args.scenes:
+                x, y = noisy(name, A, args.noise)
+                probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y,
+                              psnr if batch_score else (lambda a, b: psnr(a, b)[0])))
+    return probs
+
+
+def fold_study(args, out: str) -> list[dict]:
+    probs = problems(args, batch_score=False)
     rows = []
     for key, x, A, y, score in probs:
         t0 = time.perf_counter()
@@ -318,6 +337,13 @@ def _bounds(b) -> str:
     return "[" + ", ".join("-" if v is None else f"{v:.2f}" for v in b) + "]"
 
 
+def _shard(v: str) -> tuple[int, int]:
+    i, _, k = v.partition("/")
+    if not (i.isdigit() and k.isdigit() and 0 <= int(i) < int(k)):
+        raise argparse.ArgumentTypeError(f"expected I/K with 0 <= I < K, got {v!r}")
+    return int(i), int(k)
+
+
 def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[32, 64])
@@ -333,8 +359,11 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--fold-rules", nargs="+", default=None, metavar="STUDY",
                     help="score the fold rules on these fold-study files (Markdown table)")
     ap.add_argument("--peers-cells", default=None, metavar="PEERS_JSON",
-                    help="with --fold-study: the cells of this peers JSON (problems of "
-                         "peers_scenes.py); with --fold-rules: their best peer")
+                    help="the cells of this peers JSON (problems of peers_scenes.py, its PSNR) "
+                         "at the sizes --n instead of the grid; with --fold-rules: their best "
+                         "peer")
+    ap.add_argument("--shard", default="0/1", type=_shard, metavar="I/K",
+                    help="run every K-th cell from the I-th (two processes: 0/2 and 1/2)")
     ap.add_argument("--reuse", default=None, metavar="AUTO_EVAL_JSON",
                     help="take each cell's candidate PSNRs (best, median) from this earlier "
                          "output instead of refitting every candidate; auto and TVAL3's "
@@ -363,41 +392,39 @@ def main(argv=None) -> list[dict]:
     print("| scene | n | SR % | TVAL3 default | auto | best cand. | median cand. | regret | "
           "vs median | chosen | learned w | t default s | t auto s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for n in args.n:
-        for sr in args.sr:
-            A = tt.operators.Hadamard(n, sr=sr).double()
-            for name in args.scenes:
-                x, y = noisy(name, A, args.noise)
-                t0 = time.perf_counter()
-                d = tval3(y, A, return_result=True)
-                t_def = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                r = auto(y, A, cv_iter=args.cv_iter, return_result=True)
-                t_auto = time.perf_counter() - t0
-                if (name, n, sr) in reuse:
-                    old = reuse[(name, n, sr)]
-                    best, median = old["best"], old["median"]
-                else:
-                    cp = candidate_psnrs(y, A, x, r.candidates, args.cv_iter)
-                    best, median = max(cp), statistics.median(cp)
-                ch = r.choice[0][0]
-                row = dict(scene=name, n=n, sr=sr, default=psnr(d.x, x)[0],
-                           auto=psnr(r.x, x)[0], best=best, median=median,
-                           chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
-                                       mu=ch["mu"], learned_weight=ch.get("learned_weight"),
-                                       ell=ch.get("ell"), gamma=ch.get("gamma")),
-                           t_default=t_def, t_auto=t_auto)
-                rows.append(row)
-                mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
-                if ch["prior"] == "gauss":
-                    mu = f"ℓ={ch['ell']:g} γ=4^{round(math.log(ch['gamma'], 4))}"
-                bd = _bounds(ch["bounds"])
-                print(f"| {name} | {n} | {100 * sr:g} | {row['default']:.2f} | "
-                      f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
-                      f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
-                      f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | "
-                      f"{_weight(ch.get('learned_weight'))} | {t_def:.2f} | "
-                      f"{t_auto:.1f} |", flush=True)
+    for key, x, A, y, score in problems(args)[args.shard[0]::args.shard[1]]:
+        name, n, sr = key[:3]
+        t0 = time.perf_counter()
+        d = tval3(y, A, return_result=True)
+        t_def = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        r = auto(y, A, cv_iter=args.cv_iter, return_result=True)
+        t_auto = time.perf_counter() - t0
+        if (name, n, sr) in reuse and not args.peers_cells:
+            old = reuse[(name, n, sr)]
+            best, median = old["best"], old["median"]
+        else:
+            cp = candidate_psnrs(y, A, x, r.candidates, args.cv_iter, score=score)
+            best, median = max(cp), statistics.median(cp)
+        ch = r.choice[0][0]
+        row = dict(scene=name, n=n, sr=sr, order=key[3], level=key[4],
+                   default=score(d.x, x)[0], auto=score(r.x, x)[0], best=best, median=median,
+                   chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
+                               mu=ch["mu"], learned_weight=ch.get("learned_weight"),
+                               ell=ch.get("ell"), gamma=ch.get("gamma")),
+                   t_default=t_def, t_auto=t_auto)
+        rows.append(row)
+        mu = "c" if ch["mu"] is None else f"2^{round(math.log2(ch['mu']))}"
+        if ch["prior"] == "gauss":
+            mu = f"ℓ={ch['ell']:g} γ=4^{round(math.log(ch['gamma'], 4))}"
+        bd = _bounds(ch["bounds"])
+        label = name if not args.peers_cells else f"{name} {key[3][:3]} {100 * key[4]:g}%"
+        print(f"| {label} | {n} | {100 * sr:g} | {row['default']:.2f} | "
+              f"{row['auto']:.2f} | {row['best']:.2f} | {row['median']:.2f} | "
+              f"{row['best'] - row['auto']:.2f} | {row['auto'] - row['median']:+.2f} | "
+              f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | "
+              f"{_weight(ch.get('learned_weight'))} | {t_def:.2f} | "
+              f"{t_auto:.1f} |", flush=True)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)
