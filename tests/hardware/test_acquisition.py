@@ -33,9 +33,9 @@ NOISY = replace(CLEAN, shot="poisson", read_noise_e=12.0)
 def run(path, cfg=CLEAN, seed=0, faults=None, mode="quad", start=0, **kw):
     bench = SimulatedBench(cfg, seed=seed, faults=Faults(**(faults or {})),
                            frame_number_start=start)
-    kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3, "frame_timeout_s": 0.3,
+    kw = {"n": cfg.n, "sr": SR, "progress": False, "retries": 3, "frame_timeout_s": 0.15,
           "metadata": {"simulation": {"config": asdict(cfg), "seed": seed}}, **kw}
-    return acquire(path, bench.lightcrafter(timeout_ms=200), bench.camera(mode=mode), **kw), bench
+    return acquire(path, bench.lightcrafter(timeout_ms=100), bench.camera(mode=mode), **kw), bench
 
 
 def pure(cfg, seed=0):
@@ -368,7 +368,7 @@ def test_duplicate_is_dropped_and_a_repeated_id_on_other_bytes_retried(reference
 
     bench.camera_usb._fifo = Fifo()
     res = acquire(tmp_path / "b.zarr", bench.lightcrafter(), bench.camera(), n=N, sr=SR,
-                  progress=False, frame_timeout_s=0.3)
+                  progress=False, frame_timeout_s=0.15)
     assert (res.duplicates, res.retries) == (0, 1)
     for kind, ref in reference[2].items():
         assert torch.equal(load_buckets(tmp_path / "b.zarr")[0][kind], ref), kind
