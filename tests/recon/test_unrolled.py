@@ -56,6 +56,18 @@ def test_shapes_dtype_and_module_equals_function(b, dtype):
     assert torch.isfinite(out).all()
 
 
+def test_function_without_scalars_uses_the_shipped_ones():
+    # unrolled_tval3(y, A) -> x is UnrolledTVAL3(A)(y): the shipped scalars for (n, SR)
+    A = Hadamard(32, sr=0.25)
+    y = A(torch.rand(2, 1, 32, 32, generator=torch.Generator().manual_seed(3)))
+    net = UnrolledTVAL3(A)
+    assert net.weights_file is not None
+    torch.testing.assert_close(unrolled_tval3(y, A), net(y), rtol=0, atol=0)
+    k = torch.ones(3)
+    with pytest.raises(ValueError, match="got None for step, thresh, precond"):
+        unrolled_tval3(y, A, 256 * k, 32 * k)
+
+
 def test_batched_equals_stacked_and_input_untouched():
     net = _net()
     y = _y(net, b=3, dtype=torch.float64)

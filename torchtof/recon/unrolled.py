@@ -101,14 +101,18 @@ B_NORM = 1.5
 def unrolled_tval3(
     y: torch.Tensor,
     A: LinearOperator,
-    mu: torch.Tensor,
-    beta: torch.Tensor,
-    step: torch.Tensor,
-    thresh: torch.Tensor,
-    precond: torch.Tensor,
+    mu: torch.Tensor | None = None,
+    beta: torch.Tensor | None = None,
+    step: torch.Tensor | None = None,
+    thresh: torch.Tensor | None = None,
+    precond: torch.Tensor | None = None,
     isotropic: bool = True,
 ) -> torch.Tensor:
     """K unrolled TVAL3 iterations with per-iteration scalars (module docstring).
+
+    With none of the five scalar vectors given, the shipped scalars of :class:`UnrolledTVAL3`
+    for ``A`` (its ``(n, SR)``; elsewhere TVAL3's defaults, with its warning): the module's
+    ``forward``.
 
     Args:
         y: measurements ``(B, C, M)``, real floating point.
@@ -121,14 +125,14 @@ def unrolled_tval3(
         isotropic: isotropic TV (TVAL3 ``TVnorm=2``) or anisotropic.
 
     Returns:
-        The reconstruction in the units of the scene (``A x ≈ y``).
+        The reconstruction ``x`` in the units of the scene (``A x ≈ y``).
 
     Raises:
         TypeError: if ``y`` or a scalar vector is not a real floating tensor, or ``A`` is
             not a :class:`~torchtof.operators.LinearOperator`.
         ValueError: if ``A`` has no orthonormal rows, ``y`` is not ``(B, C, M)`` with
             ``M = A.m`` or holds NaN/Inf (eager mode), or the five scalar vectors are not
-            all of shape ``(K,)``, ``K >= 1``.
+            all of shape ``(K,)``, ``K >= 1``, or some of them are given and others not.
 
     Shape:
         - y: :math:`(B, C, M)`; mu, beta, step, thresh, precond: :math:`(K,)`.
@@ -150,7 +154,14 @@ def unrolled_tval3(
     check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
     check_finite(y, "y", func)
     per_iter = (mu, beta, step, thresh, precond)
-    for name, v in zip(("mu", "beta", "step", "thresh", "precond"), per_iter, strict=True):
+    names = ("mu", "beta", "step", "thresh", "precond")
+    if all(v is None for v in per_iter):  # the shipped scalars: the module's forward
+        return UnrolledTVAL3(A, isotropic=isotropic).to(device=y.device)(y)
+    missing = [k for k, v in zip(names, per_iter, strict=True) if v is None]
+    if missing:
+        raise ValueError(f"{func}: expected mu, beta, step, thresh and precond all given or "
+                         f"all None (the shipped scalars), got None for {', '.join(missing)}")
+    for name, v in zip(names, per_iter, strict=True):
         check_tensor(v, name, func)
         if not is_tracing() and (v.ndim != 1 or v.shape[0] < 1 or v.shape != mu.shape):
             raise ValueError(
