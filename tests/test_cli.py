@@ -1,5 +1,6 @@
 """The command line: demo, bench, reproduce (small, real runs — they write real files)."""
 
+import inspect
 import json
 
 import pytest
@@ -155,6 +156,30 @@ def test_debug_and_help_still_give_the_full_usage(capsys):
     assert exc.value.code == 0
     text = capsys.readouterr().out
     assert "--sr-range LO HI" in text and "--n-layers" in text
+
+
+@pytest.mark.parametrize(("rank", "printed"), [(None, True), ("0", True), ("1", False)])
+def test_train_prints_its_summary_once_per_run(rank, printed, tmp_path, capsys, monkeypatch):
+    # under torchrun every process runs the command; only rank 0 reports what was written
+    import torchtof.apps.train as app
+    from torchtof.recon.learned_train import train_learned
+
+    seen = {}
+
+    def fake(**kw):
+        seen.update(kw)
+        return type("R", (), {"losses": [1.0, 0.5], "wall_s": 3.0})()
+
+    assert set(inspect.signature(train_learned).parameters) >= {"steps", "out", "device"}
+    monkeypatch.setattr(app, "train_learned", fake)
+    if rank is None:
+        monkeypatch.delenv("RANK", raising=False)
+    else:
+        monkeypatch.setenv("RANK", rank)
+    assert main(["train", "--steps", "2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert seen["steps"] == 2 and seen["out"] == str(tmp_path)
+    assert ("wrote " in out) == printed, out
 
 
 def test_reconstruct_refuses_a_folder_that_is_not_a_store(tmp_path, capsys):

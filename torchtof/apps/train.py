@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 import time
@@ -121,5 +122,6 @@ def main(args: argparse.Namespace) -> int:
         command=command, calibrate=not args.no_calibrate, device=args.device,
         workers=args.workers,
     )
-    print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
+    if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process
+        print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
     return 0
