@@ -27,9 +27,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	# torch first, from TORCH_INDEX when set, so that the extras below do not pull another build
 	$(BIN)/python -m pip install -q --no-compile "torch==$(TORCH_VERSION)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	# torch byte-compiles (its first import) while pip installs the rest: they share no files
-	PYTHONDONTWRITEBYTECODE= $(BIN)/python -c "import torch" & t=$$!; \
-	$(BIN)/python -m pip install -q --no-compile -e ".[dev,all]" && wait $$t
+	$(BIN)/python -m pip install -q --no-compile -e ".[dev,all]"
 	# byte-compile once what the package, its demo and its tests import (pip compiles every
 	# file of every package, one at a time: 41 s of the install on a 2-core machine; one
 	# process importing them all: 19 s; these two at once: 9 s)
