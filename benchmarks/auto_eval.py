@@ -89,12 +89,11 @@ def psnr(a: torch.Tensor, x: torch.Tensor) -> list[float]:
     return tt.metrics.psnr(a.clamp(0, 1), x, bits=8).reshape(-1).tolist()
 
 
-def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025, score=None):
+def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025, score=psnr):
     """PSNR of every first-stage candidate of ``auto`` refitted on all buckets as ``auto``
     refits its choice (constrained: ``cv_iter`` iterations; TV-L2: up to ``max_iter``), in the
     order of ``cands`` (second-stage weights and the box-only candidate are skipped).
-    ``score(x_hat (K, 1, n, n), x (K, 1, n, n)) -> K`` PSNRs (default :func:`psnr`)."""
-    psnr_ = psnr if score is None else score
+    ``score(x_hat (K, 1, n, n), x (K, 1, n, n)) -> K`` PSNRs."""
     out = {}
     groups = []
     for c in cands:
@@ -105,13 +104,12 @@ def candidate_psnrs(y, A, x, cands, cv_iter, max_iter=1025, score=None):
     for g in groups:
         prior, tv, bd, box = g
         solve = tgv if prior == "tgv" else tval3
-        r = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box,
-                  return_result=True)
-        out[(*g, None)] = psnr_(r.x, x)[0]
+        xc = solve(y, A, mu=2.0**8, max_iter=cv_iter, tv=tv, boundary=bd, bounds=box)
+        out[(*g, None)] = score(xc, x)[0]
         mus = torch.tensor(finite, dtype=y.dtype)[None]
-        r = solve(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
-                  boundary=bd, bounds=box, return_result=True)
-        for j, p in enumerate(psnr_(r.x.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
+        xl = solve(y.expand(1, len(finite), -1), A, mu=mus, tvl2=True, max_iter=max_iter, tv=tv,
+                   boundary=bd, bounds=box)
+        for j, p in enumerate(score(xl.transpose(0, 1), x.expand(len(finite), 1, -1, -1))):
             out[(*g, finite[j])] = p
     key = [(c["prior"], c["tv"], c["boundary"], c["bounds"], c["mu"]) for c in cands]
     return [out[k] for k in key if k in out]
@@ -142,14 +140,14 @@ def fold_study_cell(x, A, y, score) -> dict:
     finite = [w for w in AUTO_WEIGHTS if w != inf]
     for tv, box in STUDY_GROUPS:
         r = tval3(y * mask1.to(y.dtype), MaskedRows(A, mask1), mu=mus.repeat(4)[None],
-                  tvl2=tvl2.repeat(4)[None], max_iter=100, tv=tv, boundary="neumann", bounds=box, return_result=True)
-        r2 = (A(r.x) - y).square()[0].reshape(4, w_n, m)
+                  tvl2=tvl2.repeat(4)[None], max_iter=100, tv=tv, boundary="neumann", bounds=box)
+        r2 = (A(r) - y).square()[0].reshape(4, w_n, m)
         blocks = torch.stack([r2[..., edges[b]:edges[b + 1]].sum(-1) for b in range(8)], -1)
         fit = (r2 * masks[:, None].to(y.dtype)).sum(-1)
-        rc = tval3(y, A, mu=2.0**8, max_iter=100, tv=tv, boundary="neumann", bounds=box, return_result=True)
+        rc = tval3(y, A, mu=2.0**8, max_iter=100, tv=tv, boundary="neumann", bounds=box)
         rl = tval3(y.expand(1, len(finite), -1), A, mu=torch.tensor(finite, dtype=y.dtype)[None],
-                   tvl2=True, max_iter=1025, tv=tv, boundary="neumann", bounds=box, return_result=True)
-        ps = [score(rc.x, x)] + [score(rl.x[:, j : j + 1], x) for j in range(len(finite))]
+                   tvl2=True, max_iter=1025, tv=tv, boundary="neumann", bounds=box)
+        ps = [score(rc, x)] + [score(rl[:, j : j + 1], x) for j in range(len(finite))]
         out["groups"][f"{tv[:3]}{'+' if box else ''}"] = dict(
             blocks=blocks.tolist(), fit=fit.tolist(), psnr=ps)
     return out
@@ -260,11 +258,10 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
     return rows
 
 
-def problems(args, batch_score: bool = True) -> list[tuple]:
+def problems(args) -> list[tuple]:
     """``(key, x, A, y, score)`` per cell, ``key = (scene, n, sr, order, level)``: the cells of
     the peers JSON ``args.peers_cells`` (``peers_scenes.make_problem``, its PSNR) at the sizes
-    ``args.n``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch
-    (``batch_score=False``: one PSNR of one image)."""
+    ``args.n``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch."""
     if args.peers_cells:
         import sys
         from pathlib import Path
@@ -275,7 +272,7 @@ def problems(args, batch_score: bool = True) -> list[tuple]:
         def many(a, b):
             return [ps.score(a[i : i + 1], b[i : i + 1]) for i in range(a.shape[0])]
 
-        return [(k, *ps.make_problem(*k, 0)[:3], many if batch_score else ps.score)
+        return [(k, *ps.make_problem(*k, 0)[:3], many)
                 for k in peer_best(args.peers_cells) if k[1] in args.n]
     probs = []
     for n in args.n:
@@ -283,13 +280,13 @@ def problems(args, batch_score: bool = True) -> list[tuple]:
             A = tt.operators.Hadamard(n, sr=sr).double()
             for name in args.scenes:
                 x, y = noisy(name, A, args.noise)
-                probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y,
-                              psnr if batch_score else (lambda a, b: psnr(a, b)[0])))
+                probs.append(((name, n, sr, "cake_cutting", args.noise), x, A, y, psnr))
     return probs
 
 
 def fold_study(args, out: str) -> list[dict]:
-    probs = problems(args, batch_score=False)
+    # one PSNR of one image for fold_study_cell
+    probs = [(k, x, A, y, lambda a, b, s=s: s(a, b)[0]) for k, x, A, y, s in problems(args)]
     rows = []
     for key, x, A, y, score in probs:
         t0 = time.perf_counter()
@@ -395,7 +392,7 @@ def main(argv=None) -> list[dict]:
     for key, x, A, y, score in problems(args)[args.shard[0]::args.shard[1]]:
         name, n, sr = key[:3]
         t0 = time.perf_counter()
-        d = tval3(y, A, return_result=True)
+        x_def = tval3(y, A)
         t_def = time.perf_counter() - t0
         t0 = time.perf_counter()
         r = auto(y, A, cv_iter=args.cv_iter, return_result=True)
@@ -408,7 +405,7 @@ def main(argv=None) -> list[dict]:
             best, median = max(cp), statistics.median(cp)
         ch = r.choice[0][0]
         row = dict(scene=name, n=n, sr=sr, order=key[3], level=key[4],
-                   default=score(d.x, x)[0], auto=score(r.x, x)[0], best=best, median=median,
+                   default=score(x_def, x)[0], auto=score(r.x, x)[0], best=best, median=median,
                    chosen=dict(prior=ch["prior"], tv=ch["tv"], bounds=ch["bounds"],
                                mu=ch["mu"], learned_weight=ch.get("learned_weight"),
                                ell=ch.get("ell"), gamma=ch.get("gamma")),
