@@ -199,22 +199,22 @@ def _step_stream(steps: range, workers: int, common: tuple):
             yield _step_data((seed, s, *rest))
         return
     import collections
+    import itertools
     import multiprocessing
 
     # fork where the platform has it (no re-import per process); spawn elsewhere
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     with multiprocessing.get_context(method).Pool(workers, initializer=_one_thread) as pool:
-        pending: collections.deque = collections.deque()
         it = iter(steps)
-        for s in it:
-            pending.append(pool.apply_async(_step_data, ((seed, s, *rest),)))
-            if len(pending) >= 2 * workers:
-                break
+
+        def submit(n: int) -> list:
+            return [pool.apply_async(_step_data, ((seed, s, *rest),))
+                    for s in itertools.islice(it, n)]
+
+        pending = collections.deque(submit(2 * workers))
         while pending:
             out = pending.popleft().get()
-            s = next(it, None)
-            if s is not None:
-                pending.append(pool.apply_async(_step_data, ((seed, s, *rest),)))
+            pending.extend(submit(1))
             yield out
 
 
