@@ -82,11 +82,13 @@ def test_unrolled_no_sync_per_layer():
 
 
 def test_unrolled_no_sync_per_layer_through_operator_calls(monkeypatch):
-    # without the Hadamard fast path every layer calls A.forward/A.adjoint, whose input
-    # checks are skipped inside the loop (the input was validated once at entry)
+    # without the Hadamard fast path (the base class's loop_pair) every layer calls
+    # A.forward/A.adjoint, whose input checks are skipped inside the loop (the input was
+    # validated once at entry)
     import torchtof.recon.unrolled as mod
+    from torchtof.operators import Hadamard, LinearOperator
 
-    monkeypatch.setattr(mod, "_operator_pair", lambda op, like: (op.forward, op.adjoint))
+    monkeypatch.setattr(Hadamard, "loop_pair", LinearOperator.loop_pair)
     A, y = _data()
 
     def make(k):

@@ -24,6 +24,28 @@ def test_adjointness_float64(op):
     assert op.adjointness_test(dtype=torch.float64) < 1e-12
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_loop_pair_is_forward_and_adjoint_bit_for_bit(op, dtype):
+    # the solvers' loops call these in place of forward/adjoint: same arithmetic, any batch
+    x = torch.randn(3, 2, op.n, op.n, dtype=dtype)
+    y = torch.randn(3, 2, op.m, dtype=dtype)
+    fwd, adj = op.loop_pair(y)
+    assert torch.equal(fwd(x), op(x)) and torch.equal(adj(y), op.adjoint(y))
+    assert torch.equal(fwd(x[:1]), op(x[:1])) and torch.equal(adj(y[:1]), op.adjoint(y[:1]))
+
+
+def test_masked_rows_loop_pair_is_its_forward_and_adjoint():
+    from torchtof.recon.tval3 import MaskedRows
+
+    A = Hadamard(8, sr=0.5)
+    mask = torch.rand(2, A.m, generator=torch.Generator().manual_seed(0)) > 0.3
+    op = MaskedRows(A, mask)
+    x, y = torch.randn(3, 2, 8, 8, dtype=torch.float64), torch.randn(3, 2, A.m, dtype=torch.float64)
+    fwd, adj = op.loop_pair(y)
+    assert torch.equal(fwd(x), op(x)) and torch.equal(adj(y), op.adjoint(y))
+    assert (fwd(x)[:, 0, ~mask[0]] == 0).all() and (fwd(x)[:, 1, mask[1]] != 0).all()
+
+
 def test_matrix_consistent_with_forward(op):
     x = torch.randn(3, 2, op.n, op.n, dtype=torch.float64)
     y = op(x)

@@ -65,6 +65,17 @@ class LinearOperator(nn.Module):
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def loop_pair(self, like: torch.Tensor):
+        """``(A, Aᵀ)`` as two callables for an iterative solver's loop, whose inputs have the
+        dtype and device of ``like`` and were validated once at the solver's entry.
+
+        The same arithmetic as :meth:`forward` and :meth:`adjoint` (bit for bit); operators
+        may skip their per-call checks and casts there (at small ``n`` a solver step is a few
+        hundred small tensor operations, and those checks add tens of them per step). The
+        default is ``(self.forward, self.adjoint)``.
+        """
+        return self.forward, self.adjoint
+
     def normal(self, x: torch.Tensor) -> torch.Tensor:
         """``AᵀA x``, shape ``(B, C, n, n) -> (B, C, n, n)``."""
         return self.adjoint(self.forward(x))

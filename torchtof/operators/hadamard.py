@@ -159,6 +159,16 @@ class Hadamard(LinearOperator):
         self._check_y(y, "Hadamard.adjoint")
         return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
+    def loop_pair(self, like: torch.Tensor):
+        """``(A, Aᵀ)`` for a solver's loop (:meth:`LinearOperator.loop_pair`): the transforms
+        without the per-call input checks, with ``H_n`` and the row index cast once."""
+        h = self.transform_spec(like)
+        index, n = self.index.to(like.device), self.n
+        return (
+            lambda x: hadamard_forward(x, index, h),
+            lambda y: hadamard_adjoint(y, index, n, h),
+        )
+
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
         return self.adjoint(y)

@@ -148,18 +148,19 @@ def _basis(basis: str, n: int, like: torch.Tensor):
 def _projector(A, yn, gram, eps_n):
     """``P(v)``: exact projection onto ``{Ax = yn}`` (``eps_n`` None) or ``{‖Ax − yn‖ ≤ eps_n}``."""
     tiny = torch.finfo(yn.dtype).tiny
+    a_fwd, a_adj = A.loop_pair(yn)
 
     def project(v: torch.Tensor) -> torch.Tensor:
-        r = A(v) - yn
+        r = a_fwd(v) - yn
         if gram is None:  # A Aᵀ = I
             if eps_n is None:
-                return v - A.adjoint(r)
+                return v - a_adj(r)
             nr = torch.linalg.vector_norm(r, dim=-1, keepdim=True).clamp_min(tiny)
-            return v - A.adjoint(r * torch.clamp(1 - eps_n / nr, min=0))
+            return v - a_adj(r * torch.clamp(1 - eps_n / nr, min=0))
         u, s2, s2inv = gram
         c = r @ u
         if eps_n is None:
-            return v - A.adjoint((c * s2inv) @ u.T)
+            return v - a_adj((c * s2inv) @ u.T)
         c = c * (s2inv > 0).to(c.dtype)
         lam = torch.zeros_like(eps_n)
         for _ in range(_NEWTON_STEPS):  # secular equation, Moré & Sorensen (1983)
@@ -169,7 +170,7 @@ def _projector(A, yn, gram, eps_n):
             d = (s2 * rr * rr / q).sum(dim=-1, keepdim=True)
             step = f * f * (f - eps_n) / (eps_n * d).clamp_min(tiny)
             lam = torch.clamp(lam + step, min=0)
-        return v - A.adjoint((c * lam / (1 + lam * s2)) @ u.T)
+        return v - a_adj((c * lam / (1 + lam * s2)) @ u.T)
 
     return project
 
@@ -220,6 +221,7 @@ def _admm(x, project, fwd, inv, n_iter, rho, alpha, tol, adaptive):
 
 def _fista(x, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive):
     """FISTA (Beck & Teboulle 2009) on ``½‖AΨz − y‖² + λ‖z‖₁`` with step ``1/L``."""
+    a_fwd, a_adj = A.loop_pair(yn)
     z = fwd(x)
     z_prev, t = z, 1.0
     iters = torch.zeros(z.shape[:-2], dtype=torch.int64, device=z.device)
@@ -227,7 +229,7 @@ def _fista(x, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive):
     for k in range(n_iter):
         t_next = (1 + (1 + 4 * t * t) ** 0.5) / 2
         w = z + ((t - 1) / t_next) * (z - z_prev)
-        z_new = _soft(w - fwd(A.adjoint(A(inv(w)) - yn)) / big_l, thresh)
+        z_new = _soft(w - fwd(a_adj(a_fwd(inv(w)) - yn)) / big_l, thresh)
         done = _norm(z_new - z) <= tol * _norm(z_new)
         t = t_next
         (z_prev, z), iters, flag, stop = _step(

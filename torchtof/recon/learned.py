@@ -77,7 +77,7 @@ from torch import nn
 
 from .._checks import check_finite, check_shape, check_tensor, is_tracing
 from ..operators.base import LinearOperator
-from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
+from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
 from .tval3 import bucket_noise_sigma
 from .unrolled import check_n_layers
@@ -235,18 +235,6 @@ def _base_operator(A: LinearOperator) -> LinearOperator:
     return A.hadamard if isinstance(A, DMDSplit) else A
 
 
-def _operator_pair(op: LinearOperator, like: torch.Tensor):
-    """``(A, Aᵀ)`` callables; for :class:`Hadamard` without the per-call input checks."""
-    if not isinstance(op, Hadamard):
-        return op.forward, op.adjoint
-    h = op.transform_spec(like)
-    index, n = op.index, op.n
-    return (
-        lambda u: hadamard_forward(u, index, h),
-        lambda r: hadamard_adjoint(r, index, n, h),
-    )
-
-
 #: The image flips of the self-ensemble, in order: ``(flip rows, flip columns)``.
 FLIPS = ((False, False), (False, True), (True, False), (True, True))
 
@@ -341,7 +329,7 @@ def _unrolled(
         y = combine_split(y, A.n)
     op = _base_operator(A)
     n, m = op.n, op.m
-    fwd, adj = _operator_pair(op, y)
+    fwd, adj = op.loop_pair(y)
     tiny = torch.finfo(y.dtype).tiny
     B, C = y.shape[0], y.shape[1]
 

@@ -383,11 +383,13 @@ def _pdhg(b, A, sq, mu, constrained, alpha, iso, boundary, box, max_iter, tol, a
     ``constrained`` ``(B, C)``. Returns ``(u, w, n_iter, converged)``."""
     a1, a0 = alpha
 
+    a_fwd, a_adj = A.loop_pair(b)
+
     def fwd(u):
-        return A(u) * sq
+        return a_fwd(u) * sq
 
     def adj(r):
-        return A.adjoint(r) * sq
+        return a_adj(r) * sq
 
     # the closed-form data prox needs AᵀA to be a projection, and no box
     prox = bool(A.orthonormal_rows) and box is None

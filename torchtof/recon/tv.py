@@ -488,11 +488,13 @@ def admm_tv(
     """
     sq = math.sqrt(inv_s2)
 
+    a_fwd, a_adj = A.loop_pair(b)
+
     def fwd(u):
-        return A(u) * sq
+        return a_fwd(u) * sq
 
     def adj(r):
-        return A.adjoint(r) * sq
+        return a_adj(r) * sq
 
     lo, hi = bounds
     factors = exact_factors(A, b, boundary)

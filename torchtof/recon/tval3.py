@@ -236,6 +236,11 @@ class MaskedRows(LinearOperator):
     def normal(self, x: torch.Tensor) -> torch.Tensor:
         return self.inner.normal(x)
 
+    def loop_pair(self, like: torch.Tensor):
+        fwd, adj = self.inner.loop_pair(like)
+        mask = self.mask.to(like.dtype)
+        return (lambda x: fwd(x) * mask), (lambda y: adj(y * mask))
+
 
 def holdout_split(A: LinearOperator, k: int, like: torch.Tensor, seed: int, split: str = "random"
            ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -695,15 +700,16 @@ def _solve(
 ) -> _Out:
     """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`)."""
     sq = math.sqrt(inv_s2)
+    a_fwd, a_adj = A.loop_pair(b)
     if sq == 1.0:
-        fwd, adj = A.forward, A.adjoint
+        fwd, adj = a_fwd, a_adj
     else:
 
         def fwd(u):
-            return A(u) * sq
+            return a_fwd(u) * sq
 
         def adj(r):
-            return A.adjoint(r) * sq
+            return a_adj(r) * sq
 
     exact = u_step == "exact"
     lo_s, hi_s = box  # per-sample bounds in the scaled units of u, (B, C) tensors or None

@@ -67,7 +67,6 @@ from torch import nn
 
 from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
 from ..operators.base import LinearOperator
-from ..operators.hadamard import Hadamard, hadamard_adjoint, hadamard_forward
 from .base import ReconResult, direct_result, renamed_option
 from .tv import grad2, grad2_adjoint, shrink
 
@@ -169,7 +168,7 @@ def unrolled_tval3(
                 f"step, thresh and precond, got {tuple(v.shape)} (mu {tuple(mu.shape)})"
             )
     mu, beta, step, thresh, precond = (v.to(dtype=y.dtype, device=y.device) for v in per_iter)
-    fwd, adj = _operator_pair(A, y)
+    fwd, adj = A.loop_pair(y)
     tiny = torch.finfo(y.dtype).tiny
 
     peak = y.abs().amax(dim=-1, keepdim=True).clamp_min(tiny)  # ‖y‖ without over/underflow
@@ -215,19 +214,6 @@ def _check_operator(op: object, func: str) -> None:
             f"{func}: expected an operator with orthonormal rows (A Aᵀ = I, e.g. Hadamard), "
             f"got {type(op).__name__} with orthonormal_rows=False"
         )
-
-
-def _operator_pair(op: LinearOperator, like: torch.Tensor):
-    """``(A, Aᵀ)`` as callables; for :class:`Hadamard` the transforms without the per-call
-    input checks and with ``H_n`` cast once (the loop calls them ``2K`` times)."""
-    if not isinstance(op, Hadamard):
-        return op.forward, op.adjoint
-    h = op.transform_spec(like)
-    index, n = op.index, op.n
-    return (
-        lambda u: hadamard_forward(u, index, h),
-        lambda r: hadamard_adjoint(r, index, n, h),
-    )
 
 
 def sr_code(sr: float) -> str:
