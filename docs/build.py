@@ -425,9 +425,10 @@ def render_learned(res: dict) -> str:
     out.append("| time TVAL3 / learned (min of 3 interleaved, SR 12.5 %, 1 %) | " + " | ".join(
         f"{sp[n]['ratio']:.1f}× ({sp[n]['learned_ms']:.0f} / {sp[n]['tval3_ms']:.0f} ms)"
         if n in sp else "-" for n in ns) + " |")
-    loads = [r["load_avg"] for r in res["speed"]]
+    loads = sorted({f"{r['load_avg']:.0f}" for r in res["speed"]}, key=float)
+    load = loads[0] if len(loads) == 1 else f"{loads[0]}–{loads[-1]}"
     ox = res["onnx"]
-    text = (f"Times on the shared machine at 1-minute load {min(loads):.0f}–{max(loads):.0f}. "
+    text = (f"Times on the shared machine at 1-minute load {load}. "
             f"onnxruntime (1 thread, batch {ox[0]['batch']}, SR 12.5 %): "
             + ", ".join(f"{o['ort_ms']:.1f} ms per image at n = {o['n']}" for o in ox)
             + " (eager PyTorch " + " / ".join(f"{o['torch_ms']:.1f}" for o in ox)

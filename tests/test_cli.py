@@ -224,6 +224,9 @@ def test_bench_onnx_progress_line_has_three_significant_digits():
                  "time_dip.py: error: argument --iters:", marks=pytest.mark.slow),
     ("examples/train_unrolled.py", ["--n", "48"],
      "train_unrolled.py: error: argument --n/--size: expected a power of two"),
+    pytest.param("benchmarks/versus_rev.py", ["--rounds", "0"],
+                 "versus_rev.py: error: --rounds and --repeats must be >= 1",
+                 marks=pytest.mark.slow),
 ])
 def test_scripts_parse_their_options_first(script, argv, expect):
     import subprocess
