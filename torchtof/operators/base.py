@@ -72,7 +72,8 @@ class LinearOperator(nn.Module):
         The same arithmetic as :meth:`forward` and :meth:`adjoint` (bit for bit); operators
         may skip their per-call checks and casts there (at small ``n`` a solver step is a few
         hundred small tensor operations, and those checks add tens of them per step). The
-        default is ``(self.forward, self.adjoint)``.
+        default is ``(self.forward, self.adjoint)``: bound methods, so module hooks
+        registered on the operator do not run inside a solver's loop.
         """
         return self.forward, self.adjoint
 
