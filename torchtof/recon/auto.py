@@ -379,8 +379,9 @@ def _box_ls(y: torch.Tensor, A: LinearOperator, lo: float, hi: float, iters: int
     ``x (B, C, n, n)``."""
     x = y.new_full((*y.shape[:2], A.n, A.n), 0.5 * (float(lo) + float(hi))) if x0 is None else x0
     z, t = x, 1.0
+    fwd, adj = A.loop_pair(y)
     for _ in range(iters):
-        xn = project_box(z - A.adjoint(A(z) - y) / lip, float(lo), float(hi))
+        xn = project_box(z - adj(fwd(z) - y) / lip, float(lo), float(hi))
         tn = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         z = xn + ((t - 1.0) / tn) * (xn - x)
         x, t = xn, tn
