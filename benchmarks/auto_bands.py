@@ -29,6 +29,7 @@ from pathlib import Path
 
 import peers_scenes as ps  # benchmarks/ is the script's directory
 import torch
+from auto_stack_rules import fold_predictions
 
 from torchtof.apps.args import OneLineParser
 from torchtof.operators import Hadamard
@@ -65,12 +66,11 @@ def measure(scene: str, n: int, sr: float, order: str, level: float) -> dict:
            "psnr_learned": ps.score(xl, x),
            "bands": {k: {"rows": [lo, hi], "choice": sq(et[lo:hi]), "learned": sq(el[lo:hi])}
                      for k, (lo, hi) in bands.items()}}
-    held, train = am.cv_folds(A, y, None, 0, "tail")
-    pa, pl = am.stack_predictions(y, A, [res.choice[0][0]], train, 100)
+    pa, pl, held = fold_predictions(y, A, res.choice[0][0], am)
     folds = []
     for f in range(held.shape[0]):
         hf = held[f].to(y.dtype)
-        folds.append({"train_rows": int(train[f].sum()), "held_rows": int(held[f].sum()),
+        folds.append({"train_rows": int(held[f].nonzero()[0]), "held_rows": int(held[f].sum()),
                       "noisy": {"choice": sq((pa[0, f] - y[0, 0]) * hf),
                                 "learned": sq((pl[0, f] - y[0, 0]) * hf)},
                       "clean": {"choice": sq((pa[0, f] - y0[0, 0]) * hf),
