@@ -169,3 +169,23 @@ def test_run_refuses_a_chunk_beyond_the_memory_limit():
             exp.run()
     finally:
         torchtof.set_memory_limit(None)
+
+
+@pytest.mark.parametrize("what", ["reflectance", "depth", "patterns"])
+def test_simulate_frames_names_a_non_finite_input(what):
+    # validated once at the entry (the sensor chain inside skips its own finiteness checks)
+    from torchtof.experiment import simulate_frames
+    from torchtof.scenes import Scene
+
+    cfg = ExperimentConfig(n=8)
+    refl, depth = torch.ones(1, 1, 8, 8), torch.full((1, 1, 8, 8), 2.0)
+    pats = torch.ones(2, 8, 8)
+    bad = {"reflectance": refl, "depth": depth, "patterns": pats}[what].clone()
+    bad.view(-1)[3] = float("nan")
+    args = {"reflectance": (bad, depth, pats), "depth": (refl, bad, pats),
+            "patterns": (refl, depth, bad)}[what]
+    name = {"reflectance": "scene.reflectance", "depth": "scene.depth_m", "patterns": "patterns"}
+    with pytest.raises(ValueError, match=rf"simulate_frames: {name[what]} contains non-finite"):
+        simulate_frames(Scene(*args[:2]), args[2], cfg)
+    fr = simulate_frames(Scene(refl, depth), pats, cfg)  # the finite inputs give finite frames
+    assert torch.isfinite(fr.depth).all() and fr.depth.shape[0] == 2

@@ -42,7 +42,13 @@ from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
-from ._checks import check_in_range, check_positive, check_power_of_two
+from ._checks import (
+    check_finite,
+    check_in_range,
+    check_positive,
+    check_power_of_two,
+    unchecked,
+)
 from ._memory import check_memory
 from .bucket import depth_bucket, intensity_bucket, tap_buckets
 from .constants import PAPER_SRS  # the paper's sampling rates, re-exported
@@ -266,7 +272,22 @@ def simulate_frames(
 
     Returns:
         :class:`~torchtof.sensor.ToFFrame` with ``(F, ·, P, P)`` tensors.
+
+    Raises:
+        ValueError: if the scene, the patterns, ``dust`` or ``stray`` hold NaN or Inf.
     """
+    func = "simulate_frames"
+    for name, t in (("scene.reflectance", scene.reflectance), ("scene.depth_m", scene.depth_m),
+                    ("patterns", patterns), ("dust", dust), ("stray", stray)):
+        if t is not None:
+            check_finite(t, name, func)
+    # validated once here: the sensor chain below skips its per-call finiteness checks (each a
+    # host read; a simulated bench renders one frame per call)
+    with unchecked():
+        return _frames(scene, patterns, cfg, generator, dust, stray)
+
+
+def _frames(scene, patterns, cfg, generator, dust, stray):
     p = cfg.roi_px
     refl = scene.reflectance * patterns[:, None]  # (F, 1, n, n) light leaving each mirror
     phasor = phasor_from_depth(cfg.signal_e * refl, scene.depth_m.expand_as(refl), cfg.freq_hz)
