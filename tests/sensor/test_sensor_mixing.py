@@ -141,6 +141,31 @@ def test_blur_dtype_tiny_image(dtype):
     )
 
 
+def test_blur_impulse_response_is_the_sampled_normalised_gaussian():
+    # written from the kernel's arithmetic: an impulse far from the borders returns the
+    # outer product g gᵀ, g_k = exp(−k²/2σ²) / Σ_j exp(−j²/2σ²), k = −⌈3σ⌉ … ⌈3σ⌉
+    sigma, r = 1.3, 4
+    x = torch.zeros(1, 1, 15, 15, dtype=torch.float64)
+    x[..., 7, 7] = 1.0
+    k = torch.arange(-r, r + 1, dtype=torch.float64)
+    g = torch.exp(-k**2 / (2 * sigma**2))
+    g = g / g.sum()
+    want = torch.zeros_like(x)
+    want[0, 0, 7 - r : 8 + r, 7 - r : 8 + r] = g[:, None] * g[None, :]
+    torch.testing.assert_close(blur_phasor(x, sigma), want, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("shape, sigma", [((2, 3, 9, 13), 1.3), ((1, 2, 6, 6), 5.0)])
+def test_blur_equals_kornia_reflect_gaussian(shape, sigma):
+    # the same filter as kornia.filters.gaussian_blur2d with reflect borders (radius clipped)
+    kornia = pytest.importorskip("kornia")
+    x = _x(*shape, dtype=torch.float64)
+    r = min(math.ceil(3 * sigma), min(shape[-2:]) - 1)
+    want = kornia.filters.gaussian_blur2d(x, (2 * r + 1,) * 2, (sigma, sigma),
+                                          border_type="reflect")
+    torch.testing.assert_close(blur_phasor(x, sigma), want, rtol=0, atol=1e-14)
+
+
 def test_blur_errors():
     with pytest.raises(ValueError, match="blur_phasor: expected sigma_px > 0"):
         blur_phasor(torch.ones(1, 1, 4, 4), 0.0)
