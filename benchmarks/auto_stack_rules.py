@@ -16,6 +16,10 @@ reconstructions is set by several rules from the held-out predictions (no ground
   pooled (relative) one; ``latest∧relative`` is ``auto``'s rule
   (:func:`torchtof.recon.auto.stack_weight`).
 
+``--far``: also the far-fold rules of :data:`FAR_RULES` (the choice and the network fitted on
+the first M/2 or M/4 rows and scored on the last quarter or half: a gap between the rows fitted
+and the rows scored; tried, not adopted: ``docs/auto.md``, "Tried, not adopted: far folds").
+
 ``--auto-eval``: the cells of ``benchmarks/auto_eval.py`` instead (6 scenes incl. the smooth
 ``moon``, cake-cutting rows, noise of ``--noise`` × the bucket spread; no peers there, so only
 the change against ``auto`` without the network is reported): a check of a rule chosen on the
@@ -62,6 +66,38 @@ def fold_predictions(y, A, choice, am):
     held, train = am.cv_folds(A, y, None, 0, "tail")
     pa, pl = am.stack_predictions(y, A, [choice], train, 100)
     return pa, pl, held
+
+
+#: The far folds (``--far``): (fraction of the rows trained on, first held-out fraction): the
+#: models fitted on the first M/2 rows and scored on the last quarter, and on the first M/4 and
+#: scored on the last half, so that a gap separates the rows fitted from the rows scored.
+FAR = ((0.5, 0.75), (0.25, 0.5))
+FAR_RULES = ("far½", "far¼", "far½∨auto", "far¼∨auto", "mean(far½, auto)")
+
+
+def far_predictions(y, A, choice, am):
+    """``(pa, pl, held)`` of the :data:`FAR` folds: the chosen candidate and the network fitted
+    on each fold's prefix of the rows, scored on its far held-out rows."""
+    m = y.shape[-1]
+    train = torch.zeros(len(FAR), m, dtype=torch.bool, device=y.device)
+    held = torch.zeros_like(train)
+    for i, (ft, fh) in enumerate(FAR):
+        train[i, : max(int(ft * m), 1)] = True
+        held[i, int(fh * m):] = True
+    pa, pl = am.stack_predictions(y, A, [choice], train, 100)
+    return pa, pl, held
+
+
+def far_weights(pa, pl, y, held, auto_w: float) -> dict:
+    h = held.to(y.dtype)
+    d, r = ((pl - pa) * h)[0], ((y - pa) * h)[0]
+    num, den = (d * r).sum(-1), (d * d).sum(-1)
+    wf = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num)).clamp(0, 1)
+    w = {"far½": float(wf[0]), "far¼": float(wf[1])}
+    w["far½∨auto"] = max(w["far½"], auto_w)
+    w["far¼∨auto"] = max(w["far¼"], auto_w)
+    w["mean(far½, auto)"] = (w["far½"] + auto_w) / 2
+    return w
 
 
 def rule_weights(pa, pl, y, held, am) -> dict:
@@ -129,6 +165,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--out", default=None, help="JSON file of the per-cell rows")
     p.add_argument("--table", nargs="+", default=None, metavar="LABEL::FILE",
                    help="print the rules table of these --out files and exit")
+    p.add_argument("--far", action="store_true",
+                   help="also the far-fold rules (FAR_RULES: models fitted on a prefix of the "
+                        "rows, scored on rows separated from it by a gap)")
     a = p.parse_args(argv)
     if a.table:
         print(table(a.table))
@@ -170,10 +209,13 @@ def main(argv: list[str] | None = None) -> dict:
         with torch.no_grad():
             x_l = learned(y, A)
             if ch["prior"] == "box":
-                ws = dict.fromkeys(RULES, 0.0)
+                ws = dict.fromkeys(RULES + (FAR_RULES if a.far else ()), 0.0)
             else:
                 pa, pl, held = fold_predictions(y, A, ch, am)
                 ws = rule_weights(pa, pl, y, held, am)
+                if a.far:
+                    fa, fl, fh = far_predictions(y, A, ch, am)
+                    ws.update(far_weights(fa, fl, y, fh, ws["latest∧relative"]))
         if a.auto_eval:
             peer = float("nan")
         else:
@@ -204,7 +246,7 @@ def main(argv: list[str] | None = None) -> dict:
     print("| rule | mean gap dB | cells ≥ 0 | worst gap | mean change | worst change |")
     print("|---|---|---|---|---|---|")
     line("no network (w = 0)", lambda r: r["auto"])
-    for k in RULES:
+    for k in RULES + (FAR_RULES if a.far else ()):
         line(k, lambda r, k=k: r["rules"][k])
     for w in FIXED:
         line(f"fixed w = {w:g}", lambda r, w=w: r["fixed"][str(w)])
