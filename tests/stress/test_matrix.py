@@ -137,6 +137,27 @@ def test_cells_ok_for_an_exact_function():
     assert {c["status"] for c in cells.values()} == {"ok"}
 
 
+def test_float64_cell_is_the_reference_only_where_every_input_rounds_exactly(monkeypatch):
+    import torchtof.testing.stability as st
+
+    solved = []
+    real = st._reference
+    monkeypatch.setattr(st, "_reference", lambda case, dt: solved.append(dt) or real(case, dt))
+    # 0.5 and 3 are exact in every dtype: the float64 cell's outputs are the reference
+    cells = _one(lambda ctx: ctx.t(torch.tensor([0.5, 3.0], dtype=torch.float64)) * 2)
+    assert solved == [] and {c["status"] for c in cells.values()} == {"ok"}
+    # 0.1 rounds differently in each dtype: each cell's reference is its own float64 solve on
+    # the rounded input
+    cells = _one(lambda ctx: ctx.t(torch.tensor([0.1], dtype=torch.float64)) * 2)
+    assert sorted(map(str, solved)) == sorted(map(str, [torch.float16, torch.bfloat16,
+                                                        torch.float32]))
+    ctx = Ctx(torch.float32, torch.float32)
+    ctx.t(torch.tensor([0.25], dtype=torch.float64))
+    assert ctx.exact
+    ctx.r(torch.tensor([1 / 3], dtype=torch.float64))
+    assert not ctx.exact
+
+
 def test_silent_nan_is_a_failure():
     cells = _one(lambda ctx: ctx.t(torch.zeros(3, dtype=torch.float64)) / 0)
     assert all(c["status"] == "FAIL" and "NaN" in c["detail"] for c in cells.values())
