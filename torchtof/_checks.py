@@ -94,7 +94,9 @@ def check_shape(
 def check_finite(x: torch.Tensor, name: str, func: str) -> None:
     """Raise ``ValueError`` if ``x`` holds NaN or Inf (eager mode only; skipped for meta
     tensors and inside :func:`unchecked`)."""
-    if is_tracing() or x.numel() == 0 or x.is_meta or getattr(_STATE, "depth", 0):
+    # the cheap tests first: inside unchecked() (solver loops, the simulated sensor chain) this
+    # returns before is_tracing(), which asks torch.compile, torch.jit and torch.onnx
+    if getattr(_STATE, "depth", 0) or x.numel() == 0 or x.is_meta or is_tracing():
         return
     # NaN and ±Inf propagate through min/max: one pass, no bool temporary (this check sits on
     # every operator call, where isfinite(x).all() cost a quarter of a 64x64 forward)
