@@ -88,11 +88,19 @@ def far_predictions(y, A, choice, am):
     return pa, pl, held
 
 
-def far_weights(pa, pl, y, held, auto_w: float) -> dict:
+def fold_terms(pa, pl, y, held):
+    """Per fold, from the held-out rows: ``(num, den, per_fold, r)``, the least-squares
+    weight's numerator ``⟨d, r⟩`` and denominator ``‖d‖²`` (``d = p^l − p^a``, ``r = y − p^a``),
+    the weight clipped to [0, 1], and the residuals ``r`` ``(F, M)``."""
     h = held.to(y.dtype)
-    d, r = ((pl - pa) * h)[0], ((y - pa) * h)[0]
+    d, r = ((pl - pa) * h)[0], ((y - pa) * h)[0]  # (F, M)
     num, den = (d * r).sum(-1), (d * d).sum(-1)
-    wf = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num)).clamp(0, 1)
+    per_fold = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
+    return num, den, per_fold.clamp(0, 1), r
+
+
+def far_weights(pa, pl, y, held, auto_w: float) -> dict:
+    wf = fold_terms(pa, pl, y, held)[2]
     w = {"far½": float(wf[0]), "far¼": float(wf[1])}
     w["far½∨auto"] = max(w["far½"], auto_w)
     w["far¼∨auto"] = max(w["far¼"], auto_w)
@@ -101,11 +109,7 @@ def far_weights(pa, pl, y, held, auto_w: float) -> dict:
 
 
 def rule_weights(pa, pl, y, held, am) -> dict:
-    h = held.to(y.dtype)
-    d, r = ((pl - pa) * h)[0], ((y - pa) * h)[0]  # (F, M)
-    num, den = (d * r).sum(-1), (d * d).sum(-1)
-    per_fold = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
-    per_fold = per_fold.clamp(0, 1)
+    num, den, per_fold, r = fold_terms(pa, pl, y, held)
     rel = 1 / r.square().sum(-1).clamp_min(1e-300)
 
     def pooled(wf):

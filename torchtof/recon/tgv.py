@@ -98,6 +98,7 @@ from .tv import (
     grad2_adjoint,
     largest_eig_normal,
     project_box,
+    scaled_loop_pair,
     sym_grad2,
     sym_grad2_adjoint,
 )
@@ -382,14 +383,7 @@ def _pdhg(b, A, sq, mu, constrained, alpha, iso, boundary, box, max_iter, tol, a
     """Chambolle–Pock iterations on the scaled problem (module doc); per-sample ``mu``,
     ``constrained`` ``(B, C)``. Returns ``(u, w, n_iter, converged)``."""
     a1, a0 = alpha
-
-    a_fwd, a_adj = A.loop_pair(b)
-
-    def fwd(u):
-        return a_fwd(u) * sq
-
-    def adj(r):
-        return a_adj(r) * sq
+    fwd, adj = scaled_loop_pair(A, b, sq)
 
     # the closed-form data prox needs AᵀA to be a projection, and no box
     prox = bool(A.orthonormal_rows) and box is None

@@ -448,6 +448,16 @@ class AdmmOut(NamedTuple):
     converged: torch.Tensor  # (B, C) bool
 
 
+def scaled_loop_pair(A: LinearOperator, like: torch.Tensor, scale: float):
+    """``(u ↦ s·A u, r ↦ s·Aᵀ r)``: the loop pair (:meth:`LinearOperator.loop_pair`) of the
+    operator scaled by ``s`` (TVAL3's ``ScaleA``, ``s = 1/√λ_max(AᵀA)``); ``s = 1`` returns
+    the pair itself."""
+    fwd, adj = A.loop_pair(like)
+    if scale == 1.0:
+        return fwd, adj
+    return (lambda u: fwd(u) * scale), (lambda r: adj(r) * scale)
+
+
 def admm_tv(
     b: torch.Tensor,
     A: LinearOperator,
@@ -487,15 +497,7 @@ def admm_tv(
     measures the change over all channels of a sample, which then stop together.
     """
     sq = math.sqrt(inv_s2)
-
-    a_fwd, a_adj = A.loop_pair(b)
-
-    def fwd(u):
-        return a_fwd(u) * sq
-
-    def adj(r):
-        return a_adj(r) * sq
-
+    fwd, adj = scaled_loop_pair(A, b, sq)
     lo, hi = bounds
     factors = exact_factors(A, b, boundary)
     rho = mu / beta

@@ -50,6 +50,7 @@ from .tv import (
     grad2,
     grad2_adjoint,
     largest_eig_normal,
+    scaled_loop_pair,
     shrink,
 )
 
@@ -699,18 +700,7 @@ def _solve(
     disc_bound: torch.Tensor | None = None,
 ) -> _Out:
     """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`)."""
-    sq = math.sqrt(inv_s2)
-    a_fwd, a_adj = A.loop_pair(b)
-    if sq == 1.0:
-        fwd, adj = a_fwd, a_adj
-    else:
-
-        def fwd(u):
-            return a_fwd(u) * sq
-
-        def adj(r):
-            return a_adj(r) * sq
-
+    fwd, adj = scaled_loop_pair(A, b, math.sqrt(inv_s2))
     exact = u_step == "exact"
     lo_s, hi_s = box  # per-sample bounds in the scaled units of u, (B, C) tensors or None
     bounded = lo_s is not None or hi_s is not None
