@@ -6,6 +6,7 @@ to any non-zero scale of ``y``; a DMD split's frames give what their combined ±
 the noise model's variances follow from the Poisson law of each frame.
 """
 
+import hashlib
 import json
 import math
 import warnings
@@ -24,8 +25,11 @@ from torchtof.data import (
     noisy_buckets,
 )
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
+from torchtof.operators.patterns import ORDERS
 from torchtof.recon.learned import DEFAULT_N_LAYERS, WEIGHTS_FILE, Learned, LearnedResult, learned
 from torchtof.recon.learned_train import (
+    P_CLEAN,
+    P_NOISE_REF,
     _batch,
     _recipes,
     noise_levels,
@@ -455,6 +459,44 @@ def test_resume_continues_the_same_run(tmp_path):
     log = json.loads((tmp_path / "log.json").read_text())
     assert [r["step"] for r in log] == [1, 2, 3, 4]
     assert (tmp_path / "recipe.json").is_file() and (tmp_path / "learned.pt").is_file()
+
+
+def test_init_starts_from_the_weights_file_and_records_it(tmp_path):
+    """``init``: the first step's loss is the loss of the file's network on that step's batch
+    (computed here from the recipe's draws, not read from the run), not the random start's;
+    ``recipe.json`` names the file and its SHA-256."""
+    kw = dict(batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False, calibrate=False,
+              noise_ref=None)
+    torch.manual_seed(3)
+    start = Learned(Hadamard(16, sr=0.25), pretrained=False, n_layers=2, width=4)
+    with torch.no_grad():  # far from the random start
+        for p in start.prior.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    src = tmp_path / "start.pt"
+    start.save_weights(src)
+    start.final_dc = False  # as the prior trains
+    n, m, order = step_config(7, 0, (16,), 0.3, (0.0625, 0.5), ORDERS)
+    A, x, y = _batch(7, 0, n, m, order, range(2), None, P_CLEAN, P_NOISE_REF)
+    start.A = A
+    with torch.no_grad():
+        want = float(psnr_loss(start(y), x))
+    tuned = train_learned(steps=2, seed=7, lr=1e-4, out=tmp_path / "b", init=src, **kw)
+    scratch = train_learned(steps=1, seed=7, **kw)
+    assert tuned.losses[0] == pytest.approx(want, rel=1e-5)
+    assert abs(scratch.losses[0] - want) > 0.1
+    rec = json.loads((tmp_path / "b" / "recipe.json").read_text())["init"]
+    assert rec["path"] == str(src)
+    assert rec["sha256"] == hashlib.sha256(src.read_bytes()).hexdigest()
+
+
+def test_init_rejects_a_missing_file_and_another_architecture(tmp_path):
+    kw = dict(steps=1, batch_size=1, sizes=(16,), n_layers=2, width=4, progress=False,
+              calibrate=False)
+    with pytest.raises(ValueError, match="init"):
+        train_learned(init=tmp_path / "none.pt", **kw)
+    train_learned(out=tmp_path, **kw)
+    with pytest.raises(ValueError, match="width"):
+        train_learned(init=tmp_path / "learned.pt", **{**kw, "width": 8})
 
 
 def test_data_processes_train_the_same_model():

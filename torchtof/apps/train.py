@@ -57,6 +57,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
                    help="steps between checkpoints, 0: none" + d)
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--init", default=None, metavar="WEIGHTS",
+                   help="fine-tune from this weights file (e.g. the shipped "
+                        "torchtof/weights/learned/learned.pt) instead of a random start; give a "
+                        "smaller --lr and another --seed than its run")
     p.add_argument("--log-every", type=positive_int, default=10,
                    help="steps between log records" + d)
     p.add_argument("--max-minutes", type=positive_float, default=None,
@@ -120,7 +124,7 @@ def main(args: argparse.Namespace) -> int:
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
         command=command, calibrate=not args.no_calibrate, device=args.device,
-        workers=args.workers,
+        workers=args.workers, init=args.init,
     )
     if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process
         print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")

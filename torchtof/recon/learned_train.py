@@ -34,6 +34,7 @@ Command line: ``torchtof train --model learned`` (:func:`add_arguments`, :func:`
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -294,8 +295,10 @@ def train_learned(
     calibrate: bool = True,
     device: str | torch.device = "cpu",
     workers: int = 0,
+    init: str | os.PathLike | None = None,
 ) -> LearnedTrainResult:
-    """Train :class:`Learned` from its random initialisation (module docstring).
+    """Train :class:`Learned` from its random initialisation, or fine-tune it from a weights
+    file (``init``) (module docstring).
 
     Args:
         steps: optimiser steps ``>= 1`` (the cosine schedule spans them).
@@ -327,6 +330,13 @@ def train_learned(
             the CPU and moved there. The returned model and the weights file are on the CPU.
         workers: processes that draw the data ahead of the optimiser (0: this process). The
             draws depend only on ``(seed, step, index)``, so the run is the same.
+        init: a weights file (:meth:`Learned.save_weights`, e.g. the shipped
+            :data:`~torchtof.recon.learned.WEIGHTS_FILE`) to start from instead of the random
+            initialisation: fine-tuning on another data recipe. Its ``n_layers``, ``width`` and
+            ``shuffle`` must equal these arguments. The schedule starts again at ``lr`` (give a
+            smaller one, and another ``seed`` than the file's run so that its batches are not
+            replayed). ``recipe.json`` records the file and its SHA-256. A checkpoint resumed
+            (``resume``) takes precedence.
 
     Returns:
         :class:`LearnedTrainResult`.
@@ -362,6 +372,17 @@ def train_learned(
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
                     width=width, shuffle=shuffle).to(device)
+    init_record = None
+    if init is not None:
+        init_path = Path(init)
+        if not init_path.is_file():
+            raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
+        model.load_weights(init_path)  # raises ValueError naming a different architecture
+        if not model.clean_scale:
+            raise ValueError(f"{func}: init {os.fspath(init)!r} uses the noisy-norm scale of "
+                             f"older weights files; training uses the noise-corrected scale")
+        init_record = {"path": os.fspath(init_path),
+                       "sha256": hashlib.sha256(init_path.read_bytes()).hexdigest()}
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
     model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
@@ -457,6 +478,7 @@ def train_learned(
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
+                "init": init_record,
                 "seed": seed,
                 "steps_run": step,
                 "steps": steps,
