@@ -105,6 +105,7 @@ BAD = [
     (["train", "--sizes", "48"], "argument --sizes:"),
     (["train", "--steps", "0"], "argument --steps:"),
     (["train", "--orders", "nosuch"], "argument --orders:"),
+    (["train", "--init", "no_such.pt"], "argument --init: no such weights file: 'no_such.pt'"),
     (["demo", "--sr", "0.5", "--nosuch"], "unrecognized arguments: --nosuch"),
     (["nosuch"], "argument COMMAND"),
 ]

@@ -57,7 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
                    help="steps between checkpoints, 0: none" + d)
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    p.add_argument("--init", default=None, metavar="WEIGHTS",
+    p.add_argument("--init", type=_weights_file, default=None, metavar="WEIGHTS",
                    help="fine-tune from this weights file (e.g. the shipped "
                         "torchtof/weights/learned/learned.pt) instead of a random start; give a "
                         "smaller --lr and another --seed than its run")
@@ -88,6 +88,13 @@ def _probability(text: str) -> float:
     if not 0.0 <= v <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
     return v
+
+
+def _weights_file(text: str) -> str:
+    """An existing file (an argparse type; its contents are checked when it loads)."""
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f"no such weights file: {text!r}")
+    return text
 
 
 def main(args: argparse.Namespace) -> int:
