@@ -179,8 +179,20 @@ def test_train_prints_its_summary_once_per_run(rank, printed, tmp_path, capsys, 
         monkeypatch.setenv("RANK", rank)
     assert main(["train", "--steps", "2", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert seen["steps"] == 2 and seen["out"] == str(tmp_path)
+    assert seen["steps"] == 2 and seen["out"] == str(tmp_path) and seen["init"] is None
     assert ("wrote " in out) == printed, out
+
+
+def test_train_init_shipped_names_the_package_weights(tmp_path, capsys, monkeypatch):
+    import torchtof.apps.train as app
+    from torchtof.recon.learned import WEIGHTS_FILE
+
+    seen = {}
+    monkeypatch.setattr(app, "train_learned", lambda **kw: seen.update(kw) or type(
+        "R", (), {"losses": [1.0], "wall_s": 1.0})())
+    assert main(["train", "--init", "shipped", "--out", str(tmp_path)]) == 0
+    assert seen["init"] == str(WEIGHTS_FILE) and WEIGHTS_FILE.is_file()
+    capsys.readouterr()
 
 
 def test_reconstruct_refuses_a_folder_that_is_not_a_store(tmp_path, capsys):

@@ -15,7 +15,13 @@ import torch
 
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
-from ..recon.learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
+from ..recon.learned import (
+    DEFAULT_N_LAYERS,
+    DEFAULT_SHUFFLE,
+    DEFAULT_WIDTH,
+    WEIGHTS_FILE,
+    Learned,
+)
 from ..recon.learned_train import NOISE_REF, P_NOISE_REF, calibrate_tau, train_learned
 from .args import nonneg_int, positive_float, positive_int, power_of_two, sampling_rate
 
@@ -58,9 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="steps between checkpoints, 0: none" + d)
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     p.add_argument("--init", type=_weights_file, default=None, metavar="WEIGHTS",
-                   help="fine-tune from this weights file (e.g. the shipped "
-                        "torchtof/weights/learned/learned.pt) instead of a random start; give a "
-                        "smaller --lr and another --seed than its run")
+                   help="fine-tune from this weights file ('shipped': the package's own) "
+                        "instead of a random start; give a smaller --lr and another --seed than "
+                        "its run")
     p.add_argument("--log-every", type=positive_int, default=10,
                    help="steps between log records" + d)
     p.add_argument("--max-minutes", type=positive_float, default=None,
@@ -91,7 +97,10 @@ def _probability(text: str) -> float:
 
 
 def _weights_file(text: str) -> str:
-    """An existing file (an argparse type; its contents are checked when it loads)."""
+    """An existing file, or ``shipped`` for the package's weights (an argparse type; the
+    contents are checked when they load)."""
+    if text == "shipped":
+        return os.fspath(WEIGHTS_FILE)
     if not Path(text).is_file():
         raise argparse.ArgumentTypeError(f"no such weights file: {text!r}")
     return text
