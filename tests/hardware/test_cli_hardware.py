@@ -172,6 +172,9 @@ def test_busy_device(monkeypatch):
         def is_kernel_driver_active(self, i):
             return False
 
+        def get_active_configuration(self):
+            return None
+
         def set_configuration(self):
             raise usb.core.USBError("Resource busy", errno=16)
 
@@ -180,6 +183,31 @@ def test_busy_device(monkeypatch):
         dlpc350.LightCrafter4500.open()
     with pytest.raises(DeviceBusyError, match="OPT8241 ToF camera is busy"):
         opt8241.OPT8241.open()
+
+
+@pytest.mark.parametrize("active", [True, False])
+def test_camera_open_keeps_an_active_configuration_and_claims_the_interface(active,
+                                                                           monkeypatch):
+    """TI's USBIO opens the device and claims interface 0; re-selecting an active
+    configuration would reset the device's USB state, so only an unconfigured one is set."""
+    import usb.core
+    import usb.util
+
+    calls = []
+
+    class Camera:
+        def get_active_configuration(self):
+            if active:
+                return object()
+            raise usb.core.USBError("Configuration not set")
+
+        def set_configuration(self):
+            calls.append("set_configuration")
+
+    monkeypatch.setattr(usb.core, "find", lambda **kw: Camera())
+    monkeypatch.setattr(usb.util, "claim_interface", lambda dev, i: calls.append(("claim", i)))
+    opt8241.OPT8241.open()
+    assert calls == ([] if active else ["set_configuration"]) + [("claim", 0)]
 
 
 @pytest.mark.parametrize("fake", [None, "2.18.2", "3.1.5"])

@@ -160,7 +160,8 @@ def test_lut_valid_error_bits():
     assert dlp.lut_valid_errors(0x80) == []
     assert dlp.lut_valid_errors(0x13) == ["exposure or period out of range",
                                           "pattern numbers out of range",
-                                          "period - exposure < 230 us"]
+                                          "period - exposure < 230 us (warning)"]
+    assert dlp.LUT_FATAL_BITS == 0b11  # TI: bits 2-4 are warnings
 
 
 def _bench(**faults):
@@ -238,6 +239,16 @@ def test_validation_error_is_decoded():
         lcr.validate()
     with pytest.raises(NackError, match="PAT_START_STOP"):  # start refused: not validated
         lcr.start()
+
+
+@pytest.mark.parametrize("status", [0x04, 0x08, 0x10])
+def test_validation_warnings_are_warnings(status, monkeypatch):
+    """TI's DLPC350_StartPatLutValidate documents bits 2-4 as warnings: the sequence stays."""
+    bench = _bench()
+    lcr = bench.lightcrafter()
+    monkeypatch.setattr(bench.lightcrafter_usb, "_validate", lambda: status)
+    with pytest.warns(RuntimeWarning, match=r"LUT_VALID status 0x[01][048].*\(warning\)"):
+        lcr.validate()
 
 
 def test_nack_and_timeout_name_the_command():

@@ -85,7 +85,19 @@ FIELDS = [
     ("dealias_16bit_op_enable", 1, 0x5C, 0x28, b"\x00\x00\x80"),  # bank 3 reg 40 bit 23
     ("delay_fb_coeff_1", 1280, 0x5C, 0xB3, b"\x00\x05\x00"),  # bank 3 reg 179 bits 0-11
     ("tillum_slv_addr", 0x72, 0x5C, 0x2E, b"\x72\x00\x00"),  # bank 3 reg 46 bits 0-6
+    ("op_clk_freq", 1, 0x5C, 0x39, b"\x02\x00\x00"),  # DML id 6136: bank 3 reg 57 bits 1-2
+    ("frm_trailer_en", 1, 0x5C, 0x3C, b"\x08\x00\x00"),  # id 6360: reg 60 bit 3
+    ("dealiased_ph_mask", 5, 0x5C, 0x03, b"\x00\x28\x00"),  # id 991: reg 3 bits 11-14
+    ("sync_mode", 1, 0x58, 0x81, b"\x00\x10\x00"),  # id 637: bank 0 reg 129 bit 12
+    ("normal_frm_intg_scale", 3, 0x5C, 0x4D, b"\xc0\x00\x00"),  # id 9980: reg 77 bits 6-8
+    ("bin_row_count", 240, 0x5C, 0x2F, b"\x00\x00\x3c"),  # id 2011: reg 47 bits 14-23
+    ("bin_col_count", 320, 0x5C, 0x30, b"\x00\x00\x50"),  # id 2012: reg 48 bits 14-23
 ]
+
+
+#: bin_row_count = 240 (0x5C2F) and bin_col_count = 320 (0x5C30) at bits 14-23: the QVGA frame
+#: the driver decodes by default (DML defaults of ids 2011, 2012)
+QVGA = {0x5C2F: 240 << 14, 0x5C30: 320 << 14}
 
 
 def test_every_named_register_has_a_byte_exact_test():
@@ -400,15 +412,17 @@ def test_driver_rejects_bad_modes_and_sizes():
 # -- device frame numbers (OPT9221.dml debug_frame_number_en, bank 3 reg 57 bit 12) ------------
 def test_configure_with_frame_ids_writes_the_counter_bit_byte_exact():
     """Read-modify-write of 0x5C39: bit 12 set, the register's other bits kept
-    (op_serial_width, bit 10, set here); frm_header_en (0x5C3C bit 1) cleared."""
-    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x000006, 0x5883: 0x04})
+    (op_serial_width, bit 10, set here); blk_header_en, frm_header_en and frm_trailer_en
+    (0x5C3C bits 2, 1, 3) cleared."""
+    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x00000E, 0x5883: 0x04, **QVGA})
     opt.OPT8241(dev, frame_ids=True).configure()
     writes = [e for e in dev.log if e[0] == 0x40]
     assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x14\x00") in writes
     hdr = [e[4] for e in writes if e[2:4] == (0x5C, 0x3C)]
-    assert hdr == [b"\x02\x00\x00", b"\x00\x00\x00"]  # blk_header_en, then frm_header_en
+    # blk_header_en, then frm_header_en, then frm_trailer_en
+    assert hdr == [b"\x0a\x00\x00", b"\x08\x00\x00", b"\x00\x00\x00"]
     assert dev.regs[0x5C3C] == 0 and dev.regs[0x5C39] == 0x001400
-    dev = Recorder({0x5C39: 0x001400, 0x5883: 0x04})
+    dev = Recorder({0x5C39: 0x001400, 0x5883: 0x04, **QVGA})
     opt.OPT8241(dev, frame_ids=False).configure()
     assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x04\x00") in dev.log  # cleared again
 
@@ -450,3 +464,92 @@ def test_driver_takes_the_device_number_from_byte_zero():
     assert [f.raw[0] for f in frames] == [254, 255, 0]  # Frame.raw: the bytes as received
     # guard row: sample -2048 = 0xF800, its low byte 0 restored
     assert all(float(f.taps[0, 0, 0]) == -opt.QUAD_OFFSET for f in frames)
+
+
+# -- output bandwidth, frame size, integration scale, PLL settle, layout registers ----------
+
+
+def test_output_time_is_the_frame_bytes_at_80_percent_of_the_output_clock():
+    """TintinCDKCamera::_getMaximumFrameRate: 0.8 · (24 MHz >> op_clk_freq) bytes per second.
+    A QVGA quad frame, N = 4: 320 · 240 · 8 = 614400 bytes / 19.2 MB/s = 32 ms; depth mode:
+    307200 bytes, 16 ms; op_clk_freq = 1 (12 MHz) doubles both."""
+    cam = opt.OPT8241(Recorder(dict(QVGA)), mode="quad")
+    assert cam.output_time_us() == pytest.approx(32_000.0)
+    assert opt.OPT8241(Recorder(dict(QVGA)), mode="depth").output_time_us() == \
+        pytest.approx(16_000.0)
+    slow = opt.OPT8241(Recorder({**QVGA, 0x5C39: 1 << 1}), mode="quad", quads=6)
+    assert slow.output_time_us() == pytest.approx(320 * 240 * 12 / 9.6e6 * 1e6)
+
+
+def test_configure_refuses_a_pattern_period_shorter_than_the_output_time():
+    regs = {**QVGA, 0x5882: 100000, 0x5883: 0x44}
+    cam = opt.OPT8241(Recorder(dict(regs)), mode="quad")
+    with pytest.raises(ValueError, match=r"614400 bytes\) takes 32\.0 ms to send at 24 MHz.*"
+                                         r"16\.7 ms between patterns"):
+        cam.configure(period_us=16_667)
+    cam.configure(period_us=33_000)  # fits: frame time programmed, no error
+    assert cam.frame_time_us <= 32_500
+    opt.OPT8241(Recorder(dict(regs)), mode="depth").configure(period_us=16_667)
+
+
+def test_configure_checks_the_frame_size_the_camera_sends():
+    cam = opt.OPT8241(Recorder({0x5C2F: 120 << 14, 0x5C30: 160 << 14}))
+    with pytest.raises(HardwareError, match=r"sends 160x120 frames .* decodes 320x240; "
+                                            r"construct it with width=160, height=120"):
+        cam.configure()
+    opt.OPT8241(Recorder({0x5C2F: 120 << 14, 0x5C30: 160 << 14, 0x5883: 0x04}), width=160,
+                height=120).configure()
+
+
+def test_configure_clears_what_an_earlier_program_may_have_left():
+    """Header, trailer, sync mode, dealiased phase mask, pixel_data_size 2 (a depth2 run)."""
+    dev = Recorder({**QVGA, 0x5C3C: 0b1110, 0x5881: 1 << 12, 0x5C03: 5 << 11,
+                    0x5C27: 2 << 11, 0x5883: 0x04})
+    cam = opt.OPT8241(dev, mode="quad")
+    cam.configure()
+    for name in ("frm_header_en", "frm_trailer_en", "blk_header_en", "sync_mode",
+                 "dealiased_ph_mask"):
+        assert cam.read_field(name) == 0, name
+    assert cam.read_field("pixel_data_size") == 4 and cam.read_field("slave_mode") == 1
+
+
+def test_integration_time_follows_normal_frm_intg_scale():
+    """DML id 9980: integration time (scaled) = integration time >> normal_frm_intg_scale."""
+    regs = {0x5882: 100000, 0x5883: 0x44, 0x5C4C: 6}  # 33.3 ms frame, duty 6/64
+    plain = opt.OPT8241(Recorder(dict(regs)))
+    halved = opt.OPT8241(Recorder({**regs, 0x5C4D: 1 << 6}))
+    assert plain.integration_time_us == pytest.approx(6 / 64 * 100000 * 16 / 48)
+    assert halved.integration_time_us == pytest.approx(plain.integration_time_us / 2)
+    halved.set_integration_time(plain.integration_time_us / 2)  # the same duty cycle
+    assert halved.read_field("intg_duty_cycle") == 6
+
+
+def test_pll_update_is_released_10_ms_after_the_last_pll_write(monkeypatch):
+    dev = Recorder({0x5883: 0x04})
+    cam = opt.OPT8241(dev)
+    events = []
+    monkeypatch.setattr(opt.time, "sleep", lambda s: events.append(("sleep", s, len(dev.log))))
+    cam.set_modulation_frequency(30e6)
+    (_, s, at), = events
+    assert s == 0.010
+    after = [e for e in dev.log[at:] if e[0] == 0x40]
+    assert after[0][2:] == (0x58, 0x02, b"\x00\x00\x00")  # then mod_pll_update = 0
+
+
+def test_iq_words_are_int16_beyond_12_bits():
+    """From six signed 12-bit samples |I| = |Σ d_k cos(2πk/6)| reaches 4 · 2048 = 8192: the SDK
+    reads the words as plain int16 (_generateToFRawIQFrame), so do we."""
+    fr = opt.decode_frame(struct.pack("<hh", 8000, -6000), 1, 1, 30e6, "iq", WIDE)
+    assert fr.amplitude.item() == 5000.0  # |8000 - 6000j| / 2 (Eq. 8)
+
+
+def test_throughput_tool_paces_patterns_at_the_camera_output_time():
+    """A 320x240 quad frame takes 32 ms to send: the throughput tool's patterns are 32 ms
+    apart on the internal trigger (the VSYNC pace of 16.7 ms would be refused); a small
+    depth frame keeps 10 ms on the VSYNC trigger."""
+    from torchtof.hardware.throughput import measure
+
+    big = measure("quad", n=8, sr=0.125)
+    assert (big["exposure_us"], big["trigger"], big["frames"]) == (32_000, "internal", 16)
+    small = measure("depth", n=8, sr=0.125, width=64, height=48)
+    assert (small["exposure_us"], small["trigger"]) == (10_000, "vsync")

@@ -76,6 +76,28 @@ def test_camera_frame_is_the_sensor_model_of_the_displayed_pattern():
     assert torch.equal(frame.depth[1:], ref.depth[0, 0])
 
 
+def test_header_and_trailer_left_on_by_another_program_are_cleared_by_start():
+    """The fake camera adds 12 bytes before and after each frame while frm_header_en /
+    frm_trailer_en are set (OPT9221.dml ids 6145, 6360); start() configures them off, so the
+    frames have their size again."""
+    bench = SimulatedBench(CFG)
+    fake = bench.camera_usb
+    fake._set("frm_header_en", 1)
+    fake._set("frm_trailer_en", 1)
+    fake._set("tg_dis", 0)
+    pat = np.ones((8, 8), dtype=np.uint8)
+    fake.trigger(pat)
+    want = opt.frame_bytes(CFG.roi_px, CFG.roi_px + 1, fake.mode)  # the power-up depth8
+    assert len(fake.read(opt.EP_FRAMES, want + 1000)) == want + 24
+    bench = SimulatedBench(CFG)  # a fresh camera (the frame above keeps this one busy)
+    bench.camera_usb._set("frm_header_en", 1)
+    bench.camera_usb._set("frm_trailer_en", 1)
+    lcr, cam = bench.lightcrafter(), bench.camera()
+    cam.start()
+    lcr.show_sequence(pat[None], exposure_us=1000)
+    assert cam.grab(0.1).taps.shape == (4, CFG.roi_px + 1, CFG.roi_px)
+
+
 def test_fault_plan_from_json_dict():
     f = Faults.from_dict({"drop": [1, 2], "nack": {"PAT_CONFIG": [0]}, "hang_s": 1.0})
     assert f.drop == {1, 2} and f.nack == {"PAT_CONFIG": {0}} and f.hang_s == 1.0

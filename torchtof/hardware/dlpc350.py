@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import struct
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -95,13 +96,17 @@ TRIGGER_MODES = {"vsync": 0, "internal": 1, "external": 1, "trig_in_pairs": 2}
 _START_STOP = {"stop": 0, "pause": 1, "start": 2}
 _SOURCE = {"video": 0, "flash": 3}
 _MBOX = {"close": 0, "image": 1, "pattern": 2, "var_exposure": 3}
+#: ``LUT_VALID`` status bits (TI's ``DLPC350_StartPatLutValidate`` documentation,
+#: dlpc350_api.cpp): bits 0 and 1 invalid settings, bits 2-4 warnings.
 _LUT_ERRORS = {
     0: "exposure or period out of range",
     1: "pattern numbers out of range",
-    2: "TrigOut1 overlaps the next pattern (warning)",
-    3: "post-vector sequence warning",
-    4: "period - exposure < 230 us",
+    2: "TrigOut1 continuous or overlapping black sectors (warning)",
+    3: "post vector not inserted before an externally triggered vector (warning)",
+    4: "period - exposure < 230 us (warning)",
 }
+#: The ``LUT_VALID`` bits that reject the sequence; the others are TI's warnings.
+LUT_FATAL_BITS = 0x03
 MIN_DARK_US = 230  # PAT_EXPO_PRD: exposure == period or exposure <= period - 230 us
 
 
@@ -544,8 +549,10 @@ class LightCrafter4500:
         command's is a late reply to an earlier one (it arrived after the host gave up on
         it): discarded, and the read repeated. No reply in time: the command is sent again
         with a new sequence number (up to :attr:`retries` times; never ``MBOX_DATA``).
-        pyCrafter4500 (``dlpc350.command``) and TI's ``USB_Write``/``USB_Read`` read one
-        report per command; the sequence byte is what tells replies apart."""
+        pyCrafter4500 (``dlpc350.command``) and TI's ``DLPC350_USB_Write``/``DLPC350_USB_Read``
+        (dlpc350_usb.cpp) read one report per command; the sequence byte is what tells replies
+        apart. That the DLPC350 echoes it in its reply is device-only (TI's API never reads it
+        back, pyCrafter4500 always sends 0; README "Real hardware")."""
         attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
         for _ in range(attempts):
             seq = self._next_seq()
@@ -646,6 +653,10 @@ class LightCrafter4500:
     def validate(self, timeout_s: float = 2.0, poll_s: float = 0.0) -> None:
         """Start LUT validation and poll until the busy bit clears.
 
+        Bits 0-1 (invalid exposure/period or pattern numbers) reject the sequence; bits 2-4,
+        which TI documents as warnings (``DLPC350_StartPatLutValidate``), are issued as a
+        :class:`RuntimeWarning` naming them and the sequence is kept.
+
         Raises:
             ProtocolError: naming ``LUT_VALID`` and the decoded error bits, or on timeout.
         """
@@ -660,9 +671,12 @@ class LightCrafter4500:
             if poll_s:
                 time.sleep(poll_s)
         errors = lut_valid_errors(status)
-        if errors:
+        if status & LUT_FATAL_BITS:
             raise ProtocolError("LUT_VALID", f"sequence rejected (status 0x{status:02x}): "
                                 + "; ".join(errors))
+        if errors:
+            warnings.warn(f"LightCrafter4500.validate: LUT_VALID status 0x{status:02x}, TI's "
+                          f"warnings: {'; '.join(errors)}", RuntimeWarning, stacklevel=2)
 
     def show_sequence(self, patterns, exposure_us: int, period_us: int | None = None,
                       trigger: str = "vsync", source: str = "video", repeat: bool = False,

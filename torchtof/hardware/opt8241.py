@@ -4,8 +4,11 @@ Every fact below was read from TI's Voxel SDK (``3dtof/voxelsdk``, BSD-3) — fa
 code; file and function are named at each. **None of it was verified against a physical
 camera here** (README "Real hardware" lists what only a device can confirm).
 
-**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, the constructor's slave table;
-``Voxel/USBIO.cpp``): VID 0x0451, PID 0x9105 is the bulk device; registers are read and
+**USB** (``TI3DToF/boards/TintinCDK/TintinCDKCamera.cpp``, the slave table of
+``TintinCDKCamera::_init``; ``Voxel/USBIO.cpp``): VID 0x0451, PID 0x9105 is the bulk device
+(``TINTIN_CDK_PRODUCT_BULK``, TintinCDKCamera.h; 0x9106 is TI's UVC firmware, which torchtof
+does not drive); the SDK only opens the device and claims interface 0 (``USBIO``), so
+:meth:`OPT8241.open` sets a configuration only when none is active; registers are read and
 written with vendor device control transfers, ``wValue = slave << shift``, ``wIndex = reg
 << shift``, the value little endian in ``nbytes`` bytes:
 
@@ -30,7 +33,9 @@ read-modify-write.
 
   programmed as ``TintinModulationFrequencyParameter`` / ``TintinVCOFrequency`` do
   (ToFTintinCamera.cpp): ``mod_ps1 = ⌊300 / quad_cnt_max / f_MHz⌋``, ``mod_n1 = 2``,
-  ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0; then
+  ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0 with
+  10 ms between the last PLL write and releasing ``mod_pll_update`` (``TintinVCOFrequency::set``
+  sleeps 10 ms there); then
   ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML; ``TintinUnambiguousRangeParameter::set``).
 * Frame time: ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` cycles at 48 MHz (DML
   description of ``pix_cnt_max``; ``ToFCamera::_getFrameRate``), 33.3 ms at the DML defaults;
@@ -40,10 +45,28 @@ read-modify-write.
   8 (DML descriptions).
 * Integration time: ``intg_duty_cycle · 100/64`` percent (DML description;
   ``IntegrationTimeParameter``, ToFCamera.cpp, which reads ``intg_duty_cycle_set_failed``
-  after each write). The µs value torchtof reports is that share of the frame time (the SDK
+  after each write), right-shifted by ``normal_frm_intg_scale`` (DML id 9980: "integration
+  time (scaled) = integration time >> normal_frm_intg_scale"; 0 at power-up, left as TI's
+  profile set it). The µs value torchtof reports is that share of the frame time (the SDK
   gives only the percentage).
-* De-aliasing off for one frequency: ``dealias_en = 0``, ``dealias_16bit_op_enable = 0``
-  (``TintinUnambiguousRangeParameter::set``).
+* Output bandwidth: the OPT9221 sends one byte per output clock, ``24 MHz >> op_clk_freq``
+  (DML id 6136: "it is the host's responsibility to ensure that the rate is sufficient to attain
+  the required frame-rate without dropping any data"); the SDK's highest frame rate is 80 % of
+  ``clock / (bytes per pixel · width · height)`` (``TintinCDKCamera::_getMaximumFrameRate``).
+  :meth:`OPT8241.configure` refuses a pattern period shorter than a frame's output time at that
+  rate (:meth:`OPT8241.output_time_us`). A QVGA ``"quad"`` frame with N = 4 is 614 400 bytes:
+  32 ms at 24 MHz, i.e. at most 31 frames/s; TI's profiles run 8–50 frames/s.
+* Frame size: ``bin_col_count`` × ``bin_row_count`` (DML ids 2012, 2011; read by
+  ``ToFCamera::_getFrameSize``); :meth:`OPT8241.configure` checks that they match the
+  ``width`` × ``height`` the frames are decoded with.
+* De-aliasing off for one frequency: ``dealias_en = 0``, ``dealias_16bit_op_enable = 0``,
+  ``dealiased_ph_mask = 0`` (``TintinUnambiguousRangeParameter::set``).
+* Layout registers written by :meth:`OPT8241.configure` whatever an earlier program left:
+  ``frm_header_en = 0`` (DML id 6145: a 12-byte header per frame), ``frm_trailer_en = 0`` (DML
+  id 6360: a 12-byte trailer), ``blk_header_en = 0`` (``TintinCDKCamera::_init`` writes it
+  false for the bulk device), ``pixel_data_size`` (4 in ``"quad"`` mode: the DML default), and
+  ``sync_mode = 0`` (DML id 637: "If both slave_mode and sync_mode are enabled, sync_mode takes
+  higher priority").
 * Streaming: ``tg_dis`` (``0x5880`` bit 0), DML: "'1': TFC stops all processing. Streaming
   comes to a halt … '0': TFC is in normal operation"; the SDK writes 1 while configuring and 0
   to run (``ToFTintinCamera::_init``, ``_initStartParams``). ``slave_mode`` (``0x5881`` bit
@@ -84,9 +107,8 @@ little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
 12-bit phase to depth: ``θ = 2π · phase12 / 4096``, ``depth = θ · c / (4π f)`` (Eq. 1), then
 the camera rules of paper §2.2 (:func:`torchtof.sensor.camera_rules`).
 
-**Corrupt frames**: without a checksum only the size can be checked (and the ±(2^12 − 1)
-range of I/Q); a flipped bit inside a word is undetectable (USB's packet CRC protects the
-wire).
+**Corrupt frames**: without a checksum only the size can be checked; a flipped bit inside a
+word is undetectable (USB's packet CRC protects the wire).
 """
 
 from __future__ import annotations
@@ -203,12 +225,29 @@ REGISTERS: dict[str, Field] = {
     # second temperature-sensor slave address, bank 3 reg 46 bits 0-6: DML default 113 (0x71);
     # TintinCDKCamera::_init writes 0x72 (TILLUM_SLAVE_ADDR): the board-initialised marker
     "tillum_slv_addr": Field(0x5C2E, 0, 6),
+    # output clock 24 MHz >> op_clk_freq, DML id 6136, bank 3 reg 57 bits 1-2
+    "op_clk_freq": Field(0x5C39, 1, 2),
+    # 12-byte debug trailer, DML id 6360, bank 3 reg 60 bit 3
+    "frm_trailer_en": Field(0x5C3C, 3, 3),
+    # dealiased phase mask (4-bit signed), DML id 991, bank 3 reg 3 bits 11-14; zeroed for one
+    # frequency by TintinUnambiguousRangeParameter::set
+    "dealiased_ph_mask": Field(0x5C03, 11, 14),
+    # TG sync mode (priority over slave_mode), DML id 637, bank 0 reg 129 bit 12
+    "sync_mode": Field(0x5881, 12, 12),
+    # integration time >> normal_frm_intg_scale, DML id 9980, bank 3 reg 77 bits 6-8
+    "normal_frm_intg_scale": Field(0x5C4D, 6, 8),
+    # output frame size (ToFCamera::_getFrameSize): DML ids 2011/2012, bank 3 regs 47/48
+    "bin_row_count": Field(0x5C2F, 14, 23),
+    "bin_col_count": Field(0x5C30, 14, 23),
 }
 
 #: Limits of the TintinCDK board (``TintinCDKCamera::_init``, TintinCDKCamera.cpp):
 #: ``pix_cnt_max`` lower limit 50000, ``intg_duty_cycle`` upper limit 20.
 PIX_CNT_MAX_MIN = 50_000
 INTG_DUTY_CYCLE_MAX = 20
+#: Wait between the last PLL write and releasing ``mod_pll_update`` (``TintinVCOFrequency::set``
+#: sleeps 10 ms there, ToFTintinCamera.cpp).
+VCO_SETTLE_S = 0.010
 #: ``tillum_slv_addr`` after TI's board initialisation (TintinCDKCamera::_init).
 TILLUM_SLAVE_ADDR_INIT = 0x72
 #: Valid ``quad_cnt_max`` and ``sub_frame_cnt_max`` (OPT9221.dml descriptions of ids 82, 83).
@@ -218,7 +257,9 @@ SUB_FRAME_COUNTS = (1, 2, 4, 8)
 #: frame mode -> (output_mode, pixel_data_size, op_data_arrange_mode) (module docstring).
 #: ``pixel_data_size`` defines only 2 and 4 (OPT9221.dml id 1067); in ``"quad"`` mode the SDK
 #: never writes it and sizes the transfer as ``quad_cnt_max · 2`` bytes per pixel
-#: (``TintinCDKCamera::_setStreamerFrameSize``), so torchtof leaves it at 4 (the default).
+#: (``TintinCDKCamera::_setStreamerFrameSize``); torchtof writes the DML default 4 there, so
+#: that a 2 left by a ``"depth2"`` run does not stay (whether quad mode reads it at all is
+#: device-only, README "Real hardware").
 FRAME_MODES: dict[str, tuple[int, int, int]] = {
     "depth": (0, 4, 0),
     "depth8": (0, 4, 2),
@@ -227,6 +268,10 @@ FRAME_MODES: dict[str, tuple[int, int, int]] = {
     "quad": (15, 4, 0),
 }
 _TWO_PI = 2.0 * math.pi
+#: The output clock at ``op_clk_freq = 0`` (OPT9221.dml id 6136: 24, 12, 6, 3 MHz).
+OP_CLK_HZ = 24e6
+#: Share of the output clock the SDK counts on (``TintinCDKCamera::_getMaximumFrameRate``).
+OP_CLK_USABLE = 0.8
 
 
 @dataclass(frozen=True)
@@ -476,7 +521,7 @@ def frame_bytes(width: int, height: int, mode: str, quads: int = 4) -> int:
 
 def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str = "depth",
                  rules: CameraRules = CameraRules(), frame_id: int = 0,
-                 timestamp: float = 0.0, adc_bits: int = 12, quads: int = 4) -> Frame:
+                 timestamp: float = 0.0, quads: int = 4) -> Frame:
     """Decode one bulk transfer into a :class:`Frame` (module docstring for the layouts).
 
     ``"quad"``: ``quads`` signed 12-bit samples per pixel, ``I``/``Q`` as the SDK computes
@@ -488,8 +533,17 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     ``"iq"``: phase and amplitude from ``I``/``Q`` (Eqs. 7, 8). Depth modes: the 12-bit words.
     Then Eq. 1 and the camera rules (§2.2). ``frame_id`` and ``timestamp`` come from the host.
 
+    The SDK's amplitude in ``"quad"`` and ``"iq"`` modes is ``|I + jQ|``
+    (``ToFFrameGenerator::generate`` for raw I/Q frames); Eq. 8 gives ``2|I + jQ|/N`` in
+    ``"quad"`` mode (``/2`` for ``N = 4``, ``/3`` for ``N = 6``) and ``|I + jQ|/2`` in ``"iq"``
+    mode, so an ``amp_threshold`` taken from TI's tools is 2 or 3 times torchtof's there. In the
+    depth modes the amplitude is the camera's 12-bit word.
+    ``"iq"`` words are plain int16 as the SDK reads them (``_generateToFRawIQFrame``), not
+    range-checked: from six signed 12-bit samples ``|Σ d_k cos(2πk/6)|`` reaches
+    ``4 · 2048 = 8192`` (four: 4095), and the firmware's scaling of them is device-only.
+
     Raises:
-        FrameError: wrong size, I/Q beyond ``±(2^adc_bits − 1)``.
+        FrameError: a transfer of the wrong size.
         ValueError: unknown mode, a bad ``quads``, or ``"depth8"`` with a width not divisible
             by 8.
     """
@@ -499,7 +553,6 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     if len(raw) != need:
         raise FrameError(f"{len(raw)} bytes, a {w}x{h} {mode!r} frame has {need}")
     taps = ambient = flags = None
-    limit = (1 << adc_bits) - 1
     if mode == "quad":
         n = int(quads)
         words = np.frombuffer(raw, dtype="<u2").reshape(h, w, n)
@@ -513,9 +566,7 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
         taps = torch.from_numpy(np.ascontiguousarray(np.moveaxis(t, -1, 0)).astype(np.float32))
         t4 = taps[None]
     elif mode == "iq":
-        iq = np.frombuffer(raw, dtype="<i2").reshape(h, w, 2).astype(np.int64)
-        if int(np.abs(iq).max(initial=0)) > limit:
-            raise FrameError(f"I/Q beyond ±{limit} ({adc_bits}-bit taps)")
+        iq = np.frombuffer(raw, dtype="<i2").reshape(h, w, 2)
         t4 = torch.zeros(1, 4, h, w, dtype=torch.float32)
         t4[0, 0] = torch.from_numpy(iq[..., 0].astype(np.float32))  # c1 - c2 = I
         t4[0, 3] = torch.from_numpy(iq[..., 1].astype(np.float32))  # c4 - c3 = Q
@@ -546,6 +597,22 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
                  ambient=ambient, flags=flags, raw=raw)
 
 
+def _ensure_configuration(dev) -> None:
+    """Set the device's first configuration only if none is active, then claim interface 0:
+    the SDK only opens the device and claims its interface (``USBIO``, Voxel/USBIO.cpp);
+    re-selecting the active configuration makes libusb reset the device's USB state."""
+    import usb.core
+    import usb.util
+
+    try:
+        active = dev.get_active_configuration()
+    except usb.core.USBError:  # unconfigured (pyusb raises when the value is 0)
+        active = None
+    if active is None:
+        dev.set_configuration()
+    usb.util.claim_interface(dev, 0)
+
+
 class OPT8241:
     """OPT8241-CDK-EVM frame source over any pyusb-like device (``ctrl_transfer`` and
     ``read``), e.g. ``usb.core.Device`` (:meth:`open`) or the simulator's fake camera.
@@ -563,7 +630,6 @@ class OPT8241:
         rules: the camera rules applied to the decoded depth.
         mode: frame mode (:data:`FRAME_MODES`); ``"quad"`` (raw samples) is needed for
             per-tap buckets.
-        adc_bits: significant bits of the correlation samples (12, datasheet).
         slave: put the OPT9221 in ``slave_mode`` (one frame per external VD_IN sync).
         timeout_s: default frame timeout.
         clock: host clock for the frame timestamps (seconds), as the SDK stamps frames.
@@ -579,7 +645,7 @@ class OPT8241:
     what = "TI OPT8241 ToF camera"
 
     def __init__(self, dev, width: int = 320, height: int = 240,
-                 rules: CameraRules = CameraRules(), mode: str = "depth", adc_bits: int = 12,
+                 rules: CameraRules = CameraRules(), mode: str = "depth",
                  slave: bool = True, timeout_s: float = 2.0, clock=time.time,
                  frame_ids: bool = False, quads: int = 4, sub_frames: int = 1,
                  queue_frames: int = 64) -> None:
@@ -596,7 +662,7 @@ class OPT8241:
             raise ValueError(f"OPT8241: expected queue_frames a positive int, got "
                              f"{queue_frames!r}")
         self.dev, self.width, self.height = dev, int(width), int(height)
-        self.rules, self.mode, self.adc_bits = rules, mode, int(adc_bits)
+        self.rules, self.mode = rules, mode
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
         self.frame_ids = bool(frame_ids)
         self.quads = _check_quads(quads, "OPT8241")
@@ -610,7 +676,8 @@ class OPT8241:
 
     @classmethod
     def open(cls, **kwargs) -> OPT8241:
-        """Find the first OPT8241-CDK-EVM (VID 0x0451, PID 0x9105) and configure it.
+        """Find the first OPT8241-CDK-EVM (VID 0x0451, PID 0x9105), select its configuration
+        if none is active and claim interface 0 (as TI's ``USBIO`` does).
 
         Raises:
             DeviceNotFoundError: nothing attached / no libusb backend (with the udev hint).
@@ -618,7 +685,7 @@ class OPT8241:
         """
         dev = find_device(VID, PID, cls.what)
         try:
-            dev.set_configuration()
+            _ensure_configuration(dev)
         except Exception as exc:
             raise translate_usb_error(exc, cls.what, "open") from exc
         return cls(dev, **kwargs)
@@ -729,6 +796,7 @@ class OPT8241:
         try:
             for k in ("mod_m1", "mod_n1", "mod_m_frac1", "mod_ps1"):
                 self.write_field(k, s[k])
+            time.sleep(VCO_SETTLE_S)  # TintinVCOFrequency::set waits here before the release
         finally:
             self.write_field("mod_pll_update", 0)
         self.write_field("delay_fb_coeff_1", coeff)
@@ -787,20 +855,23 @@ class OPT8241:
     @property
     def integration_time_us(self) -> float:
         """``intg_duty_cycle · 100/64`` percent (DML description of ``intg_duty_cycle``,
-        ``IntegrationTimeParameter::get`` in ToFCamera.cpp) of the frame time (torchtof's µs
-        conversion: the SDK states only "percentage of total cycle time")."""
-        return self.read_field("intg_duty_cycle") / 64 * self.frame_time_us
+        ``IntegrationTimeParameter::get`` in ToFCamera.cpp) of the frame time, right-shifted by
+        ``normal_frm_intg_scale`` (DML id 9980) (torchtof's µs conversion: the SDK states only
+        "percentage of total cycle time")."""
+        shift = self.read_field("normal_frm_intg_scale")
+        return self.read_field("intg_duty_cycle") / 64 * self.frame_time_us / (1 << shift)
 
     def set_integration_time(self, us: float) -> float:
-        """Nearest ``intg_duty_cycle = round(us / frame time · 64)`` (``IntegrationTimeParameter
-        ::set``), at most 20 on this board (``TintinCDKCamera::_init``), then the
+        """Nearest ``intg_duty_cycle = round(us / frame time · 64 · 2^normal_frm_intg_scale)``
+        (``IntegrationTimeParameter::set``; the scale as TI's profile left it), at most 20 on
+        this board (``TintinCDKCamera::_init``), then the
         ``intg_duty_cycle_set_failed`` flag read back; returns the integration time (µs).
 
         Raises:
             ValueError: beyond the duty-cycle limit 20 (31.25 % of the frame time).
             HardwareError: the camera set ``intg_duty_cycle_set_failed``.
         """
-        frame_us = self.frame_time_us
+        frame_us = self.frame_time_us / (1 << self.read_field("normal_frm_intg_scale"))
         top = INTG_DUTY_CYCLE_MAX / 64 * frame_us
         if isinstance(us, bool) or not isinstance(us, (int, float)) or not math.isfinite(us) \
                 or not 0 <= us:
@@ -834,13 +905,57 @@ class OPT8241:
                 "Viewer (or voxelsdk), choose a profile, disconnect, then run torchtof.")
 
     # -- streaming ---------------------------------------------------------------------------
+    def output_time_us(self) -> float:
+        """Time to send one frame of :attr:`mode` over the output interface: its bytes at
+        80 % of ``24 MHz >> op_clk_freq`` (module docstring, "Output bandwidth";
+        ``TintinCDKCamera::_getMaximumFrameRate``)."""
+        rate = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) * OP_CLK_USABLE
+        return frame_bytes(self.width, self.height, self.mode, self.quads) / rate * 1e6
+
+    def check_frame_size(self) -> None:
+        """The frames the camera sends are ``bin_col_count`` × ``bin_row_count`` pixels
+        (``ToFCamera::_getFrameSize``); they must be the ``width`` × ``height`` this object
+        decodes.
+
+        Raises:
+            HardwareError: they differ.
+        """
+        cols, rows = self.read_field("bin_col_count"), self.read_field("bin_row_count")
+        if (cols, rows) != (self.width, self.height):
+            raise HardwareError(
+                f"{self.what}: the camera sends {cols}x{rows} frames (bin_col_count x "
+                f"bin_row_count) but this OPT8241 decodes {self.width}x{self.height}; construct "
+                f"it with width={cols}, height={rows}, or set the ROI in TI's Voxel Viewer")
+
     def configure(self, period_us: float | None = None, margin_us: float = 500.0) -> None:
-        """Output format of :attr:`mode` (no frame or block header: bulk device), de-aliasing
-        off and ``quad_cnt_max`` = :attr:`quads` with the modulation frequency kept
-        (``TintinUnambiguousRangeParameter::set`` for one frequency), slave mode, device frame
-        numbers on/off (:attr:`frame_ids`); with ``period_us`` the frame time is set to fit
-        one pattern period less ``margin_us`` (:meth:`set_frame_time`)."""
+        """Output format of :attr:`mode` with no frame header, trailer or block header (bulk
+        device), de-aliasing off and ``quad_cnt_max`` = :attr:`quads` with the modulation
+        frequency kept (``TintinUnambiguousRangeParameter::set`` for one frequency), slave
+        mode with ``sync_mode`` off, device frame numbers on/off (:attr:`frame_ids`) — each
+        written whatever an earlier program left (module docstring) — and the frame size
+        checked (:meth:`check_frame_size`). With ``period_us`` (the time between triggers) the
+        frame time is set to fit one period less ``margin_us`` (:meth:`set_frame_time`),
+        after checking that the output interface can send a frame within one period.
+
+        Raises:
+            ValueError: a frame takes longer than ``period_us`` to send
+                (:meth:`output_time_us`).
+            HardwareError: the frame size differs (:meth:`check_frame_size`), or a flag of
+                :meth:`set_frame_time`.
+        """
         out, size, arrange = FRAME_MODES[self.mode]
+        self.check_frame_size()
+        if period_us is not None:
+            need = self.output_time_us()
+            if need > float(period_us):
+                clock = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) / 1e6
+                raise ValueError(
+                    f"OPT8241.configure: a {self.width}x{self.height} {self.mode!r} frame "
+                    f"({frame_bytes(self.width, self.height, self.mode, self.quads)} bytes) takes "
+                    f"{need / 1e3:.1f} ms to send at {clock:g} MHz (80 % usable, "
+                    f"TintinCDKCamera::_getMaximumFrameRate), longer than the {period_us / 1e3:.1f}"
+                    " ms between patterns: lengthen the pattern period, choose a smaller ROI or "
+                    "a mode with fewer bytes per pixel ('depth', 'depth2')")
         self.write_field("tg_dis", 1)
         if self.read_field("quad_cnt_max") != self.quads:
             freq = self.freq_hz
@@ -848,14 +963,15 @@ class OPT8241:
             self.set_modulation_frequency(freq)
         self.write_field("dealias_en", 0)
         self.write_field("dealias_16bit_op_enable", 0)
+        self.write_field("dealiased_ph_mask", 0)
         self.write_field("output_mode", out)
-        if self.mode != "quad":  # the SDK sizes quad frames from quad_cnt_max (FRAME_MODES)
-            self.write_field("pixel_data_size", size)
+        self.write_field("pixel_data_size", size)  # 4 in quad mode: the default (FRAME_MODES)
         self.write_field("op_data_arrange_mode", arrange)
         self.write_field("blk_header_en", 0)
-        if self.frame_ids:  # the number must be byte 0 of the transfer: no frame header
-            self.write_field("frm_header_en", 0)
+        self.write_field("frm_header_en", 0)  # frames are raw pixels (and byte 0 the number)
+        self.write_field("frm_trailer_en", 0)
         self.write_field("debug_frame_number_en", int(self.frame_ids))
+        self.write_field("sync_mode", 0)  # it would override slave_mode (OPT9221.dml)
         self.write_field("slave_mode", int(self.slave))
         if period_us is not None:
             self.set_frame_time(float(period_us) - float(margin_us))
@@ -997,7 +1113,7 @@ class OPT8241:
         try:
             fid, data = split_frame_id(raw) if self.frame_ids else (self._next_id, raw)
             frame = decode_frame(data, self.width, self.height, freq, self.mode,
-                                 self.rules, fid, stamp, self.adc_bits, self.quads)
+                                 self.rules, fid, stamp, self.quads)
         except FrameError as exc:
             self.stats["bad_size"] += 1
             raise FrameError(str(exc).removeprefix("corrupt frame: "), self.pattern_index) from exc

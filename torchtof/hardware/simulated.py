@@ -403,12 +403,19 @@ class FakeLightCrafter(_Gone):
                 self.bench.sim_time = t + (self.state["period_us"] or 0) * 1e-6
 
 
+#: What the fake camera puts in the 12-byte frame header / trailer when they are enabled.
+HEADER_BYTES = bytes(range(12))
+TRAILER_BYTES = b"\xa5" * 12
+
+
 class FakeOPT8241(_Gone):
     """An OPT8241-CDK-EVM: 24-bit OPT9221 registers (and the 1/2-byte board slaves) behind
     the vendor control transfers, frames on bulk IN in the format its registers select
     (``output_mode``, ``pixel_data_size``, ``op_data_arrange_mode``, ``quad_cnt_max``,
-    :mod:`.opt8241`): raw bytes, no header; byte 0 the frame number when
-    ``debug_frame_number_en`` is set (module docstring). Registers start at the OPT9221.dml
+    :mod:`.opt8241`): raw bytes; byte 0 the frame number when ``debug_frame_number_en`` is set
+    (module docstring); 12 more bytes before or after the frame while ``frm_header_en`` or
+    ``frm_trailer_en`` is set; ``bin_col_count`` × ``bin_row_count`` read the frame size
+    (``roi_px`` × ``roi_px + 1``). Registers start at the OPT9221.dml
     defaults (frame time 100000 · 4 · 4 / 48 MHz = 33.3 ms) with PLL 1 set for the
     configuration's modulation frequency and ``tillum_slv_addr`` = 0x72 when the bench says
     TI's SDK initialised the board.
@@ -434,7 +441,8 @@ class FakeOPT8241(_Gone):
         defaults = {"mod_n1": 2, "mod_ps1": 1, "mod_m1": 16, "quad_cnt_max": 4,
                     "sub_frame_cnt_max": 4, "pix_cnt_max": 100000, "intg_duty_cycle": 6,
                     "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1,
-                    "delay_fb_coeff_1": 2048,
+                    "delay_fb_coeff_1": 2048, "op_clk_freq": 0,
+                    "bin_col_count": bench.config.roi_px, "bin_row_count": bench.config.roi_px + 1,
                     "tillum_slv_addr": 0x72 if bench.sdk_initialised else 0x71}
         defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
         for name, value in defaults.items():
@@ -629,6 +637,10 @@ class FakeOPT8241(_Gone):
         packet = opt.encode_frame(self.mode, taps.astype(np.int64), ambient=ambient,
                                   flags=sat.astype(np.uint32), quads=self.field("quad_cnt_max"))
         packet = self._numbered(packet)
+        # the 12-byte frame header and debug trailer (OPT9221.dml ids 6145, 6360; contents
+        # here: a simulator choice) when a register left them on
+        packet = (HEADER_BYTES * self.field("frm_header_en") + packet
+                  + TRAILER_BYTES * self.field("frm_trailer_en"))
         cap = self.bench.fifo_frames if self.bench.realtime else None
         if cap is not None and len(self._fifo) >= cap:
             self.fifo_dropped += 1  # numbered, then lost: a frame-id gap
@@ -779,6 +791,5 @@ class SimulatedBench:
         simulated host clock)."""
         p = self.config.roi_px
         kw = {"width": p, "height": p + 1, "rules": rules_from_config(self.config), "mode": "quad",
-              "adc_bits": self.config.adc_bits, "clock": lambda: self.camera_usb.time_s,
-              **kwargs}
+              "clock": lambda: self.camera_usb.time_s, **kwargs}
         return OPT8241(self.camera_usb, **kw)

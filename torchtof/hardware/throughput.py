@@ -13,6 +13,7 @@ at 10 ms patterns on the internal trigger).
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 import time
 from pathlib import Path
@@ -33,6 +34,8 @@ class ReplayCamera(FakeOPT8241):
 
     def __init__(self, bench: SimulatedBench, width: int, height: int) -> None:
         super().__init__(bench)
+        self._set("bin_col_count", width)  # the frame size the registers report
+        self._set("bin_row_count", height)
         rng = np.random.default_rng(0)
         self._taps = rng.integers(0, 4096, size=(4, height, width)).astype(np.int64)
         self._cache: dict = {}
@@ -48,7 +51,12 @@ class ReplayCamera(FakeOPT8241):
 def measure(mode: str, n: int = 32, sr: float = 0.25, width: int = 320, height: int = 240,
             store: str | Path | None = None, trigger: str = "vsync") -> dict:
     """Acquire ``2 · sr · n²`` frames of ``width × height`` px in ``mode`` from the replay
-    camera into a fresh zarr store; returns frames, seconds and frames per second."""
+    camera into a fresh zarr store; returns frames, seconds and frames per second.
+
+    The pattern period is the camera's: 10 ms, or longer where the OPT9221 needs longer to
+    send a frame (:meth:`~torchtof.hardware.opt8241.OPT8241.output_time_us`, e.g. 32 ms for a
+    320×240 quad frame), on the internal trigger when that exceeds a 60 Hz video frame. The
+    simulated clock does not wait for it: the time measured is the host's."""
     bench = SimulatedBench(ExperimentConfig(n=n, roi_px=n, srs=(sr,)))
     bench.camera_usb = ReplayCamera(bench, width, height)
     lcr = bench.lightcrafter()
@@ -59,10 +67,15 @@ def measure(mode: str, n: int = 32, sr: float = 0.25, width: int = 320, height: 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(store) if store is not None else Path(tmp) / "run.zarr"
         t0, c0 = time.perf_counter(), time.process_time()
-        res = acquire(path, lcr, cam, n=n, sr=sr, progress=False, trigger=trigger)
+        exposure_us = max(10_000, math.ceil(cam.output_time_us() / 1000) * 1000)
+        if exposure_us > 1e6 / 60:
+            trigger = "internal"
+        res = acquire(path, lcr, cam, n=n, sr=sr, progress=False, trigger=trigger,
+                      exposure_us=exposure_us)
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
     frames = 2 * res.m_acquired
     return {"mode": mode, "frames": frames, "seconds": dt, "fps": frames / dt,
+            "exposure_us": exposure_us, "trigger": trigger,
             "cpu_s": cpu, "fps_per_cpu": frames / cpu, "retries": res.retries}
 
 
