@@ -3,6 +3,7 @@ the DLPC350 programmer's guide DLPU010), reply/NACK/multi-report decoding, LUT p
 show_sequence on the fake."""
 
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -276,6 +277,53 @@ def test_late_reply_is_discarded_and_the_command_retried():
     with pytest.raises(ProtocolError, match="MBOX_DATA: no reply"):
         bench.lightcrafter().load_pattern_lut([dlp.lut_entry(0)])
     assert bench.lightcrafter_usb.counts["MBOX_DATA"] == 1
+
+
+def test_a_device_that_echoes_the_sequence_byte_is_recognised_silently():
+    bench = _bench()
+    lcr = bench.lightcrafter()
+    assert lcr.seq_echo is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lcr.show_sequence(np.ones((2, 8, 8), dtype=np.uint8), exposure_us=1000)
+    assert lcr.seq_echo is True and lcr.stale_replies == 0
+
+
+def test_a_device_without_the_sequence_echo_is_matched_by_order():
+    """A reply with sequence byte 0 to the first command (byte 1), with nothing unanswered,
+    cannot be a late reply: the driver warns once and matches replies by their order; a
+    NACK still reaches the command it answers."""
+    bench = _bench(no_seq_echo=True, nack={"PAT_EXPO_PRD": {0}})
+    lcr = bench.lightcrafter()
+    with pytest.warns(RuntimeWarning, match="does not echo"):
+        assert lcr.display_mode() in ("video", "pattern")
+    assert lcr.seq_echo is False
+    with pytest.raises(NackError, match="PAT_EXPO_PRD"):
+        lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+    runs = []
+    for faults in ({"no_seq_echo": True}, {}):  # the same exchange as with the echo
+        bench = _bench(**faults)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bench.lightcrafter().show_sequence(np.ones((2, 8, 8), dtype=np.uint8),
+                                               exposure_us=1000)
+        fake = bench.lightcrafter_usb
+        runs.append(([(m.command, m.payload) for m in fake.log], fake.pattern_lut, fake.state))
+    assert runs[0] == runs[1]
+
+
+def test_without_the_echo_a_late_reply_is_drained_not_misattributed():
+    """PAT_CONFIG #0 is answered late by a device without the echo: the retry's wait sees
+    the late reply (byte 0, not the timed-out command's 1) and learns there is no echo; the
+    retry's own reply is then drained, so the next command (a NACKed PAT_EXPO_PRD) gets its
+    own reply."""
+    bench = _bench(no_seq_echo=True, late_reply={"PAT_CONFIG": {0}}, nack={"PAT_EXPO_PRD": {0}})
+    lcr = bench.lightcrafter()
+    with pytest.warns(RuntimeWarning, match="does not echo"):
+        lcr.write("PAT_CONFIG", dlp.payload_pattern_config(1, False, 1, 1))
+    assert bench.lightcrafter_usb.counts["PAT_CONFIG"] == 2 and lcr.stale_replies == 1
+    with pytest.raises(NackError, match="PAT_EXPO_PRD"):
+        lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
 
 
 def test_flash_source_uses_image_lut_and_buffer_swaps():

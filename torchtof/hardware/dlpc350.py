@@ -506,6 +506,10 @@ class LightCrafter4500:
         self.dev, self.timeout_ms, self.video = dev, int(timeout_ms), video
         self.retries = int(retries)
         self.stale_replies = 0
+        #: whether the device echoes the sequence byte: ``None`` until a reply shows it
+        #: (:meth:`_transfer`)
+        self.seq_echo: bool | None = None
+        self._pending: set[int] = set()  # sequence bytes of commands that timed out
         self._seq = 0
         self.sent: list[tuple[str, bytes]] = []  # (command, payload) log, newest last
 
@@ -552,8 +556,16 @@ class LightCrafter4500:
         pyCrafter4500 (``dlpc350.command``) and TI's ``DLPC350_USB_Write``/``DLPC350_USB_Read``
         (dlpc350_usb.cpp) read one report per command; the sequence byte is what tells replies
         apart. That the DLPC350 echoes it in its reply is device-only (TI's API never reads it
-        back, pyCrafter4500 always sends 0; README "Real hardware")."""
+        back, pyCrafter4500 always sends 0; README "Real hardware"), so it is learnt: replies
+        already waiting are drained before the first command (sequence byte 1); a reply whose
+        byte is neither this command's nor that of one of ours that timed out cannot be a late
+        reply — then the device does not echo (:attr:`seq_echo` ``False``, one
+        :class:`RuntimeWarning`): replies are matched by their order, and the replies of
+        timed-out attempts are drained (a reply later than the drain's 20 ms could still be
+        taken for the next command's: the price of a device without the echo)."""
         attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
+        if self.seq_echo is None and self._seq == 0 or self.seq_echo is False and self._pending:
+            self._drain()  # another program's leftovers, or late replies (no echo)
         for _ in range(attempts):
             seq = self._next_seq()
             try:
@@ -563,8 +575,25 @@ class LightCrafter4500:
                 while True:
                     left = max(1, int((deadline - time.monotonic()) * 1000))
                     raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
-                    if _header(raw)[1] == seq:
+                    got = _header(raw)[1]
+                    if got == seq:
+                        self.seq_echo = True
+                        self._pending.clear()
                         return decode_reply(raw, name, seq)
+                    if self.seq_echo is None and got not in self._pending:
+                        # not this command's and not a late reply to one of ours: the device
+                        # does not echo the sequence byte
+                        self.seq_echo = False
+                        warnings.warn(
+                            f"LightCrafter4500: the reply to {name} carries sequence byte "
+                            f"{got}, not {seq}, and no command of ours with that byte is "
+                            "unanswered: this device does not echo it; replies are matched by "
+                            "their order", RuntimeWarning, stacklevel=3)
+                    if self.seq_echo is False:
+                        reply = decode_reply(raw, name, got)
+                        if self._pending:  # the timed-out attempts' replies may follow
+                            self._drain()
+                        return reply
                     self.stale_replies += 1  # a late reply to an earlier command
             except HardwareError:
                 raise
@@ -572,8 +601,24 @@ class LightCrafter4500:
                 err = translate_usb_error(exc, self.what, name)
                 if not isinstance(err, _Timeout):
                     raise err from exc
+                self._pending.add(seq)
                 last = err
         raise last
+
+    def _drain(self, timeout_ms: int = 20) -> int:
+        """Read and discard the replies already waiting (late ones, or another program's)
+        until a read times out; returns how many (counted in :attr:`stale_replies`). Forgets
+        the unanswered commands (:meth:`_transfer`)."""
+        n = 0
+        while n < 64:
+            try:
+                self.dev.read(EP_IN, REPORT_SIZE, timeout_ms)
+            except Exception:  # noqa: BLE001 - a timeout (or no device: the command will say)
+                break
+            n += 1
+        self.stale_replies += n
+        self._pending.clear()
+        return n
 
     def write(self, name: str, payload: bytes = b"") -> None:
         """Send command ``name`` with ``payload`` and wait for the acknowledgement.

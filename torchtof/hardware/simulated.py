@@ -93,6 +93,8 @@ class Faults:
             for ``hang_s`` (a test kills the process meanwhile).
         hang_at_read: the same on the bulk read that would deliver this many-th frame (0 =
             first): every earlier frame has reached the host.
+        no_seq_echo: the LightCrafter answers with sequence byte 0 instead of the request's
+            (whether a DLPC350 echoes it is device-only; pyCrafter4500 always sends 0).
     """
 
     frame_timeout: set[int] = field(default_factory=set)
@@ -112,6 +114,7 @@ class Faults:
     hang_at_read: int | None = None
     hang_file: str | None = None
     hang_s: float = 60.0
+    no_seq_echo: bool = False
 
     @classmethod
     def from_dict(cls, d: dict) -> Faults:
@@ -198,7 +201,10 @@ class FakeLightCrafter(_Gone):
             raise _usb_timeout()
         if not self._replies:
             raise _usb_timeout()
-        return bytearray(self._replies.popleft()[:size])
+        reply = self._replies.popleft()
+        if self.bench.faults.no_seq_echo:
+            reply = reply[:1] + b"\x00" + reply[2:]
+        return bytearray(reply[:size])
 
     # -- protocol ----------------------------------------------------------------------------
     def _handle(self, msg: dlp.Message) -> None:
