@@ -312,6 +312,13 @@ def test_a_device_without_the_sequence_echo_is_matched_by_order():
     assert runs[0] == runs[1]
 
 
+def test_sequence_bytes_skip_0_when_they_wrap():
+    """0 is what a device without the echo answers with: our bytes run 1 … 255, 1, …"""
+    lcr = _bench().lightcrafter()
+    seqs = [lcr._next_seq() for _ in range(600)]
+    assert 0 not in seqs and seqs[:2] == [1, 2] and seqs[254:257] == [255, 1, 2]
+
+
 def test_without_the_echo_a_late_reply_is_drained_not_misattributed():
     """PAT_CONFIG #0 is answered late by a device without the echo: the retry's wait sees
     the late reply (byte 0, not the timed-out command's 1) and learns there is no echo; the

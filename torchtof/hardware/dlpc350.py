@@ -540,7 +540,9 @@ class LightCrafter4500:
 
     # -- transport ---------------------------------------------------------------------------
     def _next_seq(self) -> int:
-        self._seq = (self._seq + 1) & 0xFF
+        """1, 2, …, 255, 1, …: never 0, the byte a device without the echo answers with
+        (pyCrafter4500 sends 0), so a reply can only match by echoing."""
+        self._seq = self._seq % 255 + 1
         return self._seq
 
     #: commands that must not be re-sent blindly: MBOX_DATA appends at the mailbox's
@@ -576,7 +578,7 @@ class LightCrafter4500:
                     left = max(1, int((deadline - time.monotonic()) * 1000))
                     raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
                     got = _header(raw)[1]
-                    if got == seq:
+                    if got == seq and self.seq_echo is not False:
                         self.seq_echo = True
                         self._pending.clear()
                         return decode_reply(raw, name, seq)
