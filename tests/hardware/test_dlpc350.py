@@ -312,6 +312,31 @@ def test_a_device_without_the_sequence_echo_is_matched_by_order():
     assert runs[0] == runs[1]
 
 
+def test_a_stray_reply_does_not_make_an_echoing_device_look_like_one_without():
+    """A reply with a byte we did not send (not 0) is discarded as stray: the echo is still
+    learnt from the command's own reply."""
+    bench = _bench()
+    fake = bench.lightcrafter_usb
+    lcr = bench.lightcrafter()
+    lcr.read("DISP_MODE")  # leftovers drained, echo learnt
+    lcr.seq_echo = None  # forget it, then a stray reply arrives before the next command's
+    fake._replies.append(bytes([dlp.FLAG_REPLY, 7, 0, 0]).ljust(dlp.REPORT_SIZE, b"\x00"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lcr.write("PAT_CONFIG", dlp.payload_pattern_config(1, False, 1, 1))
+    assert lcr.seq_echo is True and lcr.stale_replies == 1
+
+
+def test_leftover_replies_are_drained_before_the_first_command():
+    bench = _bench(no_seq_echo=True)
+    fake = bench.lightcrafter_usb
+    fake._replies.append(bytes([dlp.FLAG_REPLY, 0, 1, 0, 0x55]).ljust(dlp.REPORT_SIZE, b"\x00"))
+    lcr = bench.lightcrafter()
+    with pytest.warns(RuntimeWarning, match="does not echo"):
+        mode = lcr.display_mode()
+    assert lcr.stale_replies == 1 and mode == "video"  # its own reply, not the leftover 0x55
+
+
 def test_sequence_bytes_skip_0_when_they_wrap():
     """0 is what a device without the echo answers with: our bytes run 1 … 255, 1, …"""
     lcr = _bench().lightcrafter()
@@ -320,10 +345,9 @@ def test_sequence_bytes_skip_0_when_they_wrap():
 
 
 def test_without_the_echo_a_late_reply_is_drained_not_misattributed():
-    """PAT_CONFIG #0 is answered late by a device without the echo: the retry's wait sees
-    the late reply (byte 0, not the timed-out command's 1) and learns there is no echo; the
-    retry's own reply is then drained, so the next command (a NACKed PAT_EXPO_PRD) gets its
-    own reply."""
+    """PAT_CONFIG #0 is answered late by a device without the echo: the late reply is
+    drained before the retry, whose reply (byte 0, nothing unanswered) shows there is no echo;
+    the next command (a NACKed PAT_EXPO_PRD) gets its own reply."""
     bench = _bench(no_seq_echo=True, late_reply={"PAT_CONFIG": {0}}, nack={"PAT_EXPO_PRD": {0}})
     lcr = bench.lightcrafter()
     with pytest.warns(RuntimeWarning, match="does not echo"):

@@ -553,3 +553,24 @@ def test_throughput_tool_paces_patterns_at_the_camera_output_time():
     assert (big["exposure_us"], big["trigger"], big["frames"]) == (32_000, "internal", 16)
     small = measure("depth", n=8, sr=0.125, width=64, height=48)
     assert (small["exposure_us"], small["trigger"]) == (10_000, "vsync")
+
+
+def test_acquire_checks_the_output_time_against_the_vsync_spacing(tmp_path):
+    """On the VSYNC trigger at 60 Hz, 10 ms patterns are 16.7 ms apart: a 320x240 depth frame
+    (16.0 ms to send) fits, a quad frame (32 ms) is refused naming that spacing; the frame
+    time still fits the 10 ms pattern."""
+    from torchtof.hardware.acquisition import acquire
+    from torchtof.hardware.throughput import ReplayCamera
+
+    for mode in ("depth", "quad"):
+        bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.125,)))
+        bench.camera_usb = ReplayCamera(bench, 320, 240)
+        cam = opt.OPT8241(bench.camera_usb, width=320, height=240, mode=mode,
+                          clock=lambda b=bench: b.camera_usb.time_s)
+        kw = dict(n=8, sr=0.125, progress=False, exposure_us=10_000, trigger="vsync")
+        if mode == "depth":
+            res = acquire(tmp_path / "depth.zarr", bench.lightcrafter(), cam, **kw)
+            assert res.m_acquired == 8 and cam.frame_time_us <= 9_500
+        else:
+            with pytest.raises(ValueError, match=r"32\.0 ms to send .* 16\.7 ms between"):
+                acquire(tmp_path / "quad.zarr", bench.lightcrafter(), cam, **kw)

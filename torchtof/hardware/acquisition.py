@@ -449,8 +449,8 @@ def acquire(
 
     times_us = pattern_times_us(seq, exposure_us, period_us, trigger, video_hz)  # validates
     if hasattr(camera, "configure"):  # the frame must fit one pattern (camera docstring)
-        camera.configure(period_us=min(period_us, times_us[1] - times_us[0]) if seq > 1
-                         else period_us)
+        spacing = min(b - a for a, b in zip(times_us, times_us[1:])) if seq > 1 else period_us
+        camera.configure(period_us=min(period_us, spacing), spacing_us=spacing)
         camera._configured = True
     attrs = {
         "format": _FORMAT, "n": n, "m": m_total, "sr": m_total / (n * n), "order": order,

@@ -517,7 +517,8 @@ class LightCrafter4500:
     @classmethod
     def open(cls, **kwargs) -> LightCrafter4500:
         """Find the first LightCrafter 4500 (VID 0x0451, PID 0x6401), detach the kernel HID
-        driver, claim interface 0.
+        driver, select its configuration if none is active (:func:`ensure_configuration`),
+        claim interface 0.
 
         Raises:
             DeviceNotFoundError: nothing attached (or no libusb backend), with the udev hint.
@@ -530,7 +531,7 @@ class LightCrafter4500:
                     dev.detach_kernel_driver(0)
             except NotImplementedError:  # pragma: no cover - not on every OS
                 pass
-            dev.set_configuration()
+            ensure_configuration(dev)
             import usb.util
 
             usb.util.claim_interface(dev, 0)
@@ -559,16 +560,20 @@ class LightCrafter4500:
         (dlpc350_usb.cpp) read one report per command; the sequence byte is what tells replies
         apart. That the DLPC350 echoes it in its reply is device-only (TI's API never reads it
         back, pyCrafter4500 always sends 0; README "Real hardware"), so it is learnt: replies
-        already waiting are drained before the first command (sequence byte 1); a reply whose
-        byte is neither this command's nor that of one of ours that timed out cannot be a late
-        reply — then the device does not echo (:attr:`seq_echo` ``False``, one
-        :class:`RuntimeWarning`): replies are matched by their order, and the replies of
-        timed-out attempts are drained (a reply later than the drain's 20 ms could still be
-        taken for the next command's: the price of a device without the echo)."""
+        already waiting are drained before the first command; our sequence bytes run 1 … 255
+        (never 0), so a reply with byte 0 while no command of ours is unanswered (before each
+        attempt the replies of timed-out ones are drained unless the echo is known) means the
+        device does not echo (:attr:`seq_echo` ``False``, one :class:`RuntimeWarning`):
+        replies are then matched by their order, and the replies of timed-out attempts are
+        drained (a reply later than the drain's 20 ms could still be taken for the next
+        command's: the price of a device without the echo). Any other mismatched byte is a
+        late or stray reply and is discarded; a later match shows the echo (:attr:`seq_echo`
+        ``True``)."""
         attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
-        if self.seq_echo is None and self._seq == 0 or self.seq_echo is False and self._pending:
-            self._drain()  # another program's leftovers, or late replies (no echo)
         for _ in range(attempts):
+            if self.seq_echo is None and self._seq == 0 or self.seq_echo is not True and \
+                    self._pending:
+                self._drain()  # another program's leftovers, or late replies (no echo known)
             seq = self._next_seq()
             try:
                 for r in encode(name, payload, seq, read=read):
@@ -578,19 +583,19 @@ class LightCrafter4500:
                     left = max(1, int((deadline - time.monotonic()) * 1000))
                     raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
                     got = _header(raw)[1]
-                    if got == seq and self.seq_echo is not False:
+                    if got == seq:  # bytes are never 0: only an echo matches
                         self.seq_echo = True
                         self._pending.clear()
                         return decode_reply(raw, name, seq)
-                    if self.seq_echo is None and got not in self._pending:
-                        # not this command's and not a late reply to one of ours: the device
+                    if self.seq_echo is None and got == 0 and not self._pending:
+                        # byte 0, which we never send, with no reply outstanding: the device
                         # does not echo the sequence byte
                         self.seq_echo = False
                         warnings.warn(
-                            f"LightCrafter4500: the reply to {name} carries sequence byte "
-                            f"{got}, not {seq}, and no command of ours with that byte is "
-                            "unanswered: this device does not echo it; replies are matched by "
-                            "their order", RuntimeWarning, stacklevel=3)
+                            f"LightCrafter4500: the reply to {name} carries sequence byte 0, "
+                            f"not {seq}, with no command of ours unanswered: this device does "
+                            "not echo it; replies are matched by their order",
+                            RuntimeWarning, stacklevel=3)
                     if self.seq_echo is False:
                         reply = decode_reply(raw, name, got)
                         if self._pending:  # the timed-out attempts' replies may follow
@@ -817,6 +822,20 @@ class LightCrafter4500:
             usb.util.dispose_resources(self.dev)
         except Exception:  # noqa: BLE001 - fake devices, already gone
             pass
+
+
+def ensure_configuration(dev) -> None:
+    """Select the device's first configuration only if none is active: re-selecting the active
+    one makes libusb reset the device's USB state (TI's ``USBIO`` only opens the device and
+    claims its interface, Voxel/USBIO.cpp)."""
+    import usb.core
+
+    try:
+        active = dev.get_active_configuration()
+    except usb.core.USBError:  # unconfigured (pyusb raises when the value is 0)
+        active = None
+    if active is None:
+        dev.set_configuration()
 
 
 def find_device(vid: int, pid: int, what: str):

@@ -46,16 +46,20 @@ read-modify-write.
 * Integration time: ``intg_duty_cycle · 100/64`` percent (DML description;
   ``IntegrationTimeParameter``, ToFCamera.cpp, which reads ``intg_duty_cycle_set_failed``
   after each write), right-shifted by ``normal_frm_intg_scale`` (DML id 9980: "integration
-  time (scaled) = integration time >> normal_frm_intg_scale"; 0 at power-up, left as TI's
-  profile set it). The µs value torchtof reports is that share of the frame time (the SDK
-  gives only the percentage).
+  time (scaled) = integration time >> normal_frm_intg_scale"; 0 at power-up, the DML default;
+  no SDK code writes it: torchtof reads it and never writes it). The µs value torchtof
+  reports is that share of the frame time (the SDK gives only the percentage).
 * Output bandwidth: the OPT9221 sends one byte per output clock, ``24 MHz >> op_clk_freq``
   (DML id 6136: "it is the host's responsibility to ensure that the rate is sufficient to attain
-  the required frame-rate without dropping any data"); the SDK's highest frame rate is 80 % of
-  ``clock / (bytes per pixel · width · height)`` (``TintinCDKCamera::_getMaximumFrameRate``).
-  :meth:`OPT8241.configure` refuses a pattern period shorter than a frame's output time at that
-  rate (:meth:`OPT8241.output_time_us`). A QVGA ``"quad"`` frame with N = 4 is 614 400 bytes:
-  32 ms at 24 MHz, i.e. at most 31 frames/s; TI's profiles run 8–50 frames/s.
+  the required frame-rate without dropping any data"); the SDK's highest frame rate is
+  ``0.8 · clock / (pixel_data_size · width · height)`` (``TintinCDKCamera::_getMaximumFrameRate``;
+  its comment says 90 %, its code 0.8). In ``"quad"`` mode it still counts ``pixel_data_size``
+  (4) although the transfer carries ``2 · quad_cnt_max`` bytes per pixel
+  (``_setStreamerFrameSize``): torchtof counts the bytes actually sent (:func:`frame_bytes`),
+  stricter than the SDK — a QVGA ``"quad"`` frame with N = 4 is 614 400 bytes, 32 ms at
+  24 MHz, at most 31 frames/s where the SDK's formula gives 62. Which is right is device-only
+  (README "Real hardware"). :meth:`OPT8241.configure` refuses a trigger spacing shorter than
+  a frame's output time (:meth:`OPT8241.output_time_us`); TI's profiles run 8–50 frames/s.
 * Frame size: ``bin_col_count`` × ``bin_row_count`` (DML ids 2012, 2011; read by
   ``ToFCamera::_getFrameSize``); :meth:`OPT8241.configure` checks that they match the
   ``width`` × ``height`` the frames are decoded with.
@@ -122,7 +126,7 @@ import numpy as np
 import torch
 
 from ..sensor import camera_rules, phase_to_depth, tap_amplitude, tap_phase
-from .dlpc350 import find_device, translate_usb_error
+from .dlpc350 import ensure_configuration, find_device, translate_usb_error
 from .errors import FrameError, FrameTimeoutError, HardwareError, ProtocolError
 from .frames import Frame
 
@@ -597,22 +601,6 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
                  ambient=ambient, flags=flags, raw=raw)
 
 
-def _ensure_configuration(dev) -> None:
-    """Set the device's first configuration only if none is active, then claim interface 0:
-    the SDK only opens the device and claims its interface (``USBIO``, Voxel/USBIO.cpp);
-    re-selecting the active configuration makes libusb reset the device's USB state."""
-    import usb.core
-    import usb.util
-
-    try:
-        active = dev.get_active_configuration()
-    except usb.core.USBError:  # unconfigured (pyusb raises when the value is 0)
-        active = None
-    if active is None:
-        dev.set_configuration()
-    usb.util.claim_interface(dev, 0)
-
-
 class OPT8241:
     """OPT8241-CDK-EVM frame source over any pyusb-like device (``ctrl_transfer`` and
     ``read``), e.g. ``usb.core.Device`` (:meth:`open`) or the simulator's fake camera.
@@ -684,8 +672,11 @@ class OPT8241:
             DeviceBusyError: the interface is held by another program.
         """
         dev = find_device(VID, PID, cls.what)
-        try:
-            _ensure_configuration(dev)
+        try:  # as TI's USBIO: open, claim interface 0 (Voxel/USBIO.cpp)
+            ensure_configuration(dev)
+            import usb.util
+
+            usb.util.claim_interface(dev, 0)
         except Exception as exc:
             raise translate_usb_error(exc, cls.what, "open") from exc
         return cls(dev, **kwargs)
@@ -863,12 +854,13 @@ class OPT8241:
 
     def set_integration_time(self, us: float) -> float:
         """Nearest ``intg_duty_cycle = round(us / frame time · 64 · 2^normal_frm_intg_scale)``
-        (``IntegrationTimeParameter::set``; the scale as TI's profile left it), at most 20 on
+        (``IntegrationTimeParameter::set``; the scale as read, never written), at most 20 on
         this board (``TintinCDKCamera::_init``), then the
         ``intg_duty_cycle_set_failed`` flag read back; returns the integration time (µs).
 
         Raises:
-            ValueError: beyond the duty-cycle limit 20 (31.25 % of the frame time).
+            ValueError: beyond the duty-cycle limit 20 (31.25 % of the frame time, divided by
+                ``2^normal_frm_intg_scale``).
             HardwareError: the camera set ``intg_duty_cycle_set_failed``.
         """
         frame_us = self.frame_time_us / (1 << self.read_field("normal_frm_intg_scale"))
@@ -927,35 +919,43 @@ class OPT8241:
                 f"bin_row_count) but this OPT8241 decodes {self.width}x{self.height}; construct "
                 f"it with width={cols}, height={rows}, or set the ROI in TI's Voxel Viewer")
 
-    def configure(self, period_us: float | None = None, margin_us: float = 500.0) -> None:
+    def configure(self, period_us: float | None = None, margin_us: float = 500.0,
+                  spacing_us: float | None = None) -> None:
         """Output format of :attr:`mode` with no frame header, trailer or block header (bulk
         device), de-aliasing off and ``quad_cnt_max`` = :attr:`quads` with the modulation
         frequency kept (``TintinUnambiguousRangeParameter::set`` for one frequency), slave
         mode with ``sync_mode`` off, device frame numbers on/off (:attr:`frame_ids`) — each
         written whatever an earlier program left (module docstring) — and the frame size
-        checked (:meth:`check_frame_size`). With ``period_us`` (the time between triggers) the
+        checked (:meth:`check_frame_size`). With ``period_us`` (a pattern's period) the
         frame time is set to fit one period less ``margin_us`` (:meth:`set_frame_time`),
-        after checking that the output interface can send a frame within one period.
+        after checking that the output interface can send a frame before the next trigger,
+        ``spacing_us`` after this one (default ``period_us``; on the VSYNC trigger the
+        patterns may be further apart than their period).
 
         Raises:
-            ValueError: a frame takes longer than ``period_us`` to send
+            ValueError: a frame takes longer than ``spacing_us`` to send
                 (:meth:`output_time_us`).
             HardwareError: the frame size differs (:meth:`check_frame_size`), or a flag of
                 :meth:`set_frame_time`.
         """
         out, size, arrange = FRAME_MODES[self.mode]
         self.check_frame_size()
-        if period_us is not None:
+        spacing = period_us if spacing_us is None else spacing_us
+        if spacing is not None:
             need = self.output_time_us()
-            if need > float(period_us):
+            if need > float(spacing):
                 clock = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) / 1e6
+                per_px = frame_bytes(1, 1, self.mode, self.quads)
+                fewer = [m for m in ("depth", "depth2") if frame_bytes(1, 1, m) < per_px]
                 raise ValueError(
                     f"OPT8241.configure: a {self.width}x{self.height} {self.mode!r} frame "
                     f"({frame_bytes(self.width, self.height, self.mode, self.quads)} bytes) takes "
-                    f"{need / 1e3:.1f} ms to send at {clock:g} MHz (80 % usable, "
-                    f"TintinCDKCamera::_getMaximumFrameRate), longer than the {period_us / 1e3:.1f}"
-                    " ms between patterns: lengthen the pattern period, choose a smaller ROI or "
-                    "a mode with fewer bytes per pixel ('depth', 'depth2')")
+                    f"{need / 1e3:.1f} ms to send at {clock:g} MHz (80 % usable, as "
+                    f"TintinCDKCamera::_getMaximumFrameRate), longer than the "
+                    f"{float(spacing) / 1e3:.1f} ms between patterns: lengthen the pattern "
+                    "spacing or choose a smaller ROI"
+                    + (f" or a mode with fewer bytes per pixel ({', '.join(map(repr, fewer))})"
+                       if fewer else ""))
         self.write_field("tg_dis", 1)
         if self.read_field("quad_cnt_max") != self.quads:
             freq = self.freq_hz
