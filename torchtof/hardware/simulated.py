@@ -308,7 +308,7 @@ class FakeLightCrafter(_Gone):
                 return False  # mailbox closed
         elif name == "LUT_VALID":
             self.lut_status = self._validate()
-            s["validated"] = not self.lut_status & 0x13
+            s["validated"] = not self.lut_status & dlp.LUT_FATAL_BITS  # bits 2-4: warnings (TI)
             self._busy_reads = 1  # the first poll reads busy
         elif name == "PAT_START_STOP":
             if p[0] > 2:
