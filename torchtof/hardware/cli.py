@@ -246,7 +246,9 @@ def add_parsers(sub) -> None:
                    help="display index of the LightCrafter's HDMI input (real bench)")
     a.add_argument("--camera-mode", default="quad", choices=["quad", "iq", "depth", "depth8",
                                                              "depth2"],
-                   help="OPT8241 output: quad (raw samples, per-tap buckets), iq, depth")
+                   help="OPT8241 output: quad (raw samples, per-tap buckets), iq, depth; at "
+                   "320x240 the camera sends at most 31 quad (N=4) or 62 depth frames/s, and "
+                   "a pattern spacing shorter than that is refused (README 'Real hardware')")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
                    help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
     a.add_argument("--block", type=positive_int, default=None,
