@@ -494,6 +494,8 @@ def test_init_rejects_a_missing_file_and_another_architecture(tmp_path):
               calibrate=False)
     with pytest.raises(ValueError, match="init"):
         train_learned(init=tmp_path / "none.pt", **kw)
+    with pytest.raises(TypeError, match="init"):
+        train_learned(init=3, **kw)
     train_learned(out=tmp_path, **kw)
     with pytest.raises(ValueError, match="width"):
         train_learned(init=tmp_path / "learned.pt", **{**kw, "width": 8})

@@ -366,6 +366,10 @@ def train_learned(
     bad = [o for o in orders if o not in ORDERS]
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
+    if init is not None and not isinstance(init, (str, os.PathLike)):
+        raise TypeError(f"{func}: expected init to be a path or None, got {type(init).__name__}")
+    if init is not None and not Path(init).is_file():
+        raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
     sizes = tuple(sorted(sizes))
     device = check_device(device, "device", func)
 
@@ -375,8 +379,6 @@ def train_learned(
     init_record = None
     if init is not None:
         init_path = Path(init)
-        if not init_path.is_file():
-            raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
         model.load_weights(init_path)  # raises ValueError naming a different architecture
         if not model.clean_scale:
             raise ValueError(f"{func}: init {os.fspath(init)!r} uses the noisy-norm scale of "
