@@ -284,3 +284,16 @@ def test_acquire_auto_stops_where_the_offline_rule_stops(tmp_path, capsys):
     first = next(k for k in range(AUTO_BLOCK, m + 1, AUTO_BLOCK)
                  if rule({"gated": y[..., :k], "gated_sum": s[..., :k]}))
     assert first == m
+
+
+def test_camera_roi_option_reads_out_the_region(uninterrupted, tmp_path):
+    """--camera-roi over the whole simulated sensor (17 x 16) records the same buckets as no
+    ROI; a 9-row region records 9-row frames, the top rows of the full ones."""
+    whole, top = tmp_path / "whole.zarr", tmp_path / "top.zarr"
+    assert main([*ARGS, "--camera-roi", "0", "0", "17", "16", "-o", str(whole)]) == 0
+    assert main([*ARGS, "--camera-roi", "0", "0", "9", "16", "-o", str(top)]) == 0
+    ref, g, t = (zarr.open_group(str(p), mode="r") for p in (uninterrupted, whole, top))
+    for name in ("buckets_depth", "frames_taps"):
+        np.testing.assert_array_equal(g[name][:], ref[name][:])
+    assert t.attrs["camera"]["height"] == 9 and t["frames_taps"].shape[-2] == 8  # row 0 left out
+    np.testing.assert_array_equal(t["frames_taps"][:], ref["frames_taps"][..., :8, :])

@@ -92,6 +92,13 @@ FIELDS = [
     ("normal_frm_intg_scale", 3, 0x5C, 0x4D, b"\xc0\x00\x00"),  # id 9980: reg 77 bits 6-8
     ("bin_row_count", 240, 0x5C, 0x2F, b"\x00\x00\x3c"),  # id 2011: reg 47 bits 14-23
     ("bin_col_count", 320, 0x5C, 0x30, b"\x00\x00\x50"),  # id 2012: reg 48 bits 14-23
+    ("row_start", 5, 0x58, 0x1F, b"\x05\x00\x00"),  # id 13: bank 0 reg 31 bits 0-7
+    ("row_end", 239, 0x58, 0x1F, b"\x00\x00\xef"),  # id 536: reg 31 bits 16-23
+    ("col_start", 2, 0x58, 0x20, b"\x10\x00\x00"),  # id 534: reg 32 bits 3-7
+    ("col_end", 19, 0x58, 0x21, b"\x98\x00\x00"),  # id 538: reg 33 bits 3-7
+    ("binning_en", 1, 0x5C, 0x2F, b"\x00\x10\x00"),  # id 2006: bank 3 reg 47 bit 12
+    ("rows_to_merge", 1, 0x5C, 0x2F, b"\x01\x00\x00"),  # id 2008: reg 47 bits 0-9
+    ("cols_to_merge", 1, 0x5C, 0x30, b"\x01\x00\x00"),  # id 2009: reg 48 bits 0-9
 ]
 
 
@@ -574,3 +581,63 @@ def test_acquire_checks_the_output_time_against_the_vsync_spacing(tmp_path):
         else:
             with pytest.raises(ValueError, match=r"32\.0 ms to send .* 16\.7 ms between"):
                 acquire(tmp_path / "quad.zarr", bench.lightcrafter(), cam, **kw)
+
+
+
+def test_set_roi_writes_the_sdk_registers_and_shrinks_the_frame():
+    """ToFTintinCamera::_setROI: rows 40..104, columns 64..127 -> col_start 64/16 = 4,
+    col_end (64 + 64)/16 - 1 = 7; binning 1 x 1 with the region's size. A 64 x 65 quad frame
+    (N = 4) is 33 280 bytes: 1.733 ms at 19.2 MB/s."""
+    dev = Recorder(dict(QVGA))
+    cam = opt.OPT8241(dev, mode="quad")
+    cam.set_roi(40, 64, 65, 64)
+    got = {k: cam.read_field(k) for k in ("row_start", "row_end", "col_start", "col_end",
+                                          "rows_to_merge", "cols_to_merge", "bin_row_count",
+                                          "bin_col_count", "binning_en")}
+    assert got == {"row_start": 40, "row_end": 104, "col_start": 4, "col_end": 7,
+                   "rows_to_merge": 1, "cols_to_merge": 1, "bin_row_count": 65,
+                   "bin_col_count": 64, "binning_en": 1}
+    assert (cam.width, cam.height) == (64, 65)
+    assert cam.output_time_us() == pytest.approx(64 * 65 * 8 / 19.2e6 * 1e6)
+    cam.check_frame_size()
+    with pytest.raises(ValueError, match="multiples of 16"):
+        cam.set_roi(0, 8, 10, 32)
+    with pytest.raises(ValueError, match="beyond the 320x240 sensor"):
+        cam.set_roi(200, 0, 65, 64)
+    with pytest.raises(TypeError, match="integers"):
+        cam.set_roi(0, 0, 10.0, 32)
+
+
+def test_camera_roi_frames_are_that_region_of_the_full_frame():
+    """The simulated camera reads out the region the ROI registers select: the same pattern
+    (the same noise draw) gives the full frame's rows 4..13, columns 16..31."""
+    cfg = ExperimentConfig(n=8, roi_px=32, srs=(0.25,))
+    pat = (np.arange(64).reshape(8, 8) % 3 == 0).astype(np.uint8)
+    frames = []
+    for roi in (None, (4, 16, 10, 16)):
+        bench = SimulatedBench(cfg)
+        lcr, cam = bench.lightcrafter(), bench.camera()
+        if roi:
+            cam.set_roi(*roi)
+        cam.start()
+        lcr.show_sequence(pat[None], exposure_us=1000)
+        frames.append(cam.grab(0.1))
+    full, part = frames
+    assert part.taps.shape == (4, 10, 16)
+    assert torch.equal(part.taps, full.taps[:, 4:14, 16:32])
+
+
+def test_a_camera_roi_lets_quad_frames_keep_the_vsync_pace(tmp_path):
+    """A 320 x 240 quad frame (32 ms) cannot follow 10 ms patterns 16.7 ms apart; a 64 x 65
+    region of it (1.7 ms) can."""
+    from torchtof.hardware.acquisition import acquire
+    from torchtof.hardware.throughput import ReplayCamera
+
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.125,)))
+    bench.camera_usb = ReplayCamera(bench, 320, 240)
+    cam = opt.OPT8241(bench.camera_usb, width=320, height=240, mode="quad",
+                      clock=lambda: bench.camera_usb.time_s)
+    cam.set_roi(0, 0, 65, 64)
+    res = acquire(tmp_path / "roi.zarr", bench.lightcrafter(), cam, n=8, sr=0.125,
+                  progress=False, exposure_us=10_000, trigger="vsync")
+    assert res.m_acquired == 8 and (cam.width, cam.height) == (64, 65)

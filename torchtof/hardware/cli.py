@@ -51,7 +51,10 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         faults = Faults.from_dict(args.sim_faults) if args.sim_faults else None
         bench = SimulatedBench(cfg, seed=args.seed, faults=faults, video_hz=args.video_hz)
         metadata["simulation"] = {"config": asdict(cfg), "seed": args.seed}
-        return bench.lightcrafter(), bench.camera(**cam_kw), None
+        cam = bench.camera(**cam_kw)
+        if args.camera_roi:
+            cam.set_roi(*args.camera_roi)
+        return bench.lightcrafter(), cam, None
     from .dlpc350 import LightCrafter4500
     from .opt8241 import OPT8241
     from .video import WindowVideoPort
@@ -62,6 +65,8 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         opened.append(lcr)
         cam = OPT8241.open(width=320, height=240, **cam_kw)
         opened.append(cam)
+        if args.camera_roi:
+            cam.set_roi(*args.camera_roi)
         lcr.video = WindowVideoPort(display=args.display)
     except BaseException:
         for dev in reversed(opened):  # close what was opened before the failure
@@ -193,6 +198,18 @@ def _check_acquire(args: argparse.Namespace) -> None:
         raise ValueError(f"argument --n: the simulated scenes need n >= 8, got {args.n}")
     if args.roi_px is not None and args.roi_px < args.n:
         raise ValueError(f"argument --roi-px: expected >= --n ({args.n}), got {args.roi_px}")
+    if args.camera_roi:
+        row, col, h, w = args.camera_roi
+        if col % 16 or w % 16 or h < 1 or w < 16 or row + h > 240 or col + w > 320:
+            raise ValueError(f"argument --camera-roi: expected COL and WIDTH multiples of 16 "
+                             f"and a region inside the 320x240 sensor, got {row} {col} {h} {w}")
+    if args.simulated and args.camera_roi:
+        row, col, h, w = args.camera_roi
+        px = args.roi_px or 2 * args.n  # the simulated sensor: px + 1 rows (guard row) x px
+        if row + h > px + 1 or col + w > px:
+            raise ValueError(f"argument --camera-roi: rows {row}..{row + h - 1}, columns "
+                             f"{col}..{col + w - 1} lie beyond the simulated sensor "
+                             f"({px + 1} rows x {px} columns, --roi-px)")
     from ..apps.args import check_patterns
 
     check_patterns(args.n, args.sr)
@@ -249,6 +266,10 @@ def add_parsers(sub) -> None:
                    help="OPT8241 output: quad (raw samples, per-tap buckets), iq, depth; at "
                    "320x240 the camera sends at most 31 quad (N=4) or 62 depth frames/s, and "
                    "a pattern spacing shorter than that is refused (README 'Real hardware')")
+    a.add_argument("--camera-roi", type=nonneg_int, nargs=4, default=None,
+                   metavar=("ROW", "COL", "HEIGHT", "WIDTH"),
+                   help="read out only this sensor region (COL and WIDTH multiples of 16): "
+                   "smaller frames take less time to send (OPT8241.set_roi)")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
                    help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
     a.add_argument("--block", type=positive_int, default=None,

@@ -243,7 +243,19 @@ REGISTERS: dict[str, Field] = {
     # output frame size (ToFCamera::_getFrameSize): DML ids 2011/2012, bank 3 regs 47/48
     "bin_row_count": Field(0x5C2F, 14, 23),
     "bin_col_count": Field(0x5C30, 14, 23),
+    # sensor region of interest (ToFTintinCamera::_setROI): DML ids 13, 536 (bank 0 reg 31),
+    # 534 (reg 32), 538 (reg 33); "col_start = (start address) >> 4", likewise col_end
+    "row_start": Field(0x581F, 0, 7),
+    "row_end": Field(0x581F, 16, 23),
+    "col_start": Field(0x5820, 3, 7),
+    "col_end": Field(0x5821, 3, 7),
+    # binning (ToFCamera::_setBinning, written by _setROI with 1 × 1): DML ids 2006, 2008, 2009
+    "binning_en": Field(0x5C2F, 12, 12),
+    "rows_to_merge": Field(0x5C2F, 0, 9),
+    "cols_to_merge": Field(0x5C30, 0, 9),
 }
+#: The sensor (DML defaults of ``row_end`` 239 and ``col_end`` 19: 320 columns in blocks of 16).
+SENSOR_ROWS, SENSOR_COLS, ROI_COL_STEP = 240, 320, 16
 
 #: Limits of the TintinCDK board (``TintinCDKCamera::_init``, TintinCDKCamera.cpp):
 #: ``pix_cnt_max`` lower limit 50000, ``intg_duty_cycle`` upper limit 20.
@@ -903,6 +915,47 @@ class OPT8241:
         ``TintinCDKCamera::_getMaximumFrameRate``)."""
         rate = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) * OP_CLK_USABLE
         return frame_bytes(self.width, self.height, self.mode, self.quads) / rate * 1e6
+
+    def set_roi(self, row: int, col: int, height: int, width: int) -> None:
+        """Read out only ``height × width`` sensor pixels from ``(row, col)``, as
+        ``ToFTintinCamera::_setROI`` does: ``row_start``/``row_end``, ``col_start =
+        col/16``/``col_end = (col + width)/16 − 1`` (columns in blocks of 16, OPT9221.dml), then
+        binning 1 × 1 with ``bin_row_count``/``bin_col_count`` the region's size
+        (``ToFCamera::_setBinning``). The frames then hold ``width · height`` pixels, so they
+        take proportionally less time to send (:meth:`output_time_us`); :attr:`width` and
+        :attr:`height` follow. Call it before :meth:`start` (the SDK refuses while streaming).
+
+        Raises:
+            ValueError: ``col`` or ``width`` not a multiple of 16, a region beyond the
+                320 × 240 sensor, or an empty one.
+            HardwareError: while streaming.
+        """
+        vals = (row, col, height, width)
+        if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in vals):
+            raise TypeError(f"OPT8241.set_roi: expected integers, got {vals!r}")
+        row, col, height, width = (int(v) for v in vals)
+        if col % ROI_COL_STEP or width % ROI_COL_STEP:
+            raise ValueError(f"OPT8241.set_roi: col and width must be multiples of "
+                             f"{ROI_COL_STEP} (OPT9221.dml col_start/col_end), got col={col}, "
+                             f"width={width}")
+        if height < 1 or width < ROI_COL_STEP or row < 0 or col < 0 or \
+                row + height > SENSOR_ROWS or col + width > SENSOR_COLS:
+            raise ValueError(f"OPT8241.set_roi: the region rows {row}..{row + height - 1}, "
+                             f"columns {col}..{col + width - 1} is empty or beyond the "
+                             f"{SENSOR_COLS}x{SENSOR_ROWS} sensor")
+        if self.mode == "depth8" and width % 8:
+            raise ValueError(f"OPT8241.set_roi: 'depth8' needs a width divisible by 8, got {width}")
+        if self._reader is not None:
+            raise HardwareError(f"{self.what}: set_roi while streaming (stop() first)")
+        self.write_field("row_start", row)
+        self.write_field("row_end", row + height - 1)
+        self.write_field("col_start", col // ROI_COL_STEP)
+        self.write_field("col_end", (col + width) // ROI_COL_STEP - 1)
+        for name, value in (("rows_to_merge", 1), ("cols_to_merge", 1),
+                            ("bin_row_count", height), ("bin_col_count", width),
+                            ("binning_en", 1)):
+            self.write_field(name, value)
+        self.width, self.height = width, height
 
     def check_frame_size(self) -> None:
         """The frames the camera sends are ``bin_col_count`` × ``bin_row_count`` pixels

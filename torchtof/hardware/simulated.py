@@ -432,7 +432,8 @@ class FakeOPT8241(_Gone):
     ``pix_cnt_max`` 50000 and ``intg_duty_cycle_set_failed`` above duty cycle 20 (simulator
     choices: the board's limits, TintinCDKCamera.cpp); takes one frame time per frame and
     ignores a trigger that comes while a frame is still being taken (a missed trigger: no
-    frame, no number); and, with ``bench.realtime``, delivers each frame only once its frame
+    frame, no number); reads out the region the ROI registers select once they are written
+    (:meth:`crop`); and, with ``bench.realtime``, delivers each frame only once its frame
     time has passed on the wall clock and holds at most ``bench.fifo_frames`` undelivered
     frames (a full FIFO drops the newest frame after numbering it: a frame-id gap).
     """
@@ -440,6 +441,7 @@ class FakeOPT8241(_Gone):
     _VALID = {"quad_cnt_max": (4, 6), "sub_frame_cnt_max": (1, 2, 4, 8),
               "pixel_data_size": (2, 4)}
     _READ_ONLY = ("pix_cnt_max_set_failed", "intg_duty_cycle_set_failed")
+    _ROI_ADDRESSES = {opt.REGISTERS[k].address for k in ("row_start", "col_start", "col_end")}
 
     def __init__(self, bench: SimulatedBench) -> None:
         self.bench = bench
@@ -466,6 +468,7 @@ class FakeOPT8241(_Gone):
         self.busy_until = -1.0
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
         self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
+        self.roi_set = False  # the whole simulated sensor until the ROI registers are written
 
     def _set(self, name: str, value: int) -> None:
         f = opt.REGISTERS[name]
@@ -514,6 +517,8 @@ class FakeOPT8241(_Gone):
                 if f.address == address:
                     value = f.put(value, f.get(old))
             self.regs[address] = value
+            if address in self._ROI_ADDRESSES:
+                self.roi_set = True
             self._update_flags()
             with self._cond:  # a read waiting on a camera just halted returns (read())
                 self._cond.notify_all()
@@ -636,7 +641,7 @@ class FakeOPT8241(_Gone):
             time.sleep(f.hang_s)
         frame = self.bench.render(pattern, self.freq_hz)
         taps = frame.taps[0].numpy()
-        taps = np.concatenate([np.zeros_like(taps[:, :1]), taps], axis=1)  # dark guard row 0
+        taps = self.crop(np.concatenate([np.zeros_like(taps[:, :1]), taps], axis=1))  # guard row 0
         # ambient / flags nibbles: simulator choices (TI does not document their meaning)
         sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
         ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
@@ -666,6 +671,16 @@ class FakeOPT8241(_Gone):
         if ordinal in f.extra:
             spurious = np.frombuffer(packet, "<u2")[::-1].tobytes()
             self._fifo.append((ordinal, self._numbered(spurious), ready))
+
+    def crop(self, taps: np.ndarray) -> np.ndarray:
+        """The region of the sensor the ROI registers select (``row_start`` … ``row_end``,
+        columns ``16·col_start`` … ``16·(col_end + 1) − 1``), once they have been written; the
+        whole simulated sensor (``roi_px + 1`` × ``roi_px``) before."""
+        if not self.roi_set:
+            return taps
+        r0, r1 = self.field("row_start"), self.field("row_end")
+        c0, c1 = 16 * self.field("col_start"), 16 * (self.field("col_end") + 1)
+        return taps[..., r0 : r1 + 1, c0:c1]
 
     def _numbered(self, packet: bytes) -> bytes:
         """One more frame out of the OPT9221: its number in byte 0 if enabled (OPT9221.dml

@@ -41,9 +41,10 @@ class ReplayCamera(FakeOPT8241):
         self._cache: dict = {}
 
     def _output(self, pattern: np.ndarray, ready: float) -> None:
-        key = (self.mode, self.field("quad_cnt_max"))
+        taps = self.crop(self._taps)
+        key = (self.mode, self.field("quad_cnt_max"), taps.shape)
         if key not in self._cache:
-            self._cache[key] = opt.encode_frame(key[0], self._taps, quads=key[1])
+            self._cache[key] = opt.encode_frame(key[0], taps, quads=key[1])
         self.rendered += 1
         self._fifo.append((self.rendered - 1, self._numbered(self._cache[key]), ready))
 
