@@ -297,3 +297,42 @@ def test_camera_roi_option_reads_out_the_region(uninterrupted, tmp_path):
         np.testing.assert_array_equal(g[name][:], ref[name][:])
     assert t.attrs["camera"]["height"] == 9 and t["frames_taps"].shape[-2] == 8  # row 0 left out
     np.testing.assert_array_equal(t["frames_taps"][:], ref["frames_taps"][..., :8, :])
+
+
+def test_resume_refuses_another_camera_region(tmp_path, capsys):
+    """The region is part of the set-up: a resume reading another region of the same size
+    would mix two parts of the sensor in one store."""
+    path = tmp_path / "run.zarr"
+    assert main([*ARGS, "--camera-roi", "0", "0", "9", "16", "-o", str(path)]) == 0
+    g = zarr.open_group(str(path), mode="r")
+    assert g.attrs["camera"]["roi"] == [0, 0, 9, 16]
+    rc = main([*ARGS, "--camera-roi", "8", "0", "9", "16", "--resume", "-o", str(path)])
+    assert rc != 0
+    assert "camera.roi" in capsys.readouterr().err
+
+
+def test_real_bench_sets_the_whole_sensor_without_camera_roi(monkeypatch):
+    """An earlier run's region stays on the device: without --camera-roi the real bench sets
+    the whole 320x240 sensor (the frames it decodes)."""
+    import torchtof.hardware.cli as hcli
+    import torchtof.hardware.dlpc350 as dl
+    import torchtof.hardware.opt8241 as op
+
+    seen = []
+
+    class Cam:
+        def set_roi(self, *roi):
+            seen.append(roi)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(dl.LightCrafter4500, "open", classmethod(lambda cls: type(
+        "L", (), {"close": lambda self: None})()))
+    monkeypatch.setattr(op.OPT8241, "open", classmethod(lambda cls, **kw: Cam()))
+    monkeypatch.setattr("torchtof.hardware.video.WindowVideoPort", lambda display: None)
+    for roi, want in ((None, (0, 0, 240, 320)), ([80, 96, 65, 128], (80, 96, 65, 128))):
+        args = type("A", (), {"camera_mode": "quad", "quads": 4, "simulated": False,
+                              "camera_roi": roi, "display": 1})()
+        hcli._open_devices(args, {})
+        assert seen[-1] == want

@@ -641,3 +641,43 @@ def test_a_camera_roi_lets_quad_frames_keep_the_vsync_pace(tmp_path):
     res = acquire(tmp_path / "roi.zarr", bench.lightcrafter(), cam, n=8, sr=0.125,
                   progress=False, exposure_us=10_000, trigger="vsync")
     assert res.m_acquired == 8 and (cam.width, cam.height) == (64, 65)
+
+
+def test_a_failed_set_roi_writes_the_previous_region_back():
+    """A write that fails half-way (col_start stalls) puts every written register back, and
+    the frame-size check still agrees with the registers."""
+    dev = Recorder(dict(QVGA))
+    cam = opt.OPT8241(dev, mode="quad")
+    cam.set_roi(0, 0, 65, 64)
+    before = dict(dev.regs)
+    real = dev.ctrl_transfer
+
+    def stall_col_start(rtype, req, wvalue, windex, data, timeout=None):
+        if rtype == 0x40 and (wvalue, windex) == (0x58, 0x20) and bytes(data) != b"\x00\x00\x00":
+            raise ProtocolError("write register 0x5820", "stalled")
+        return real(rtype, req, wvalue, windex, data, timeout)
+
+    dev.ctrl_transfer = stall_col_start
+    with pytest.raises(ProtocolError):
+        cam.set_roi(16, 32, 33, 32)
+    assert dev.regs == before and cam.roi == (0, 0, 65, 64) and (cam.width, cam.height) == (64, 65)
+    cam.check_frame_size()
+
+
+def test_check_frame_size_catches_roi_registers_that_disagree_with_the_bin_counts():
+    dev = Recorder(dict(QVGA))
+    cam = opt.OPT8241(dev, mode="quad")
+    cam.set_roi(0, 0, 65, 64)
+    cam.write_field("row_end", 8)  # as a half-written region left by another program
+    with pytest.raises(HardwareError, match="ROI registers select 64x9 pixels but the bin "
+                                            "counts give 64x65 frames"):
+        cam.check_frame_size()
+
+
+def test_the_simulated_camera_refuses_a_region_beyond_its_sensor():
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=16, srs=(0.25,)))
+    cam = bench.camera()
+    with pytest.raises(ProtocolError, match="stalled"):
+        cam.set_roi(0, 0, 65, 64)  # valid on the 320 x 240 device, not on a 17 x 16 sensor
+    assert (cam.width, cam.height) == (16, 17) and cam.roi is None
+    assert not bench.camera_usb.field("binning_en")

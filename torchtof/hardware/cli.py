@@ -65,8 +65,8 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         opened.append(lcr)
         cam = OPT8241.open(width=320, height=240, **cam_kw)
         opened.append(cam)
-        if args.camera_roi:
-            cam.set_roi(*args.camera_roi)
+        # the region asked for, else the whole sensor (an earlier run's region stays set)
+        cam.set_roi(*(args.camera_roi or (0, 0, 240, 320)))
         lcr.video = WindowVideoPort(display=args.display)
     except BaseException:
         for dev in reversed(opened):  # close what was opened before the failure
@@ -268,8 +268,10 @@ def add_parsers(sub) -> None:
                    "a pattern spacing shorter than that is refused (README 'Real hardware')")
     a.add_argument("--camera-roi", type=nonneg_int, nargs=4, default=None,
                    metavar=("ROW", "COL", "HEIGHT", "WIDTH"),
-                   help="read out only this sensor region (COL and WIDTH multiples of 16): "
-                   "smaller frames take less time to send (OPT8241.set_roi)")
+                   help="read out only this sensor region (COL and WIDTH multiples of 16; "
+                   "with --frame-ids device its first row carries the frame number and is left "
+                   "out of the buckets): smaller frames take less time to send "
+                   "(OPT8241.set_roi); default on the real bench: the whole 320x240 sensor")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
                    help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
     a.add_argument("--block", type=positive_int, default=None,

@@ -669,6 +669,8 @@ class OPT8241:
         self.sub_frames, self.queue_frames = int(sub_frames), int(queue_frames)
         self.registers = dict(REGISTERS)
         self.pattern_index: int | None = None  # set by acquire(): named in timeout errors
+        #: ``(row, col, height, width)`` set by :meth:`set_roi` (``None``: not set here)
+        self.roi: tuple[int, int, int, int] | None = None
         self._next_id = 0
         self._reader = None
         self.stats = {"frames": 0, "host_dropped": 0, "bad_size": 0, "endpoint_resets": 0,
@@ -925,6 +927,10 @@ class OPT8241:
         take proportionally less time to send (:meth:`output_time_us`); :attr:`width` and
         :attr:`height` follow. Call it before :meth:`start` (the SDK refuses while streaming).
 
+        The previous values are written back if a write fails. In ``frame_ids`` mode the
+        frame number is byte 0 of the region's first pixel, so ``acquire`` leaves the region's
+        row 0 out of the buckets.
+
         Raises:
             ValueError: ``col`` or ``width`` not a multiple of 16, a region beyond the
                 320 × 240 sensor, or an empty one.
@@ -943,19 +949,26 @@ class OPT8241:
             raise ValueError(f"OPT8241.set_roi: the region rows {row}..{row + height - 1}, "
                              f"columns {col}..{col + width - 1} is empty or beyond the "
                              f"{SENSOR_COLS}x{SENSOR_ROWS} sensor")
-        if self.mode == "depth8" and width % 8:
-            raise ValueError(f"OPT8241.set_roi: 'depth8' needs a width divisible by 8, got {width}")
         if self._reader is not None:
             raise HardwareError(f"{self.what}: set_roi while streaming (stop() first)")
-        self.write_field("row_start", row)
-        self.write_field("row_end", row + height - 1)
-        self.write_field("col_start", col // ROI_COL_STEP)
-        self.write_field("col_end", (col + width) // ROI_COL_STEP - 1)
-        for name, value in (("rows_to_merge", 1), ("cols_to_merge", 1),
-                            ("bin_row_count", height), ("bin_col_count", width),
-                            ("binning_en", 1)):
-            self.write_field(name, value)
+        writes = (("row_start", row), ("row_end", row + height - 1),
+                  ("col_start", col // ROI_COL_STEP),
+                  ("col_end", (col + width) // ROI_COL_STEP - 1),
+                  ("rows_to_merge", 1), ("cols_to_merge", 1), ("bin_row_count", height),
+                  ("bin_col_count", width), ("binning_en", 1))
+        before = {name: self.read_field(name) for name, _ in writes}
+        try:
+            for name, value in writes:
+                self.write_field(name, value)
+        except BaseException:
+            try:  # put back what was written (a half-written region streams wrong frames)
+                for name, value in before.items():
+                    self.write_field(name, value)
+            except Exception:  # noqa: BLE001 - the first error is the one to report
+                pass
+            raise
         self.width, self.height = width, height
+        self.roi = (row, col, height, width)
 
     def check_frame_size(self) -> None:
         """The frames the camera sends are ``bin_col_count`` × ``bin_row_count`` pixels
@@ -970,7 +983,18 @@ class OPT8241:
             raise HardwareError(
                 f"{self.what}: the camera sends {cols}x{rows} frames (bin_col_count x "
                 f"bin_row_count) but this OPT8241 decodes {self.width}x{self.height}; construct "
-                f"it with width={cols}, height={rows}, or set the ROI in TI's Voxel Viewer")
+                f"it with width={cols}, height={rows}, or set the region with set_roi (torchtof "
+                f"acquire --camera-roi; the whole sensor: 0 0 240 320)")
+        if self.read_field("binning_en"):  # a region set by set_roi: the registers agree
+            sel_rows = self.read_field("row_end") - self.read_field("row_start") + 1
+            sel_cols = ROI_COL_STEP * (self.read_field("col_end") - self.read_field("col_start")
+                                       + 1)
+            if (sel_rows, sel_cols) != (rows * self.read_field("rows_to_merge"),
+                                        cols * self.read_field("cols_to_merge")):
+                raise HardwareError(
+                    f"{self.what}: the ROI registers select {sel_cols}x{sel_rows} pixels but "
+                    f"the bin counts give {cols}x{rows} frames: set the region again "
+                    "(set_roi / --camera-roi)")
 
     def configure(self, period_us: float | None = None, margin_us: float = 500.0,
                   spacing_us: float | None = None) -> None:

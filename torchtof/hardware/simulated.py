@@ -469,6 +469,8 @@ class FakeOPT8241(_Gone):
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
         self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
         self.roi_set = False  # the whole simulated sensor until the ROI registers are written
+        #: (rows, columns) of the simulated sensor: the guard row and the ROI of the render
+        self.sensor = (bench.config.roi_px + 1, bench.config.roi_px)
 
     def _set(self, name: str, value: int) -> None:
         f = opt.REGISTERS[name]
@@ -511,6 +513,8 @@ class FakeOPT8241(_Gone):
                 f = opt.REGISTERS[name]
                 if f.address == address and f.get(value) not in valid:
                     raise stall  # a value the register map calls invalid
+            if self._beyond_sensor(address, value):
+                raise stall  # a region beyond this simulated sensor
             old = self.regs.get(address, 0)
             for name in self._READ_ONLY:
                 f = opt.REGISTERS[name]
@@ -671,6 +675,15 @@ class FakeOPT8241(_Gone):
         if ordinal in f.extra:
             spurious = np.frombuffer(packet, "<u2")[::-1].tobytes()
             self._fifo.append((ordinal, self._numbered(spurious), ready))
+
+    def _beyond_sensor(self, address: int, value: int) -> bool:
+        """A ``row_end`` / ``col_end`` write selecting rows or 16-column blocks beyond this
+        simulated sensor (:attr:`sensor`; its columns rounded up to 16)."""
+        rows, cols = self.sensor
+        row_end, col_end = opt.REGISTERS["row_end"], opt.REGISTERS["col_end"]
+        if address == row_end.address and row_end.get(value) >= rows:
+            return True
+        return address == col_end.address and 16 * (col_end.get(value) + 1) > -(-cols // 16) * 16
 
     def crop(self, taps: np.ndarray) -> np.ndarray:
         """The region of the sensor the ROI registers select (``row_start`` … ``row_end``,
