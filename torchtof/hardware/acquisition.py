@@ -462,7 +462,7 @@ def acquire(
                    "frame_time_us": getattr(camera, "frame_time_us", None),
                    "width": camera.width, "height": camera.height,
                    "rules": vars(camera.rules).copy(), "quads": getattr(camera, "quads", None),
-                   "roi": list(getattr(camera, "roi", None) or []) or None,
+                   "roi": list(camera.roi) if getattr(camera, "roi", None) else None,
                    "mode": getattr(camera, "mode", None)},
         "timing_checks": bool(check_timing),
         "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

@@ -199,8 +199,11 @@ def _check_acquire(args: argparse.Namespace) -> None:
     if args.roi_px is not None and args.roi_px < args.n:
         raise ValueError(f"argument --roi-px: expected >= --n ({args.n}), got {args.roi_px}")
     if args.camera_roi:
+        from .opt8241 import ROI_COL_STEP, SENSOR_COLS, SENSOR_ROWS
+
         row, col, h, w = args.camera_roi
-        if col % 16 or w % 16 or h < 1 or w < 16 or row + h > 240 or col + w > 320:
+        if col % ROI_COL_STEP or w % ROI_COL_STEP or h < 1 or w < ROI_COL_STEP or \
+                row + h > SENSOR_ROWS or col + w > SENSOR_COLS:
             raise ValueError(f"argument --camera-roi: expected COL and WIDTH multiples of 16 "
                              f"and a region inside the 320x240 sensor, got {row} {col} {h} {w}")
     if args.simulated and args.camera_roi:

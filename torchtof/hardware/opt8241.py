@@ -915,8 +915,12 @@ class OPT8241:
         """Time to send one frame of :attr:`mode` over the output interface: its bytes at
         80 % of ``24 MHz >> op_clk_freq`` (module docstring, "Output bandwidth";
         ``TintinCDKCamera::_getMaximumFrameRate``)."""
-        rate = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) * OP_CLK_USABLE
+        rate = self._op_clock_hz() * OP_CLK_USABLE
         return frame_bytes(self.width, self.height, self.mode, self.quads) / rate * 1e6
+
+    def _op_clock_hz(self) -> float:
+        """The output clock, ``24 MHz >> op_clk_freq`` (OPT9221.dml id 6136)."""
+        return OP_CLK_HZ / (1 << self.read_field("op_clk_freq"))
 
     def set_roi(self, row: int, col: int, height: int, width: int) -> None:
         """Read out only ``height × width`` sensor pixels from ``(row, col)``, as
@@ -1021,7 +1025,7 @@ class OPT8241:
         if spacing is not None:
             need = self.output_time_us()
             if need > float(spacing):
-                clock = OP_CLK_HZ / (1 << self.read_field("op_clk_freq")) / 1e6
+                clock = self._op_clock_hz() / 1e6
                 per_px = frame_bytes(1, 1, self.mode, self.quads)
                 fewer = [m for m in ("depth", "depth2") if frame_bytes(1, 1, m) < per_px]
                 raise ValueError(
