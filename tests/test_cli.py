@@ -110,6 +110,9 @@ BAD = [
     (["train", "--steps", "0"], "argument --steps:"),
     (["train", "--orders", "nosuch"], "argument --orders:"),
     (["train", "--init", "no_such.pt"], "argument --init: no such weights file: 'no_such.pt'"),
+    (["train", "--families", "cats=1"], "argument --families: expected NAME=P"),
+    (["train", "--families", "leaves=0.5", "planar=0.6"],
+     "argument --families: train: expected families' probabilities >= 0 summing to 1"),
     (["demo", "--sr", "0.5", "--nosuch"], "unrecognized arguments: --nosuch"),
     (["nosuch"], "argument COMMAND"),
 ]
@@ -196,6 +199,20 @@ def test_train_init_shipped_names_the_package_weights(tmp_path, capsys, monkeypa
         "R", (), {"losses": [1.0], "wall_s": 1.0})())
     assert main(["train", "--init", "shipped", "--out", str(tmp_path)]) == 0
     assert seen["init"] == str(WEIGHTS_FILE) and WEIGHTS_FILE.is_file()
+    capsys.readouterr()
+
+
+def test_train_families_reach_the_run(tmp_path, capsys, monkeypatch):
+    import torchtof.apps.train as app
+
+    seen = {}
+    monkeypatch.setattr(app, "train_learned", lambda **kw: seen.update(kw) or type(
+        "R", (), {"losses": [1.0], "wall_s": 1.0})())
+    assert main(["train", "--families", "planar=0.25", "leaves=0.75", "--out",
+                 str(tmp_path)]) == 0
+    assert seen["families"] == {"planar": 0.25, "leaves": 0.75}
+    assert main(["train", "--out", str(tmp_path)]) == 0
+    assert seen["families"] is None
     capsys.readouterr()
 
 

@@ -370,6 +370,13 @@ def _check_train(args: argparse.Namespace) -> None:
     lo, hi = args.sr_range
     if lo > hi:
         raise ValueError(f"argument --sr-range: expected LO <= HI, got {lo:g} {hi:g}")
+    if args.families is not None:
+        from .data import check_families
+
+        try:
+            check_families(dict(args.families), "train")
+        except ValueError as exc:
+            raise ValueError(f"argument --families: {exc}") from None
     check_device(args.device, "the device", "argument --device")
 
 

@@ -19,11 +19,13 @@ from torchtof.data import (
     HELD_OUT_IMAGES,
     TRAIN_IMAGES,
     NoiseRecipe,
+    check_families,
     draw_scene,
     draw_scenes,
     grey_image,
     noisy_buckets,
 )
+from torchtof.data.scenes import power_law_radii
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
 from torchtof.operators.patterns import ORDERS
 from torchtof.recon.learned import DEFAULT_N_LAYERS, WEIGHTS_FILE, Learned, LearnedResult, learned
@@ -344,6 +346,57 @@ def test_held_out_images_are_disjoint_and_never_drawn_for_training():
     assert len(held) == 4
 
 
+def test_power_law_radii_follow_the_r_minus_3_law():
+    """The dead-leaves radii invert ``F(r) = (rmin⁻² − r⁻²)/(rmin⁻² − rmax⁻²)``: at the
+    quantiles u the radius is where that CDF equals u (written from the density ``∝ r⁻³``),
+    and the median of 0.1–1 lies at ``(0.5 (0.1⁻² + 1))^(−1/2)``."""
+    rmin, rmax = 0.1, 1.0
+    u = torch.linspace(0, 0.999, 1000, dtype=torch.float64)
+    r = power_law_radii(u, rmin, rmax)
+    cdf = (rmin ** -2 - r ** -2) / (rmin ** -2 - rmax ** -2)
+    torch.testing.assert_close(cdf, u, rtol=0, atol=1e-12)
+    assert float(r[0]) == pytest.approx(rmin) and float(r.max()) < rmax
+    med = power_law_radii(torch.tensor([0.5], dtype=torch.float64), rmin, rmax)
+    assert float(med) == pytest.approx((0.5 * (rmin ** -2 + rmax ** -2)) ** -0.5)
+    # the density: twice the radius, an eighth of the probability per unit radius
+    big = power_law_radii(torch.rand(200_000, generator=torch.Generator().manual_seed(0),
+                                     dtype=torch.float64), rmin, rmax)
+    near = lambda c: float(((big > c * 0.98) & (big < c * 1.02)).double().mean())  # noqa: E731
+    assert near(0.4) / near(0.2) == pytest.approx(1 / 4, rel=0.05)  # (0.4/0.2)⁻³ · (0.4/0.2)
+
+
+def test_leaves_occlude_with_many_grey_levels():
+    """Dead leaves: not binary, many grey levels, edges (large neighbouring differences) and
+    flat areas both present, different per seed."""
+    x = draw_scene(64, 11, "leaves")[0, 0]
+    d = (x[1:] - x[:-1]).abs()
+    assert len(x.unique()) > 500
+    assert float((d > 0.1).double().mean()) > 0.01  # occlusion edges
+    assert float((d < 0.02).double().mean()) > 0.5  # inside the leaves
+    assert not torch.equal(x, draw_scene(64, 12, "leaves")[0, 0])
+
+
+def test_families_mixture_and_its_checks():
+    """A family of probability 1 draws what asking for it draws; the default mixture is
+    :data:`FAMILIES` (``"leaves"`` at 0); bad mixtures raise naming ``families``."""
+    for seed in range(5):
+        assert torch.equal(draw_scene(32, seed, families={"leaves": 1.0}),
+                           draw_scene(32, seed, "leaves"))
+    assert FAMILIES["leaves"] == 0.0
+    assert torch.equal(draw_scenes(32, 0, 5, range(16), families=dict(FAMILIES)),
+                       draw_scenes(32, 0, 5, range(16)))
+    mix = {"planar": 0.5, "leaves": 0.5}
+    assert check_families(mix, "f") == mix
+    for bad in ({"cats": 1.0}, {"planar": 0.6, "leaves": 0.6}, {"planar": -0.5, "leaves": 1.5},
+                {"planar": float("nan")}):
+        with pytest.raises(ValueError, match="families"):
+            draw_scene(32, 0, families=bad)
+    with pytest.raises(TypeError, match="families"):
+        draw_scene(32, 0, families=[("planar", 1.0)])
+    with pytest.raises(ValueError, match="families"):
+        train_learned(steps=1, families={"planar": 0.5})
+
+
 def test_noise_clean_gaussian_and_shot_variances():
     n = 64
     A = Hadamard(n)  # M = n² measurements: sample variances are tight
@@ -487,6 +540,13 @@ def test_init_starts_from_the_weights_file_and_records_it(tmp_path):
     rec = json.loads((tmp_path / "b" / "recipe.json").read_text())["init"]
     assert rec["path"] == str(src)
     assert rec["sha256"] == hashlib.sha256(src.read_bytes()).hexdigest()
+
+
+def test_families_are_recorded_in_the_recipe(tmp_path):
+    mix = {"silhouette": 0.5, "leaves": 0.5}
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+                  calibrate=False, families=mix, out=tmp_path)
+    assert json.loads((tmp_path / "recipe.json").read_text())["data"]["families"] == mix
 
 
 def test_init_rejects_a_missing_file_and_another_architecture(tmp_path):

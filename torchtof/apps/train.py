@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from ..data import FAMILIES
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
 from ..recon.learned import (
@@ -58,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "from the scaled levels (else from the unscaled ones)" + d)
     p.add_argument("--p-clean", type=_probability, default=0.3,
                    help="probability of a noise-free training sample" + d)
+    p.add_argument("--families", type=_family, nargs="+", default=None, metavar="NAME=P",
+                   help="probabilities of the scene families, summing to 1, from "
+                        f"{', '.join(FAMILIES)} (default: {_default_families()})")
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
@@ -96,6 +100,20 @@ def _probability(text: str) -> float:
     return v
 
 
+def _default_families() -> str:
+    return " ".join(f"{k}={v:g}" for k, v in FAMILIES.items() if v > 0)
+
+
+def _family(text: str) -> tuple[str, float]:
+    """``NAME=P``: a family of :data:`torchtof.data.FAMILIES` and its probability in
+    ``[0, 1]`` (an argparse type; the sum is checked with the other options)."""
+    name, sep, value = text.partition("=")
+    if not sep or name not in FAMILIES:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME=P with NAME from {', '.join(FAMILIES)}, got {text!r}")
+    return name, _probability(value)
+
+
 def _weights_file(text: str) -> str:
     """An existing file, or ``shipped`` for the package's weights (an argparse type; the
     contents are checked when they load)."""
@@ -119,7 +137,8 @@ def main(args: argparse.Namespace) -> int:
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
                               noise_ref=args.noise_ref or None, p_clean=args.p_clean,
-                              p_noise_ref=args.p_noise_ref)
+                              p_noise_ref=args.p_noise_ref,
+                              families=None if args.families is None else dict(args.families))
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
         recipe.update(final_step_calibration=calib, calibration_command=command,
@@ -141,6 +160,7 @@ def main(args: argparse.Namespace) -> int:
         progress=not args.no_progress, max_minutes=args.max_minutes,
         command=command, calibrate=not args.no_calibrate, device=args.device,
         workers=args.workers, init=args.init,
+        families=None if args.families is None else dict(args.families),
     )
     if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process
         print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")

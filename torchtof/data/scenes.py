@@ -1,7 +1,7 @@
 """Procedural training and evaluation scenes, seeded, no downloads.
 
-Five families of ``n × n`` images in ``[0, 1]`` covering what a ToF ghost-imaging set-up
-sees (a binary character, objects at several depths, the paper's §3.1):
+Six families of ``n × n`` images in ``[0, 1]`` covering what a ToF ghost-imaging set-up
+sees (a binary character, objects at several depths, the paper's §3.1) and natural texture:
 
 - ``"planar"``: piecewise-planar depth maps: a tilted background plane and 2–4 objects
   (polygons, ellipses, rectangles), each with its own plane, painted far to near;
@@ -11,7 +11,10 @@ sees (a binary character, objects at several depths, the paper's §3.1):
 - ``"strokes"``: character-like glyphs, 2–6 thick segments (bars, diagonals);
 - ``"natural"``: random crops (scale, flips, quarter turns, contrast) of the grey images that
   scikit-image ships, only those in :data:`TRAIN_IMAGES`; :data:`HELD_OUT_IMAGES` are never
-  drawn for training.
+  drawn for training;
+- ``"leaves"``: textured dead-leaves images (occluding discs of power-law sizes), a
+  procedural stand-in for natural images (probability 0 in :data:`FAMILIES`; a training run
+  may give it one).
 
 A binary scene is inverted (``1 − x``) with probability 0.3 and gets random levels with
 probability 0.3 (the ungated depth bucket gives negative images, paper §3.1).
@@ -39,19 +42,23 @@ __all__ = [
     "TRAIN_IMAGES",
     "HELD_OUT_IMAGES",
     "EVAL_SEED_BASE",
+    "check_families",
     "draw_scene",
     "draw_scenes",
     "grey_image",
     "planar_depth",
+    "power_law_radii",
 ]
 
-#: Scene families and their training probabilities.
+#: Scene families and their training probabilities (the shipped weights' mixture; a run may
+#: pass its own, e.g. with ``"leaves"``, which has probability 0 here).
 FAMILIES: dict[str, float] = {
     "planar": 0.25,
     "smooth": 0.15,
     "silhouette": 0.2,
     "strokes": 0.15,
     "natural": 0.25,
+    "leaves": 0.0,
 }
 #: scikit-image images drawn for training (bundled with scikit-image, no download).
 TRAIN_IMAGES: tuple[str, ...] = (
@@ -62,6 +69,21 @@ TRAIN_IMAGES: tuple[str, ...] = (
 HELD_OUT_IMAGES: tuple[str, ...] = ("camera", "astronaut", "horse", "shepp_logan_phantom")
 #: Training runs use seeds below this; evaluation sets use this and above.
 EVAL_SEED_BASE = 1_000_000
+
+
+def check_families(families: dict[str, float], func: str) -> dict[str, float]:
+    """``families`` as a dict of probabilities in :data:`FAMILIES`' order: known names,
+    non-negative finite values summing to 1 (within 1e-6), else a ``ValueError`` naming it."""
+    if not isinstance(families, dict) or not families:
+        raise TypeError(f"{func}: expected families to be a non-empty dict, got {families!r}")
+    bad = [k for k in families if k not in FAMILIES]
+    if bad:
+        raise ValueError(f"{func}: expected families' names in {tuple(FAMILIES)}, got {bad}")
+    vals = [float(v) for v in families.values()]
+    if any(not math.isfinite(v) or v < 0 for v in vals) or abs(sum(vals) - 1) > 1e-6:
+        raise ValueError(f"{func}: expected families' probabilities >= 0 summing to 1, "
+                         f"got {families!r}")
+    return {k: float(families[k]) for k in FAMILIES if k in families}
 
 
 @functools.cache
@@ -210,21 +232,67 @@ def _natural(d: _Draw, n: int, images: Sequence[str]) -> torch.Tensor:
     return (d.u(0, 1 - span) + span * x).clamp(0, 1)
 
 
+def power_law_radii(u: torch.Tensor, rmin: float, rmax: float) -> torch.Tensor:
+    """Radii of density ``∝ r⁻³`` on ``[rmin, rmax]`` from uniform numbers ``u`` in [0, 1):
+    the inverse of the CDF ``F(r) = (rmin⁻² − r⁻²) / (rmin⁻² − rmax⁻²)`` (the dead-leaves
+    model's scale-invariant law, Lee, Mumford & Huang 2001)."""
+    a, b = rmin ** -2, rmax ** -2
+    return (a - u * (a - b)) ** -0.5
+
+
+def _leaves(d: _Draw, n: int) -> torch.Tensor:
+    """A dead-leaves image (Matheron 1968; Lee, Mumford & Huang 2001, "Occlusion models for
+    natural images"): discs of power-law radii (density ``∝ r⁻³`` between one pixel and the
+    image side, the scale-invariant law of natural images) dropped at uniform positions, each
+    under those before it. Every leaf is textured (Achddou, Gousseau & Ladjal 2021: textured
+    dead leaves train restoration networks close to natural images): a grey level, a linear
+    gradient and, with probability 0.5, a sinusoid of random frequency and orientation.
+    Rendered at twice the side and averaged 2 × 2 (anti-aliased edges)."""
+    g, k = d.g, 256
+    s = 2 * n
+    c = (torch.arange(s, dtype=torch.float32) + 0.5) / s * 2 - 1
+    yy, xx = torch.meshgrid(c, c, indexing="ij")
+
+    def rand(*shape):
+        return torch.rand(shape, generator=g, dtype=torch.float32)
+
+    r = power_law_radii(rand(k), 2.0 / n, d.u(0.5, 1.5))
+    cx, cy = rand(k) * 2.4 - 1.2, rand(k) * 2.4 - 1.2
+    cover = (xx - cx[:, None, None]) ** 2 + (yy - cy[:, None, None]) ** 2 <= (r * r)[:, None, None]
+    cover = torch.cat([cover, torch.ones(1, s, s, dtype=torch.bool)])  # background leaf
+    top = cover.to(torch.uint8).argmax(0)  # the first leaf over each pixel (on top)
+    base, gx, gy = rand(k + 1), rand(k + 1) - 0.5, rand(k + 1) - 0.5
+    amp = (rand(k + 1) < 0.5) * rand(k + 1) * 0.3
+    freq, ang, ph = 2 + rand(k + 1) * (n / 4), rand(k + 1) * math.pi, rand(k + 1) * 2 * math.pi
+    fx, fy = freq * torch.cos(ang), freq * torch.sin(ang)
+    x = (base[top] + 0.3 * (gx[top] * xx + gy[top] * yy)
+         + amp[top] * torch.sin(fx[top] * xx + fy[top] * yy + ph[top]))
+    x = F.avg_pool2d(x[None, None], 2)[0, 0]
+    lo, hi = x.amin(), x.amax()
+    x = (x - lo) / (hi - lo).clamp_min(1e-6)
+    span = d.u(0.6, 1.0)
+    return d.u(0, 1 - span) + span * x
+
+
 def draw_scene(
     n: int,
     seed: int,
     family: str | None = None,
     images: Sequence[str] = TRAIN_IMAGES,
     dtype: torch.dtype = torch.float32,
+    families: dict[str, float] | None = None,
 ) -> torch.Tensor:
     """One scene in ``[0, 1]`` from its own generator seeded ``seed``.
 
     Args:
         n: image side, ``>= 8``.
         seed: the scene's seed (see :func:`draw_scenes`).
-        family: one of :data:`FAMILIES`, or ``None`` to draw it with their probabilities.
+        family: one of :data:`FAMILIES`, or ``None`` to draw it with the probabilities of
+            ``families``.
         images: scikit-image names the ``"natural"`` family crops from.
         dtype: floating dtype of the result.
+        families: probabilities of the families (keys from :data:`FAMILIES`, summing to 1);
+            ``None``: :data:`FAMILIES`.
 
     Returns:
         The scene, shape ``(1, 1, n, n)``.
@@ -243,11 +311,12 @@ def draw_scene(
         raise ValueError(f"{func}: expected family in {tuple(FAMILIES)} or None, got {family!r}")
     if len(images) == 0:
         raise ValueError(f"{func}: expected a non-empty images, got {images!r}")
+    probs = FAMILIES if families is None else check_families(families, func)
     d = _Draw(seed)
     r = d.u(0, 1)
     if family is None:
         cum = 0.0
-        for family, p in FAMILIES.items():  # noqa: B007 - the last one catches rounding
+        for family, p in probs.items():  # noqa: B007 - the last one catches rounding
             cum += p
             if r < cum:
                 break
@@ -256,6 +325,8 @@ def draw_scene(
         x = _depth(d, yy, xx, smooth=family == "smooth")
     elif family == "natural":
         x = _natural(d, n, images)
+    elif family == "leaves":
+        x = _leaves(d, n)
     else:
         m = _silhouette(d, yy, xx) if family == "silhouette" else _strokes(d, yy, xx, n)
         x = m.to(torch.float32)
@@ -275,10 +346,12 @@ def draw_scenes(
     family: str | None = None,
     images: Sequence[str] = TRAIN_IMAGES,
     dtype: torch.dtype = torch.float32,
+    families: dict[str, float] | None = None,
 ) -> torch.Tensor:
     """Scenes ``indices`` of the global batch of ``step`` in a run seeded ``seed``.
 
-    Scene ``i`` is ``draw_scene(n, scene_seed(seed, step, i), family, images)``
+    Scene ``i`` is ``draw_scene(n, scene_seed(seed, step, i), family, images, dtype,
+    families)``
     (:func:`~torchtof.recon.synthetic.scene_seed` mixes the three integers), so any split of
     the indices over processes draws the same global batch.
 
@@ -295,7 +368,8 @@ def draw_scenes(
     if len(indices) == 0:
         raise ValueError("draw_scenes: expected a non-empty indices, got 0 indices")
     return torch.cat(
-        [draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype) for i in indices]
+        [draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, families)
+         for i in indices]
     )
 
 

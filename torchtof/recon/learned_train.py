@@ -49,7 +49,15 @@ import torch.distributed as dist
 from torch import nn
 
 from .._checks import check_device
-from ..data import FAMILIES, TRAIN_IMAGES, TRAIN_LEVELS, draw_scenes, noisy_buckets, training_noise
+from ..data import (
+    FAMILIES,
+    TRAIN_IMAGES,
+    TRAIN_LEVELS,
+    check_families,
+    draw_scenes,
+    noisy_buckets,
+    training_noise,
+)
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
 from .learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
@@ -166,8 +174,9 @@ def _recipes(seed: int, step: int, n: int, indices: range, noise_ref: int | None
 
 
 def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
-           noise_ref: int | None = None, p_clean: float = P_CLEAN, p_noise_ref: float = 1.0):
-    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES)
+           noise_ref: int | None = None, p_clean: float = P_CLEAN, p_noise_ref: float = 1.0,
+           families: dict[str, float] | None = None):
+    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES, families=families)
     gens, recipes = _recipes(seed, step, n, indices, noise_ref, p_clean, p_noise_ref)
     A = Hadamard(n, m=m, order=order)
     with torch.no_grad():
@@ -178,10 +187,12 @@ def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
 def _step_data(args: tuple) -> tuple:
     """``(n, m, order, x, y)`` of one training step (a top-level function, so that data
     processes can run it): ``args = (seed, step, sizes, p_large, sr_range, orders, indices,
-    noise_ref, p_clean, p_noise_ref)``."""
-    seed, step, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref = args
+    noise_ref, p_clean, p_noise_ref, families)``."""
+    (seed, step, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref,
+     families) = args
     n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
-    _, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref)
+    _, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref,
+                     families)
     return n, m, order, x, y
 
 
@@ -232,6 +243,7 @@ def calibrate_tau(
     noise_ref: int | None = None,
     p_clean: float = P_CLEAN,
     p_noise_ref: float = 1.0,
+    families: dict[str, float] | None = None,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -249,7 +261,7 @@ def calibrate_tau(
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
             A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean,
-                             p_noise_ref)
+                             p_noise_ref, families)
             A, x, y = A.to(device), x.to(device), y.to(device)
             model.A = A
             outs.append((A, x, y, model(y)))
@@ -296,6 +308,7 @@ def train_learned(
     device: str | torch.device = "cpu",
     workers: int = 0,
     init: str | os.PathLike | None = None,
+    families: dict[str, float] | None = None,
 ) -> LearnedTrainResult:
     """Train :class:`Learned` from its random initialisation, or fine-tune it from a weights
     file (``init``) (module docstring).
@@ -330,6 +343,8 @@ def train_learned(
             the CPU and moved there. The returned model and the weights file are on the CPU.
         workers: processes that draw the data ahead of the optimiser (0: this process). The
             draws depend only on ``(seed, step, index)``, so the run is the same.
+        families: the scene families' probabilities (:func:`torchtof.data.draw_scene`;
+            ``None``: :data:`torchtof.data.FAMILIES`, the shipped weights' mixture).
         init: a weights file (:meth:`Learned.save_weights`, e.g. the shipped
             :data:`~torchtof.recon.learned.WEIGHTS_FILE`) to start from instead of the random
             initialisation: fine-tuning on another data recipe. Its ``n_layers``, ``width`` and
@@ -366,6 +381,7 @@ def train_learned(
     bad = [o for o in orders if o not in ORDERS]
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
+    families = FAMILIES if families is None else check_families(families, func)
     if init is not None and not isinstance(init, (str, os.PathLike)):
         raise TypeError(f"{func}: expected init to be a path or None, got {type(init).__name__}")
     if init is not None and not Path(init).is_file():
@@ -437,7 +453,8 @@ def train_learned(
             net = nn.parallel.DistributedDataParallel(model, broadcast_buffers=False)
         step = start
         stream = _step_stream(range(start, steps), workers, (
-            seed, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref))
+            seed, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref,
+            families))
         for step, (n, m, order, x, y) in zip(range(start, steps), stream):
             x, y = x.to(device), y.to(device)
             model.A = Hadamard(n, m=m, order=order).to(device)
@@ -476,7 +493,7 @@ def train_learned(
         t_cal = time.perf_counter()
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
                               orders=orders, noise_ref=noise_ref, p_clean=p_clean,
-                              p_noise_ref=p_noise_ref) if calibrate else None
+                              p_noise_ref=p_noise_ref, families=families) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -495,7 +512,7 @@ def train_learned(
                 "width": width,
                 "shuffle": shuffle,
                 "data": {
-                    "families": FAMILIES,
+                    "families": families,
                     "train_images": list(TRAIN_IMAGES),
                     "noise": {"p_clean": p_clean, "gaussian_levels": list(TRAIN_LEVELS),
                               "levels_scaled_to_n": noise_ref,
