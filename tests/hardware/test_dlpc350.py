@@ -250,6 +250,21 @@ def test_validation_warnings_are_warnings(status, monkeypatch):
     monkeypatch.setattr(bench.lightcrafter_usb, "_validate", lambda: status)
     with pytest.warns(RuntimeWarning, match=r"LUT_VALID status 0x[01][048].*\(warning\)"):
         lcr.validate()
+    with pytest.warns(RuntimeWarning, match="warning"):  # the whole load: the sequence runs
+        lcr.show_sequence(np.ones((2, 8, 8), dtype=np.uint8), exposure_us=1000)
+    assert len(bench.lightcrafter_usb.shown) == 2  # started and shown
+
+
+def test_an_error_bit_beside_a_warning_bit_rejects_and_names_both(monkeypatch):
+    """Status 0x05: bit 0 (TI: an error) and bit 2 (a warning): rejected, both named; the
+    LightCrafter's own rule (bits 0-1 fatal, TI's DLPC350_StartPatLutValidate) refuses the
+    start."""
+    bench = _bench()
+    lcr = bench.lightcrafter()
+    monkeypatch.setattr(bench.lightcrafter_usb, "_validate", lambda: 0x05)
+    with pytest.raises(ProtocolError, match=r"0x05\): .*;.*\(warning\)"):
+        lcr.show_sequence(np.ones((2, 8, 8), dtype=np.uint8), exposure_us=1000)
+    assert bench.lightcrafter_usb.shown == [] and not bench.lightcrafter_usb.state["validated"]
 
 
 def test_nack_and_timeout_name_the_command():
@@ -312,18 +327,61 @@ def test_a_device_without_the_sequence_echo_is_matched_by_order():
     assert runs[0] == runs[1]
 
 
-def test_a_stray_reply_does_not_make_an_echoing_device_look_like_one_without():
-    """A reply with a byte we did not send (not 0) is discarded as stray: the echo is still
-    learnt from the command's own reply."""
+def _zero_reply(data: bytes = b"") -> bytes:
+    """A reply with sequence byte 0 (what pyCrafter4500's commands, or a device without the
+    echo, leave behind)."""
+    return (bytes([dlp.FLAG_REPLY, 0]) + len(data).to_bytes(2, "little") + data).ljust(
+        dlp.REPORT_SIZE, b"\x00")
+
+
+@pytest.mark.parametrize("when", ["first command", "mid-session"])
+def test_a_stray_byte_0_reply_does_not_make_an_echoing_device_look_like_one_without(when):
+    """A byte-0 reply that arrives after the drain (another program's, or late) while the
+    echo is unknown is held, and discarded when the command's own echo follows: no warning,
+    and every later command gets its own reply (a NACK the command it answers)."""
+    want = _bench().lightcrafter().version()
+    bench = _bench(nack={"PAT_EXPO_PRD": {0}})
+    fake = bench.lightcrafter_usb
+    lcr = bench.lightcrafter()
+    if when == "first command":
+        fake._late.append(_zero_reply(b"\x55"))  # the drain's read times out before it
+    else:
+        lcr.read("DISP_MODE")
+        lcr.seq_echo = None
+        fake._replies.append(_zero_reply(b"\x55"))  # waiting before the next command's reply
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert lcr.display_mode() == "video"  # its own reply, not the stray's 0x55
+        assert lcr.seq_echo is True and lcr.stale_replies == 1
+        assert lcr.version() == want
+        with pytest.raises(NackError, match="PAT_EXPO_PRD"):
+            lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
+        lcr.write("PAT_TRIG_MODE", b"\x01")  # answered: not blamed for the NACK above
+
+
+def test_without_the_echo_the_last_byte_0_reply_is_the_commands():
+    """A device without the echo: a stray byte-0 reply after the drain and the command's own
+    (also byte 0): the later one is taken, the stray counted."""
+    bench = _bench(no_seq_echo=True)
+    fake = bench.lightcrafter_usb
+    lcr = bench.lightcrafter()
+    fake._late.append(_zero_reply(b"\x55"))
+    with pytest.warns(RuntimeWarning, match="does not echo"):
+        assert lcr.display_mode() == "video"
+    assert lcr.seq_echo is False and lcr.stale_replies == 1
+
+
+def test_a_non_zero_byte_not_ours_proves_the_echo_after_all():
+    """Matched by order (no echo learnt), a reply whose byte is non-zero and not this
+    command's can only be an echo of an earlier command of ours: the echo is on, the reply
+    discarded, and the command's own reply taken."""
     bench = _bench()
     fake = bench.lightcrafter_usb
     lcr = bench.lightcrafter()
-    lcr.read("DISP_MODE")  # leftovers drained, echo learnt
-    lcr.seq_echo = None  # forget it, then a stray reply arrives before the next command's
-    fake._replies.append(bytes([dlp.FLAG_REPLY, 7, 0, 0]).ljust(dlp.REPORT_SIZE, b"\x00"))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        lcr.write("PAT_CONFIG", dlp.payload_pattern_config(1, False, 1, 1))
+    lcr.read("DISP_MODE")
+    lcr.seq_echo = False
+    fake._replies.append(bytes([dlp.FLAG_REPLY, 7, 1, 0, 0x55]).ljust(dlp.REPORT_SIZE, b"\x00"))
+    assert lcr.display_mode() == "video"
     assert lcr.seq_echo is True and lcr.stale_replies == 1
 
 

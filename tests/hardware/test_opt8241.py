@@ -664,6 +664,49 @@ def test_a_failed_set_roi_writes_the_previous_region_back():
     cam.check_frame_size()
 
 
+def test_a_failed_restore_write_does_not_stop_the_others():
+    """The region write fails at bin_col_count and putting row_start/row_end back fails too:
+    every other register is still written back."""
+    dev = Recorder(dict(QVGA))
+    cam = opt.OPT8241(dev, mode="quad")
+    cam.set_roi(0, 0, 65, 64)
+    before = dict(dev.regs)
+    real, rows_writes = dev.ctrl_transfer, []
+
+    def flaky(rtype, req, wvalue, windex, data, timeout=None):
+        if rtype == 0x40 and (wvalue, windex) == (0x58, 0x1F):
+            rows_writes.append(bytes(data))
+            if len(rows_writes) > 2:  # the two writes of the region pass, the restores fail
+                raise ProtocolError("write register 0x581F", "stalled")
+        if rtype == 0x40 and (wvalue, windex) == (0x5C, 0x30) and \
+                opt.REGISTERS["bin_col_count"].get(int.from_bytes(bytes(data), "little")) == 32:
+            raise ProtocolError("write register 0x5C30", "stalled")
+        return real(rtype, req, wvalue, windex, data, timeout)
+
+    dev.ctrl_transfer = flaky
+    with pytest.raises(ProtocolError, match="0x5C30"):
+        cam.set_roi(16, 32, 33, 32)
+    assert len(rows_writes) == 4  # row_start and row_end each tried once more
+    changed = {a for a in set(before) | set(dev.regs) if before.get(a) != dev.regs.get(a)}
+    assert changed == {0x581F}  # only the register whose restore failed
+
+
+def test_check_frame_size_rounds_the_binned_size_down_as_the_register_map_says():
+    """OPT9221.dml id 2011: bin_row_count "must be programmed to floor(total_rows /
+    rows_to_merge)": 65 selected rows merged by 2 are 32 rows, not 32.5 or 33."""
+    dev = Recorder(dict(QVGA))
+    cam = opt.OPT8241(dev, mode="quad", width=32, height=32)
+    for name, value in (("row_start", 0), ("row_end", 64), ("col_start", 0), ("col_end", 3),
+                        ("rows_to_merge", 2), ("cols_to_merge", 2), ("bin_row_count", 32),
+                        ("bin_col_count", 32), ("binning_en", 1)):
+        cam.write_field(name, value)
+    cam.check_frame_size()
+    cam.height = 33
+    cam.write_field("bin_row_count", 33)
+    with pytest.raises(HardwareError, match="ROI registers select 64x65 pixels"):
+        cam.check_frame_size()
+
+
 def test_check_frame_size_catches_roi_registers_that_disagree_with_the_bin_counts():
     dev = Recorder(dict(QVGA))
     cam = opt.OPT8241(dev, mode="quad")
@@ -681,3 +724,12 @@ def test_the_simulated_camera_refuses_a_region_beyond_its_sensor():
         cam.set_roi(0, 0, 65, 64)  # valid on the 320 x 240 device, not on a 17 x 16 sensor
     assert (cam.width, cam.height) == (16, 17) and cam.roi is None
     assert not bench.camera_usb.field("binning_en")
+    lcr = bench.lightcrafter()  # the sensor still streams its whole frame
+    cam.start()
+    lcr.show_sequence(np.ones((1, 8, 8), dtype=np.uint8), exposure_us=1000)
+    assert cam.grab(0.1).taps.shape == (4, 17, 16)
+    cam.stop()
+    narrow = SimulatedBench(ExperimentConfig(n=8, roi_px=8, srs=(0.25,))).camera()
+    with pytest.raises(ProtocolError, match="stalled"):  # 16 columns on an 8-column sensor
+        narrow.set_roi(0, 0, 9, 16)
+    assert (narrow.width, narrow.height) == (8, 9)

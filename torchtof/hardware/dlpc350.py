@@ -559,48 +559,63 @@ class LightCrafter4500:
         pyCrafter4500 (``dlpc350.command``) and TI's ``DLPC350_USB_Write``/``DLPC350_USB_Read``
         (dlpc350_usb.cpp) read one report per command; the sequence byte is what tells replies
         apart. That the DLPC350 echoes it in its reply is device-only (TI's API never reads it
-        back, pyCrafter4500 always sends 0; README "Real hardware"), so it is learnt: replies
-        already waiting are drained before the first command; our sequence bytes run 1 … 255
-        (never 0), so a reply with byte 0 while no command of ours is unanswered (before each
-        attempt the replies of timed-out ones are drained unless the echo is known) means the
-        device does not echo (:attr:`seq_echo` ``False``, one :class:`RuntimeWarning`):
-        replies are then matched by their order, and the replies of timed-out attempts are
-        drained (a reply later than the drain's 20 ms could still be taken for the next
-        command's: the price of a device without the echo). Any other mismatched byte is a
-        late or stray reply and is discarded; a later match shows the echo (:attr:`seq_echo`
-        ``True``)."""
+        back, pyCrafter4500 always sends 0; README "Real hardware"), so it is learnt. Replies
+        already waiting are drained before the first command, and before each retry (unless
+        the echo is known) the replies of the timed-out attempts. Our sequence bytes run
+        1 … 255, never 0. While the echo is unknown, a reply with byte 0 is held (a later one
+        replaces it), not taken:
+        an echoing device's own reply may still follow it (the held one was then another
+        program's, or late), and it is then discarded; only when nothing else arrives before
+        the deadline does the driver conclude that the device does not echo (:attr:`seq_echo`
+        ``False``, one :class:`RuntimeWarning`; the first command of such a device waits its
+        whole timeout once) and take the held reply. Without the echo, replies are matched by
+        their order; a reply with a non-zero byte that is not this command's then proves the
+        echo after all (:attr:`seq_echo` ``True``) and is discarded as late. A mismatched
+        byte otherwise is a late or stray reply and is discarded; a match shows the echo
+        (:attr:`seq_echo` ``True``)."""
         attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
         for _ in range(attempts):
             if self.seq_echo is None and self._seq == 0 or self.seq_echo is not True and \
                     self._pending:
                 self._drain()  # another program's leftovers, or late replies (no echo known)
             seq = self._next_seq()
+            held = None  # a byte-0 reply while the echo is unknown
             try:
                 for r in encode(name, payload, seq, read=read):
                     self.dev.write(EP_OUT, r, self.timeout_ms)
                 deadline = time.monotonic() + self.timeout_ms / 1000
                 while True:
                     left = max(1, int((deadline - time.monotonic()) * 1000))
-                    raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
+                    try:
+                        raw = bytes(self.dev.read(EP_IN, REPORT_SIZE, left))
+                    except Exception as exc:
+                        if held is None or not isinstance(
+                                translate_usb_error(exc, self.what, name), _Timeout):
+                            raise
+                        # byte 0 and nothing else before the deadline: no echo
+                        self.seq_echo = False
+                        warnings.warn(
+                            f"LightCrafter4500: the reply to {name} carries sequence byte 0, "
+                            f"not {seq}, and no reply with {seq} followed: this device does "
+                            "not echo it; replies are matched by their order",
+                            RuntimeWarning, stacklevel=3)
+                        return decode_reply(held, name, 0)
                     got = _header(raw)[1]
                     if got == seq:  # bytes are never 0: only an echo matches
                         self.seq_echo = True
                         self._pending.clear()
+                        if held is not None:
+                            self.stale_replies += 1
                         return decode_reply(raw, name, seq)
-                    if self.seq_echo is None and got == 0 and not self._pending:
-                        # byte 0, which we never send, with no reply outstanding: the device
-                        # does not echo the sequence byte
-                        self.seq_echo = False
-                        warnings.warn(
-                            f"LightCrafter4500: the reply to {name} carries sequence byte 0, "
-                            f"not {seq}, with no command of ours unanswered: this device does "
-                            "not echo it; replies are matched by their order",
-                            RuntimeWarning, stacklevel=3)
                     if self.seq_echo is False:
-                        reply = decode_reply(raw, name, got)
-                        if self._pending:  # the timed-out attempts' replies may follow
-                            self._drain()
-                        return reply
+                        if got == 0:
+                            return decode_reply(raw, name, got)
+                        self.seq_echo = True  # a byte of ours, not this one: a late echo
+                    elif self.seq_echo is None and got == 0:
+                        if held is not None:
+                            self.stale_replies += 1
+                        held = raw  # wait for this command's own echo until the deadline
+                        continue
                     self.stale_replies += 1  # a late reply to an earlier command
             except HardwareError:
                 raise

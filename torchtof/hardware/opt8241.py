@@ -965,11 +965,13 @@ class OPT8241:
             for name, value in writes:
                 self.write_field(name, value)
         except BaseException:
-            try:  # put back what was written (a half-written region streams wrong frames)
-                for name, value in before.items():
+            # put back what was written (a half-written region streams wrong frames), each
+            # register on its own: one that fails does not keep the others from being restored
+            for name, value in before.items():
+                try:
                     self.write_field(name, value)
-            except Exception:  # noqa: BLE001 - the first error is the one to report
-                pass
+                except Exception:  # noqa: BLE001, PERF203 - the first error is the one to report
+                    pass
             raise
         self.width, self.height = width, height
         self.roi = (row, col, height, width)
@@ -977,7 +979,10 @@ class OPT8241:
     def check_frame_size(self) -> None:
         """The frames the camera sends are ``bin_col_count`` × ``bin_row_count`` pixels
         (``ToFCamera::_getFrameSize``); they must be the ``width`` × ``height`` this object
-        decodes.
+        decodes. With binning on (a region from :meth:`set_roi`, or the SDK's), the bin counts
+        must also be the ROI registers' size divided (rounded down) by the merge factors, as
+        the register map requires (OPT9221.dml ids 2011/2012). With binning off the SDK reads
+        only the bin counts, and so does this check.
 
         Raises:
             HardwareError: they differ.
@@ -993,8 +998,9 @@ class OPT8241:
             sel_rows = self.read_field("row_end") - self.read_field("row_start") + 1
             sel_cols = ROI_COL_STEP * (self.read_field("col_end") - self.read_field("col_start")
                                        + 1)
-            if (sel_rows, sel_cols) != (rows * self.read_field("rows_to_merge"),
-                                        cols * self.read_field("cols_to_merge")):
+            merge = (self.read_field("rows_to_merge"), self.read_field("cols_to_merge"))
+            # OPT9221.dml ids 2011/2012: "must be programmed to floor(total_rows/rows_to_merge)"
+            if min(merge) < 1 or (sel_rows // merge[0], sel_cols // merge[1]) != (rows, cols):
                 raise HardwareError(
                     f"{self.what}: the ROI registers select {sel_cols}x{sel_rows} pixels but "
                     f"the bin counts give {cols}x{rows} frames: set the region again "
