@@ -280,7 +280,7 @@ def test_learned_means_minima_and_time_ratios_are_worked_out_from_the_rows():
     assert "| n = 32 | n = 256 (SR ≤ 12.5 % only) |" in text
     assert "| 0 % | +3.00 (min +3.00) | +0.50 (min +0.50) |" in text
     assert "| 1 % | +0.00 (min -1.00) | - |" in text  # (1 - 1) / 2
-    assert "| 14.6× (15 / 221 ms) | - |" in text
+    assert "| 14.6× (221 / 15 ms) | - |" in text  # TVAL3 / learned, as the label
     assert "+0.50 dB at SR ≤ 12.5 %, 1 % noise (1 cells, n ≤ 32, min +0.50)" in text  # 20 - 19.5
     assert "10–10× a default TVAL3 solve per image on these cells" in text  # 2.0 / 0.2 s
     assert "at every SR, with and without the 3 m gate" in text

@@ -78,6 +78,12 @@ def _methods() -> list[str]:
     return list(METHODS)
 
 
+def _default_methods() -> list[str]:
+    from .methods import DEFAULT_METHODS
+
+    return list(DEFAULT_METHODS)
+
+
 def _check_experiment(args: argparse.Namespace) -> None:
     """``--sr`` and ``--n`` of ``demo`` together give at least one pattern (each alone is
     checked by its type)."""
@@ -280,7 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--realisations", type=positive_int, default=1,
                    help="noise realisations (PSNR mean ± std over them)")
     d.add_argument("--methods", type=csv_list(_methods()), default=None,
-                   help=f"comma-separated subset of {','.join(_methods())} (default: all)")
+                   help=f"comma-separated subset of {','.join(_methods())} (default: "
+                        f"{','.join(_default_methods())})")
     d.add_argument("--seed", type=int, default=0, help="random seed of the noise")
     d.add_argument("--out", default="demo_out", help="folder for the PNG and JSON")
     d.add_argument("--depth", nargs="?", const="motorcycle", default=None, metavar="SCENE",

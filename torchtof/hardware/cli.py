@@ -286,9 +286,9 @@ def add_parsers(sub) -> None:
                    help="retries of a sequence whose frames failed the checks")
     a.add_argument("--resume", action="store_true", help="continue an interrupted store")
     a.add_argument("--frame-ids", default="device", choices=["device", "count"],
-                   help="device: OPT9221 frame numbers, each frame checked and recorded as it "
-                   "arrives (a kill loses at most the frame in flight); count: host numbering, "
-                   "frames recorded per checked sequence (a kill loses up to 24 frames)")
+                   help="device: OPT9221 frame numbers checked to be consecutive; count: host "
+                   "numbering. Either way a sequence (<= 24 frames) is recorded only after all "
+                   "its checks pass, so a kill loses at most the sequence in flight")
     a.add_argument("--no-progress", action="store_true", help="no progress bar")
     a.add_argument("--sim-faults", default=None, type=json_object,
                    help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults)")
