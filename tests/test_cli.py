@@ -98,6 +98,8 @@ BAD = [
     (["acquire", "--simulated"], "-o/--output"),
     (["acquire", "--camera-roi", "0", "8", "9", "32", "-o", "x.zarr"],
      "argument --camera-roi: expected COL and WIDTH multiples of 16"),
+    (["acquire", "--camera-roi", "200", "0", "65", "64", "-o", "x.zarr"],
+     "a region inside the 320x240 sensor, got 200 0 65 64"),
     (["acquire", "--simulated", "--n", "8", "--camera-roi", "0", "0", "9", "32", "-o", "x.zarr"],
      "argument --camera-roi: rows 0..8, columns 0..31 lie beyond the simulated sensor"),
     (["reconstruct", "no_such_run.zarr", "--method", "FOO"], "argument --method:"),
