@@ -266,6 +266,8 @@ def test_bench_onnx_progress_line_has_three_significant_digits():
     pytest.param("benchmarks/versus_rev.py", ["--rounds", "0"],
                  "versus_rev.py: error: --rounds and --repeats must be >= 1",
                  marks=pytest.mark.slow),
+    pytest.param("benchmarks/tvl2_convergence.py", ["--max-iter", "0"],
+                 "tvl2_convergence.py: error: expected --max-iter", marks=pytest.mark.slow),
 ])
 def test_scripts_parse_their_options_first(script, argv, expect):
     import subprocess
