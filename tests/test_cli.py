@@ -113,6 +113,8 @@ BAD = [
     (["train", "--orders", "nosuch"], "argument --orders:"),
     (["train", "--init", "no_such.pt"], "argument --init: no such weights file: 'no_such.pt'"),
     (["train", "--families", "cats=1"], "argument --families: expected NAME=P"),
+    (["train", "--families", "planar=0.3", "natural=0.7", "planar=0.3"],
+     "argument --families: a family named twice"),
     (["train", "--families", "leaves=0.5", "planar=0.6"],
      "argument --families: train: expected families' probabilities >= 0 summing to 1"),
     (["demo", "--sr", "0.5", "--nosuch"], "unrecognized arguments: --nosuch"),
@@ -201,6 +203,31 @@ def test_train_init_shipped_names_the_package_weights(tmp_path, capsys, monkeypa
         "R", (), {"losses": [1.0], "wall_s": 1.0})())
     assert main(["train", "--init", "shipped", "--out", str(tmp_path)]) == 0
     assert seen["init"] == str(WEIGHTS_FILE) and WEIGHTS_FILE.is_file()
+    capsys.readouterr()
+
+
+def test_calibrate_only_uses_the_runs_scene_mixture(tmp_path, capsys, monkeypatch):
+    import json
+
+    import torchtof.apps.train as app
+    from torchtof.recon.learned_train import train_learned
+
+    mix = {"silhouette": 0.5, "leaves": 0.5}
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+                  calibrate=False, families=mix, out=tmp_path)
+    seen = {}
+
+    def fake(model, seed, **kw):
+        seen.update(kw)
+        return {"tau": 0.1, "losses": {}, "loss_off": 0.0}
+
+    monkeypatch.setattr(app, "calibrate_tau", fake)
+    net = ["--sizes", "16", "--n-layers", "2", "--width", "4", "--out", str(tmp_path)]
+    assert main(["train", "--calibrate-only", *net]) == 0
+    assert seen["families"] == mix
+    assert json.loads((tmp_path / "recipe.json").read_text())["calibration_families"] == mix
+    assert main(["train", "--calibrate-only", "--families", "planar=1", *net]) == 0
+    assert seen["families"] == {"planar": 1.0}
     capsys.readouterr()
 
 

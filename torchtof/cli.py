@@ -380,6 +380,9 @@ def _check_train(args: argparse.Namespace) -> None:
     if args.families is not None:
         from .data import check_families
 
+        names = [k for k, _ in args.families]
+        if len(set(names)) != len(names):
+            raise ValueError(f"argument --families: a family named twice: {' '.join(names)}")
         try:
             check_families(dict(args.families), "train")
         except ValueError as exc:

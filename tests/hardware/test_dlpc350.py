@@ -324,7 +324,9 @@ def test_a_device_without_the_sequence_echo_is_matched_by_order():
                                                exposure_us=1000)
         fake = bench.lightcrafter_usb
         runs.append(([(m.command, m.payload) for m in fake.log], fake.pattern_lut, fake.state))
-    assert runs[0] == runs[1]
+    # the same exchange as with the echo, but for the first command, sent once more to confirm
+    assert runs[0][0][0] == runs[0][0][1] and runs[0][0][1:] == runs[1][0]
+    assert runs[0][1:] == runs[1][1:]
 
 
 def _zero_reply(data: bytes = b"") -> bytes:
@@ -361,14 +363,31 @@ def test_a_stray_byte_0_reply_does_not_make_an_echoing_device_look_like_one_with
 
 def test_without_the_echo_the_last_byte_0_reply_is_the_commands():
     """A device without the echo: a stray byte-0 reply after the drain and the command's own
-    (also byte 0): the later one is taken, the stray counted."""
+    (also byte 0): the later one is held, and after the confirming resend that one's reply is
+    taken; the stray and the first attempt's reply are counted."""
     bench = _bench(no_seq_echo=True)
     fake = bench.lightcrafter_usb
     lcr = bench.lightcrafter()
     fake._late.append(_zero_reply(b"\x55"))
     with pytest.warns(RuntimeWarning, match="does not echo"):
         assert lcr.display_mode() == "video"
-    assert lcr.seq_echo is False and lcr.stale_replies == 1
+    assert lcr.seq_echo is False and lcr.stale_replies == 2
+    assert fake.counts["DISP_MODE"] == 2
+
+
+def test_a_slow_echo_is_not_taken_for_no_echo():
+    """An echoing device whose reply to the first command comes after the deadline, with a
+    stray byte-0 reply before it: the command is sent again instead of concluding "no echo"
+    from the stray; the late echo is discarded and the repeat's own reply taken."""
+    bench = _bench(late_reply={"DISP_MODE": {0}})
+    fake = bench.lightcrafter_usb
+    lcr = bench.lightcrafter()
+    lcr._drain()  # the leftovers, as the first command would
+    fake._replies.append(_zero_reply(b"\x55"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert lcr.display_mode() == "video"
+    assert lcr.seq_echo is True and fake.counts["DISP_MODE"] == 2
 
 
 def test_a_non_zero_byte_not_ours_proves_the_echo_after_all():
@@ -392,7 +411,8 @@ def test_leftover_replies_are_drained_before_the_first_command():
     lcr = bench.lightcrafter()
     with pytest.warns(RuntimeWarning, match="does not echo"):
         mode = lcr.display_mode()
-    assert lcr.stale_replies == 1 and mode == "video"  # its own reply, not the leftover 0x55
+    # its own reply, not the leftover 0x55 (counted with the first attempt's confirmed reply)
+    assert lcr.stale_replies == 2 and mode == "video"
 
 
 def test_sequence_bytes_skip_0_when_they_wrap():
@@ -404,13 +424,13 @@ def test_sequence_bytes_skip_0_when_they_wrap():
 
 def test_without_the_echo_a_late_reply_is_drained_not_misattributed():
     """PAT_CONFIG #0 is answered late by a device without the echo: the late reply is
-    drained before the retry, whose reply (byte 0, nothing unanswered) shows there is no echo;
-    the next command (a NACKed PAT_EXPO_PRD) gets its own reply."""
+    drained before the retry, whose byte-0 reply is confirmed by one more attempt; the next
+    command (a NACKed PAT_EXPO_PRD) gets its own reply."""
     bench = _bench(no_seq_echo=True, late_reply={"PAT_CONFIG": {0}}, nack={"PAT_EXPO_PRD": {0}})
     lcr = bench.lightcrafter()
     with pytest.warns(RuntimeWarning, match="does not echo"):
         lcr.write("PAT_CONFIG", dlp.payload_pattern_config(1, False, 1, 1))
-    assert bench.lightcrafter_usb.counts["PAT_CONFIG"] == 2 and lcr.stale_replies == 1
+    assert bench.lightcrafter_usb.counts["PAT_CONFIG"] == 3 and lcr.stale_replies == 2
     with pytest.raises(NackError, match="PAT_EXPO_PRD"):
         lcr.write("PAT_EXPO_PRD", dlp.payload_exposure_period(1000, 1000))
 

@@ -717,6 +717,19 @@ def test_check_frame_size_catches_roi_registers_that_disagree_with_the_bin_count
         cam.check_frame_size()
 
 
+def test_a_simulated_sensor_larger_than_the_roi_fields_streams_whole():
+    """row_end is 8 bits: a 257-row simulated sensor (roi_px = 256, the default of
+    ``acquire --simulated --n 128``) cannot be selected by the default registers and is read
+    whole until a region is written."""
+    bench = SimulatedBench(ExperimentConfig(n=8, roi_px=256, srs=(0.25,)))
+    lcr, cam = bench.lightcrafter(), bench.camera()
+    assert (cam.width, cam.height) == (256, 257)
+    cam.start()
+    lcr.show_sequence(np.ones((1, 8, 8), dtype=np.uint8), exposure_us=1000)
+    assert cam.grab(0.1).taps.shape == (4, 257, 256)
+    cam.stop()
+
+
 def test_the_simulated_camera_refuses_a_region_beyond_its_sensor():
     bench = SimulatedBench(ExperimentConfig(n=8, roi_px=16, srs=(0.25,)))
     cam = bench.camera()

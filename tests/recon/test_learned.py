@@ -7,6 +7,7 @@ the noise model's variances follow from the Poisson law of each frame.
 """
 
 import hashlib
+import itertools
 import json
 import math
 import warnings
@@ -25,7 +26,7 @@ from torchtof.data import (
     grey_image,
     noisy_buckets,
 )
-from torchtof.data.scenes import power_law_radii
+from torchtof.data.scenes import pick_family, power_law_radii
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
 from torchtof.operators.patterns import ORDERS
 from torchtof.recon.learned import DEFAULT_N_LAYERS, WEIGHTS_FILE, Learned, LearnedResult, learned
@@ -383,6 +384,13 @@ def test_families_mixture_and_its_checks():
         assert torch.equal(draw_scene(32, seed, families={"leaves": 1.0}),
                            draw_scene(32, seed, "leaves"))
     assert FAMILIES["leaves"] == 0.0
+    # the shipped weights' mixture picks as it did before "leaves" existed: the previous
+    # release's rule, a running float sum over the five families, written out here
+    names = ("planar", "smooth", "silhouette", "strokes", "natural")
+    old = list(zip(names, itertools.accumulate((0.25, 0.15, 0.2, 0.15, 0.25))))
+    for r in [k / 4000 for k in range(4000)] + [0.25, 0.4 - 1e-12, 0.999999999]:
+        assert pick_family(r, FAMILIES) == next(f for f, c in old if r < c), r
+    assert pick_family(0.9999999, {"planar": 0.9999995, "leaves": 0.0}) == "planar"
     assert torch.equal(draw_scenes(32, 0, 5, range(16), families=dict(FAMILIES)),
                        draw_scenes(32, 0, 5, range(16)))
     mix = {"planar": 0.5, "leaves": 0.5}

@@ -85,8 +85,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-calibrate", action="store_true",
                    help="leave the final data-consistency step off (no calibrate_tau)")
     p.add_argument("--calibrate-only", action="store_true",
-                   help="load OUT/checkpoint.pt, run calibrate_tau, rewrite OUT/learned.pt and "
-                        "add the calibration to OUT/recipe.json")
+                   help="load OUT/checkpoint.pt, run calibrate_tau (on the run's scene mixture "
+                        "from OUT/recipe.json unless --families is given), rewrite "
+                        "OUT/learned.pt and add the calibration to OUT/recipe.json")
 
 
 def _probability(text: str) -> float:
@@ -133,15 +134,18 @@ def main(args: argparse.Namespace) -> int:
         model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
                         pretrained=False, width=args.width, shuffle=args.shuffle)
         model.load_state_dict(state["model"], strict=False)
+        recipe_path = out / "recipe.json"
+        recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+        # the run's own mixture unless --families says otherwise
+        families = (dict(args.families) if args.families is not None
+                    else recipe.get("data", {}).get("families"))
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
                               noise_ref=args.noise_ref or None, p_clean=args.p_clean,
-                              p_noise_ref=args.p_noise_ref,
-                              families=None if args.families is None else dict(args.families))
-        recipe_path = out / "recipe.json"
-        recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+                              p_noise_ref=args.p_noise_ref, families=families)
         recipe.update(final_step_calibration=calib, calibration_command=command,
+                      calibration_families=families,
                       calibration_wall_s=round(time.perf_counter() - t0, 1))
         model.A = Hadamard(args.sizes[0], sr=0.25)
         model.save_weights(out / "learned.pt", seed=args.seed, steps=state["step"],

@@ -46,6 +46,7 @@ __all__ = [
     "draw_scene",
     "draw_scenes",
     "grey_image",
+    "pick_family",
     "planar_depth",
     "power_law_radii",
 ]
@@ -258,9 +259,13 @@ def _leaves(d: _Draw, n: int) -> torch.Tensor:
 
     r = power_law_radii(rand(k), 2.0 / n, d.u(0.5, 1.5))
     cx, cy = rand(k) * 2.4 - 1.2, rand(k) * 2.4 - 1.2
-    cover = (xx - cx[:, None, None]) ** 2 + (yy - cy[:, None, None]) ** 2 <= (r * r)[:, None, None]
-    cover = torch.cat([cover, torch.ones(1, s, s, dtype=torch.bool)])  # background leaf
-    top = cover.to(torch.uint8).argmax(0)  # the first leaf over each pixel (on top)
+    top = torch.full((s, s), k, dtype=torch.long)  # the background leaf where none covers
+    for lo in range(k - 32, -32, -32):  # 32 leaves at a time, the last ones first
+        sl = slice(lo, lo + 32)
+        cover = ((xx - cx[sl, None, None]) ** 2 + (yy - cy[sl, None, None]) ** 2
+                 <= (r[sl] * r[sl])[:, None, None])
+        hit = cover.any(0)
+        top = torch.where(hit, lo + cover.to(torch.uint8).argmax(0), top)  # earlier on top
     base, gx, gy = rand(k + 1), rand(k + 1) - 0.5, rand(k + 1) - 0.5
     amp = (rand(k + 1) < 0.5) * rand(k + 1) * 0.3
     freq, ang, ph = 2 + rand(k + 1) * (n / 4), rand(k + 1) * math.pi, rand(k + 1) * 2 * math.pi
@@ -272,6 +277,20 @@ def _leaves(d: _Draw, n: int) -> torch.Tensor:
     x = (x - lo) / (hi - lo).clamp_min(1e-6)
     span = d.u(0.6, 1.0)
     return d.u(0, 1 - span) + span * x
+
+
+def pick_family(r: float, probs: dict[str, float]) -> str:
+    """The family of a uniform number ``r`` in [0, 1): the first whose cumulative probability
+    exceeds ``r``, in ``probs``' order; families of probability 0 are never picked (the last
+    one with a positive probability catches rounding)."""
+    cum, last = 0.0, None
+    for family, p in probs.items():
+        if p <= 0:
+            continue
+        cum, last = cum + p, family
+        if r < cum:
+            return family
+    return last
 
 
 def draw_scene(
@@ -315,11 +334,7 @@ def draw_scene(
     d = _Draw(seed)
     r = d.u(0, 1)
     if family is None:
-        cum = 0.0
-        for family, p in probs.items():  # noqa: B007 - the last one catches rounding
-            cum += p
-            if r < cum:
-                break
+        family = pick_family(r, probs)
     yy, xx = _grid(n)
     if family in ("planar", "smooth"):
         x = _depth(d, yy, xx, smooth=family == "smooth")

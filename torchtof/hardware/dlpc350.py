@@ -565,16 +565,19 @@ class LightCrafter4500:
         1 … 255, never 0. While the echo is unknown, a reply with byte 0 is held (a later one
         replaces it), not taken:
         an echoing device's own reply may still follow it (the held one was then another
-        program's, or late), and it is then discarded; only when nothing else arrives before
-        the deadline does the driver conclude that the device does not echo (:attr:`seq_echo`
-        ``False``, one :class:`RuntimeWarning`; the first command of such a device waits its
-        whole timeout once) and take the held reply. Without the echo, replies are matched by
-        their order; a reply with a non-zero byte that is not this command's then proves the
-        echo after all (:attr:`seq_echo` ``True``) and is discarded as late. A mismatched
+        program's, or late), and it is then discarded. When nothing else arrives before the
+        deadline the command is sent once more (an echoing device's reply may just be slow;
+        not for commands that must not be repeated), and only when that attempt too ends with
+        a byte-0 reply and nothing after it does the driver conclude that the device does not
+        echo (:attr:`seq_echo` ``False``, one :class:`RuntimeWarning`; the first command of
+        such a device waits its timeout twice) and take the held reply. A reply with a
+        non-zero byte that is not this command's proves the echo (:attr:`seq_echo` ``True``,
+        also after order matching was concluded) and is discarded as late. A mismatched
         byte otherwise is a late or stray reply and is discarded; a match shows the echo
         (:attr:`seq_echo` ``True``)."""
         attempts = 1 if name in self._NOT_IDEMPOTENT else self.retries + 1
-        for _ in range(attempts):
+        zero_once = False  # a held byte-0 reply met the deadline once (then the command is resent)
+        for attempt in range(attempts):
             if self.seq_echo is None and self._seq == 0 or self.seq_echo is not True and \
                     self._pending:
                 self._drain()  # another program's leftovers, or late replies (no echo known)
@@ -592,7 +595,12 @@ class LightCrafter4500:
                         if held is None or not isinstance(
                                 translate_usb_error(exc, self.what, name), _Timeout):
                             raise
-                        # byte 0 and nothing else before the deadline: no echo
+                        if not zero_once and attempt < attempts - 1:
+                            # an echoing device's own reply may just be slow: send again
+                            zero_once = True
+                            self.stale_replies += 1
+                            raise
+                        # byte 0 and nothing else before the deadline, twice: no echo
                         self.seq_echo = False
                         warnings.warn(
                             f"LightCrafter4500: the reply to {name} carries sequence byte 0, "
@@ -616,6 +624,11 @@ class LightCrafter4500:
                             self.stale_replies += 1
                         held = raw  # wait for this command's own echo until the deadline
                         continue
+                    elif self.seq_echo is None:  # a byte of ours, not this one: the echo
+                        self.seq_echo = True
+                        if held is not None:
+                            self.stale_replies += 1
+                            held = None
                     self.stale_replies += 1  # a late reply to an earlier command
             except HardwareError:
                 raise

@@ -443,6 +443,7 @@ class FakeOPT8241(_Gone):
     _VALID = {"quad_cnt_max": (4, 6), "sub_frame_cnt_max": (1, 2, 4, 8),
               "pixel_data_size": (2, 4)}
     _READ_ONLY = ("pix_cnt_max_set_failed", "intg_duty_cycle_set_failed")
+    _ROI_ADDRESSES = {opt.REGISTERS[k].address for k in ("row_start", "col_start", "col_end")}
 
     def __init__(self, bench: SimulatedBench) -> None:
         self.bench = bench
@@ -452,10 +453,12 @@ class FakeOPT8241(_Gone):
                     "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1,
                     "delay_fb_coeff_1": 2048, "op_clk_freq": 0,
                     "bin_col_count": bench.config.roi_px, "bin_row_count": bench.config.roi_px + 1,
-                    # the whole simulated sensor, as OPT9221.dml's defaults select the whole
-                    # 320 x 240 one (row_end 239, col_end 19); columns in blocks of 16
-                    "row_start": 0, "row_end": bench.config.roi_px, "col_start": 0,
-                    "col_end": -(-bench.config.roi_px // 16) - 1,
+                    # the whole simulated sensor where the fields can say so, as OPT9221.dml's
+                    # defaults select the whole 320 x 240 one (row_end 239, col_end 19;
+                    # columns in blocks of 16); a larger simulated sensor is read whole until
+                    # a region is written (crop)
+                    "row_start": 0, "row_end": min(bench.config.roi_px, 255), "col_start": 0,
+                    "col_end": min(-(-bench.config.roi_px // 16) - 1, 31),
                     "tillum_slv_addr": 0x72 if bench.sdk_initialised else 0x71}
         defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
         for name, value in defaults.items():
@@ -473,6 +476,7 @@ class FakeOPT8241(_Gone):
         self.busy_until = -1.0
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
         self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
+        self.roi_set = False  # read whole until the ROI registers are written
         #: (rows, columns) of the simulated sensor: the guard row and the ROI of the render
         self.sensor = (bench.config.roi_px + 1, bench.config.roi_px)
 
@@ -525,6 +529,8 @@ class FakeOPT8241(_Gone):
                 if f.address == address:
                     value = f.put(value, f.get(old))
             self.regs[address] = value
+            if address in self._ROI_ADDRESSES:
+                self.roi_set = True
             self._update_flags()
             with self._cond:  # a read waiting on a camera just halted returns (read())
                 self._cond.notify_all()
@@ -691,8 +697,11 @@ class FakeOPT8241(_Gone):
 
     def crop(self, taps: np.ndarray) -> np.ndarray:
         """The region of the sensor the ROI registers select (``row_start`` … ``row_end``,
-        columns ``16·col_start`` … ``16·(col_end + 1) − 1``); by default the whole simulated
-        sensor (``roi_px + 1`` × ``roi_px``)."""
+        columns ``16·col_start`` … ``16·(col_end + 1) − 1``); the whole simulated sensor
+        (``roi_px + 1`` × ``roi_px``) until they are written (their defaults select it too,
+        where its size fits the fields)."""
+        if not self.roi_set:
+            return taps
         r0, r1 = self.field("row_start"), self.field("row_end")
         c0, c1 = 16 * self.field("col_start"), 16 * (self.field("col_end") + 1)
         return taps[..., r0 : r1 + 1, c0:c1]
