@@ -563,14 +563,14 @@ class LightCrafter4500:
         already waiting are drained before the first command, and before each retry (unless
         the echo is known) the replies of the timed-out attempts. Our sequence bytes run
         1 … 255, never 0. While the echo is unknown, a reply with byte 0 is held (a later one
-        replaces it), not taken:
-        an echoing device's own reply may still follow it (the held one was then another
-        program's, or late), and it is then discarded. When nothing else arrives before the
-        deadline the command is sent once more (an echoing device's reply may just be slow;
-        not for commands that must not be repeated), and only when that attempt too ends with
-        a byte-0 reply and nothing after it does the driver conclude that the device does not
-        echo (:attr:`seq_echo` ``False``, one :class:`RuntimeWarning`; the first command of
-        such a device waits its timeout twice) and take the held reply. A reply with a
+        replaces it), not taken: an echoing device's own reply may still follow it (the held
+        one was then another program's, or late), and it is then discarded. When nothing else
+        arrives before the deadline the command is sent once more (an echoing device's reply
+        may just be slow; not for commands that must not be repeated), and only when that
+        attempt too ends with a byte-0 reply and nothing after it does the driver conclude
+        that the device does not echo (:attr:`seq_echo` ``False``, one
+        :class:`RuntimeWarning`; the first command of such a device waits its timeout twice)
+        and take the held reply. A reply with a
         non-zero byte that is not this command's proves the echo (:attr:`seq_echo` ``True``,
         also after order matching was concluded) and is discarded as late. A mismatched
         byte otherwise is a late or stray reply and is discarded; a match shows the echo
