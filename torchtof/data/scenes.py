@@ -323,14 +323,25 @@ def draw_scene(
         >>> draw_scene(32, seed=1, family="planar").shape
         torch.Size([1, 1, 32, 32])
     """
-    func = "draw_scene"
+    probs = _check_scene_args(n, family, images, families, "draw_scene")
+    return _draw_scene(n, seed, family, images, dtype, probs)
+
+
+def _check_scene_args(n, family, images, families, func: str) -> dict[str, float]:
+    """The checks of :func:`draw_scene` and :func:`draw_scenes` (once per call); returns the
+    family probabilities."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 8:
         raise ValueError(f"{func}: expected n to be an int >= 8, got {n!r}")
     if family is not None and family not in FAMILIES:
         raise ValueError(f"{func}: expected family in {tuple(FAMILIES)} or None, got {family!r}")
     if len(images) == 0:
         raise ValueError(f"{func}: expected a non-empty images, got {images!r}")
-    probs = FAMILIES if families is None else check_families(families, func)
+    return FAMILIES if families is None else check_families(families, func)
+
+
+def _draw_scene(n: int, seed: int, family: str | None, images: Sequence[str],
+                dtype: torch.dtype, probs: dict[str, float]) -> torch.Tensor:
+    """:func:`draw_scene` on checked arguments."""
     d = _Draw(seed)
     r = d.u(0, 1)
     if family is None:
@@ -382,8 +393,9 @@ def draw_scenes(
     """
     if len(indices) == 0:
         raise ValueError("draw_scenes: expected a non-empty indices, got 0 indices")
+    probs = _check_scene_args(n, family, images, families, "draw_scenes")
     return torch.cat(
-        [draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, families)
+        [_draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, probs)
          for i in indices]
     )
 

@@ -452,17 +452,13 @@ class FakeOPT8241(_Gone):
                     "sub_frame_cnt_max": 4, "pix_cnt_max": 100000, "intg_duty_cycle": 6,
                     "op_data_arrange_mode": 2, "pixel_data_size": 4, "tg_dis": 1,
                     "delay_fb_coeff_1": 2048, "op_clk_freq": 0,
-                    "bin_col_count": bench.config.roi_px, "bin_row_count": bench.config.roi_px + 1,
-                    # the whole simulated sensor where the fields can say so, as OPT9221.dml's
-                    # defaults select the whole 320 x 240 one (row_end 239, col_end 19;
-                    # columns in blocks of 16); a larger simulated sensor is read whole until
-                    # a region is written (crop)
-                    "row_start": 0, "row_end": min(bench.config.roi_px, 255), "col_start": 0,
-                    "col_end": min(-(-bench.config.roi_px // 16) - 1, 31),
                     "tillum_slv_addr": 0x72 if bench.sdk_initialised else 0x71}
         defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
         for name, value in defaults.items():
             self._set(name, value)
+        #: (rows, columns) of the simulated sensor: the guard row and the ROI of the render
+        self.sensor = (bench.config.roi_px + 1, bench.config.roi_px)
+        self.select_whole_sensor()
         self._fifo: deque[tuple[int, bytes]] = deque()
         # (ready time, pattern, trigger time) of frames being taken
         self._pending: deque[tuple[float, np.ndarray, float]] = deque()
@@ -477,8 +473,18 @@ class FakeOPT8241(_Gone):
         self.time_s = 0.0  # host arrival time of the last delivered frame (simulated clock)
         self.frame_number = int(bench.frame_number_start)  # OPT9221 output frame counter
         self.roi_set = False  # read whole until the ROI registers are written
-        #: (rows, columns) of the simulated sensor: the guard row and the ROI of the render
-        self.sensor = (bench.config.roi_px + 1, bench.config.roi_px)
+
+    def select_whole_sensor(self) -> None:
+        """Registers for the whole :attr:`sensor`: the frame size (``bin_col_count`` ×
+        ``bin_row_count``) and, where the fields can say so, the region (OPT9221.dml's defaults
+        select the whole 320 × 240 one: ``row_end`` 239, ``col_end`` 19, columns in blocks of
+        16); a larger simulated sensor is read whole until a region is written (:meth:`crop`).
+        Not a control transfer: the state at power-up."""
+        rows, cols = self.sensor
+        for name, value in (("bin_col_count", cols), ("bin_row_count", rows), ("row_start", 0),
+                            ("row_end", min(rows - 1, 255)), ("col_start", 0),
+                            ("col_end", min(-(-cols // 16) - 1, 31))):
+            self._set(name, value)
 
     def _set(self, name: str, value: int) -> None:
         f = opt.REGISTERS[name]

@@ -34,11 +34,8 @@ class ReplayCamera(FakeOPT8241):
 
     def __init__(self, bench: SimulatedBench, width: int, height: int) -> None:
         super().__init__(bench)
-        self._set("bin_col_count", width)  # the frame size the registers report
-        self._set("bin_row_count", height)
-        self._set("row_end", height - 1)  # the region: the whole sensor
-        self._set("col_end", -(-width // 16) - 1)
         self.sensor = (height, width)
+        self.select_whole_sensor()  # the frame size and region the registers report
         rng = np.random.default_rng(0)
         self._taps = rng.integers(0, 4096, size=(4, height, width)).astype(np.int64)
         self._cache: dict = {}
