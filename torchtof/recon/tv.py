@@ -29,8 +29,12 @@ over the channels is the Frobenius norm. :func:`sym_grad2_adjoint` is its exact 
 ``(DᵀD + ρ AᵀA) u = r`` per sample by the Woodbury identity around the Laplacian (diagonal
 in the DFT or DCT); this is the u-step of the ADMM (alternating direction method of
 multipliers, Glowinski & Marrocco 1975; Boyd et al. 2011) TV iteration used by TVAL3's
-``u_step="exact"`` and by :func:`admm_tv` (JointTV, the cross-validation solves of
-:func:`~torchtof.recon.auto`).
+``u_step="exact"`` and by :func:`admm_tv` (JointTV).
+
+**Split TV-L2.** :func:`split_tv` minimises ``TV(u) + μ/2‖Au − b‖²`` (with an optional box)
+for operators whose ``AᵀA`` is an orthogonal projection (orthonormal rows, or a row-masked
+subset of them) by an ADMM in which every step is exact and costs one ``A``, one ``Aᵀ`` and
+one diagonal solve (:func:`~torchtof.recon.auto`'s ``tv_solver="split"``).
 """
 
 from __future__ import annotations
@@ -68,6 +72,9 @@ __all__ = [
     "largest_eig_normal",
     "admm_tv",
     "AdmmOut",
+    "split_tv",
+    "SPLIT_RHO_TV",
+    "SPLIT_RHO_DATA",
 ]
 
 #: Boundary rules of the differences.
@@ -548,3 +555,107 @@ def _admm_loop(b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt, done
             if (k + 1) % check_every == 0 and bool(done.all()):
                 break
     return AdmmOut(u, n_iter, done)
+
+
+# -- split TV-L2: SALSA for operators whose AᵀA is a projection ---------------------------------
+
+#: Penalty on the split ``d = Du`` of :func:`split_tv` for buckets of spread 1.5 (TVAL3's
+#: ``Scaleb``); a spread ``s`` scales it by ``1.5/s``.
+SPLIT_RHO_TV = 256.0
+#: Penalty on the splits ``p = u`` and ``v = u`` of :func:`split_tv`, as a fraction of ``μ``.
+SPLIT_RHO_DATA = 0.05
+#: Bucket spread the penalty :data:`SPLIT_RHO_TV` is set for.
+_SPLIT_SPREAD = 1.5
+
+
+def split_tv(
+    b: torch.Tensor,
+    A: LinearOperator,
+    mu: torch.Tensor,
+    *,
+    tv: str = "isotropic",
+    boundary: str = "neumann",
+    bounds: tuple[float | None, float | None] = (None, None),
+    max_iter: int = 300,
+    rho_tv: float = SPLIT_RHO_TV,
+    rho_data: float = SPLIT_RHO_DATA,
+) -> torch.Tensor:
+    """``argmin_u TV(u) + μ/2‖Au − b‖² + ι_[lo, hi](u)`` for ``AᵀA`` a projection.
+
+    ADMM with the variable splitting of SALSA / C-SALSA (Afonso, Bioucas-Dias & Figueiredo
+    2010, IEEE Trans. Image Process. 19, "Fast image recovery using variable splitting and
+    constrained optimization"; 2011, 20, "An augmented Lagrangian approach to the constrained
+    optimization formulation of imaging inverse problems"): ``u`` is tied to three copies,
+    ``p = u`` (data), ``d = Du`` (TV) and, with a box, ``v = u``; with scaled multipliers
+    ``λ`` each iteration is
+
+    .. math::
+        u &= ((ρ_p + ρ_v) I + ρ_d D^TD)^{-1}\\bigl(ρ_p(p − λ_p) + ρ_d D^T(d − λ_d)
+             + ρ_v(v − λ_v)\\bigr)\\\\
+        p &= (μA^TA + ρ_p I)^{-1}\\,r = \\tfrac{1}{ρ_p}\\bigl(r − \\tfrac{μ}{μ + ρ_p}
+             A^TA\\,r\\bigr), \\quad r = μA^Tb + ρ_p(u + λ_p)\\\\
+        d &= \\operatorname{shrink}(Du + λ_d,\\ 1/ρ_d), \\quad
+        v = Π_{[lo, hi]}(u + λ_v)\\\\
+        λ_p &\\mathrel{+}= u − p, \\quad λ_d \\mathrel{+}= Du − d, \\quad λ_v \\mathrel{+}= u − v
+
+    The ``u``-step is diagonal in the DCT (Neumann) or DFT (periodic) basis; the ``p``-step is
+    exact because ``P = AᵀA`` is an orthogonal projection, ``(μP + ρI)⁻¹ = (I − μ/(μ+ρ) P)/ρ``
+    — true when ``A Aᵀ = I`` and for :class:`~torchtof.recon.tval3.MaskedRows` of such an
+    operator (``Aᵀ M A`` with ``M`` a 0/1 diagonal). The splitting has two blocks (``u`` and
+    ``(p, d, v)``), so ADMM converges for any positive penalties (Eckstein & Bertsekas 1992,
+    Math. Program. 55). Penalties: ``ρ_p = ρ_v = rho_data · μ`` and ``ρ_d = rho_tv · 1.5/s``
+    with ``s = max b − min b`` per sample, so that ``split_tv(c·b, A, μ/c) = c·split_tv(b, A,
+    μ)`` iterate by iterate. The defaults were chosen on peers-benchmark problems (Hadamard
+    rows, 1 % noise, μ = 2²…2¹⁴ on buckets of spread 1.5) for the objective gap to the
+    minimiser after 100 and 300 iterations: at most 2 % and 0.3 %.
+
+    ``b (B, C, M)``, ``mu (B, C)`` per sample (> 0); a fixed ``max_iter`` and no host read;
+    the start is ``Aᵀb`` (in the box). Returns ``u (B, C, n, n)`` in the units of ``b``,
+    projected onto the box.
+    """
+    if not A.orthonormal_rows:
+        raise ValueError("split_tv: expected A with orthonormal rows (AᵀA a projection)")
+    _check_boundary(boundary, "split_tv")
+    n = A.n
+    fwd, adj = A.loop_pair(b)
+    lo, hi = bounds
+    box = lo is not None or hi is not None
+    iso = tv == "isotropic"
+    spread = b.amax(dim=-1) - b.amin(dim=-1)
+    spread = torch.where(spread > 0, spread, b.abs().amax(dim=-1))
+    spread = torch.where(spread > 0, spread, torch.ones_like(spread))  # b = 0: u stays 0
+    eig = laplacian_eigs(n, n, dtype=b.dtype, device=b.device, boundary=boundary)
+    basis = None if boundary == "periodic" else dct_matrix(n, b.dtype, b.device)
+    if basis is None:
+        eig = eig[:, : n // 2 + 1]
+    m4 = mu[..., None, None]
+    rp = rho_data * m4
+    rd = (rho_tv * _SPLIT_SPREAD / spread)[..., None, None]
+    den = rp * (2.0 if box else 1.0) + rd * eig
+    keep = m4 / (m4 + rp)
+    atb = adj(b)
+    u = project_box(atb, lo, hi)
+    p, lp = u, torch.zeros_like(u)
+    d = grad2(u, boundary)
+    ld = torch.zeros_like(d)
+    v, lv = u, torch.zeros_like(u)
+    thr = 1.0 / rd[..., None, :, :]
+    with unchecked():  # inputs validated at the public entry: no check_finite per call
+        for _ in range(max_iter):
+            r = rp * (p - lp) + rd * grad2_adjoint(d - ld, boundary)
+            if box:
+                r = r + rp * (v - lv)
+            if basis is None:
+                u = torch.fft.irfft2(torch.fft.rfft2(r) / den, s=(n, n))
+            else:
+                u = basis.T @ ((basis @ r @ basis.T) / den) @ basis
+            q = m4 * atb + rp * (u + lp)
+            p = (q - keep * adj(fwd(q))) / rp
+            du = grad2(u, boundary)
+            d = shrink(du + ld, thr, iso)
+            lp = lp + u - p
+            ld = ld + du - d
+            if box:
+                v = project_box(u + lv, lo, hi)
+                lv = lv + u - v
+    return project_box(u, lo, hi)
