@@ -261,7 +261,7 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
 def problems(args) -> list[tuple]:
     """``(key, x, A, y, score)`` per cell, ``key = (scene, n, sr, order, level)``: the cells of
     the peers JSON ``args.peers_cells`` (``peers_scenes.make_problem``, its PSNR) at the sizes
-    ``args.n``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch."""
+    ``args.n`` and SRs ``args.sr``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch."""
     if args.peers_cells:
         import sys
         from pathlib import Path
@@ -273,7 +273,7 @@ def problems(args) -> list[tuple]:
             return [ps.score(a[i : i + 1], b[i : i + 1]) for i in range(a.shape[0])]
 
         return [(k, *ps.make_problem(*k, 0)[:3], many)
-                for k in peer_best(args.peers_cells) if k[1] in args.n]
+                for k in peer_best(args.peers_cells) if k[1] in args.n and k[2] in args.sr]
     probs = []
     for n in args.n:
         for sr in args.sr:
@@ -422,6 +422,9 @@ def main(argv=None) -> list[dict]:
               f"{ch['prior']} {(ch['tv'] or '')[:3]} {bd} {mu} | "
               f"{_weight(ch.get('learned_weight'))} | {t_def:.2f} | "
               f"{t_auto:.1f} |", flush=True)
+        if args.out:  # after every cell: a cut-short run keeps what it measured
+            with open(args.out, "w") as f:
+                json.dump(rows, f, indent=1)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)
