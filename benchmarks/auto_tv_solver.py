@@ -40,11 +40,13 @@ def parse(argv=None):
     p.add_argument("--cells", nargs="+", default=list(CELLS))
     p.add_argument("--noise", type=float, default=0.01)
     p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--solvers", nargs="+", default=["tval3", "split"], choices=("tval3", "split"))
+    p.add_argument("--cv-iter", type=int, default=100, help="auto's cv_iter (every solver)")
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--peers-compare", type=Path, default=None, metavar="SPLIT_JSON")
     a = p.parse_args(argv)
-    if a.repeats < 1:
-        p.error("expected --repeats >= 1")
+    if a.repeats < 1 or a.cv_iter < 1:
+        p.error("expected --repeats, --cv-iter >= 1")
     for c in a.cells:
         parts = c.split(":")
         if len(parts) != 4:
@@ -103,22 +105,28 @@ def main(argv=None) -> int:
     for cell in a.cells:
         scene, n, sr, order = cell.split(":")
         x, A, y, _ = ps.make_problem(scene, int(n), float(sr), order, a.noise)
-        res = {s: dict(times=[]) for s in ("tval3", "split")}
+        res = {s: dict(times=[]) for s in a.solvers}
         for k in range(a.repeats):
-            for s in (("tval3", "split") if k % 2 == 0 else ("split", "tval3")):
+            for s in (a.solvers if k % 2 == 0 else a.solvers[::-1]):
                 t0 = time.perf_counter()
-                r = auto(y, A, tv_solver=s, return_result=True)
+                r = auto(y, A, tv_solver=s, cv_iter=a.cv_iter, return_result=True)
                 res[s]["times"].append(time.perf_counter() - t0)
                 res[s].update(psnr=ps.score(r.x, x), choice=_choice(r.choice[0][0]))
-        row = dict(cell=cell, noise=a.noise, **{s: dict(v, time_s=statistics.median(v["times"]))
-                                               for s, v in res.items()})
+        row = dict(cell=cell, noise=a.noise, cv_iter=a.cv_iter,
+                   **{s: dict(v, time_s=statistics.median(v["times"])) for s, v in res.items()})
         rows.append(row)
-        print(f"{cell:34s} tval3 {row['tval3']['psnr']:6.2f} dB {row['tval3']['time_s']:6.1f} s "
-              f"[{row['tval3']['choice']}]  split {row['split']['psnr']:6.2f} dB "
-              f"{row['split']['time_s']:6.1f} s [{row['split']['choice']}]", flush=True)
+        print(f"{cell:34s} " + "  ".join(f"{s} {row[s]['psnr']:6.2f} dB {row[s]['time_s']:6.1f} s "
+                                         f"[{row[s]['choice']}]" for s in a.solvers), flush=True)
+    summary = {}
+    if len(set(a.solvers)) < 2:
+        if a.out is not None:
+            a.out.write_text(json.dumps({"args": {k: str(v) if isinstance(v, Path) else v
+                                                  for k, v in vars(a).items()},
+                                         "rows": rows}, indent=1))
+        return 0
     d = [r["split"]["psnr"] - r["tval3"]["psnr"] for r in rows]
     ratio = [r["split"]["time_s"] / r["tval3"]["time_s"] for r in rows]
-    summary = dict(mean_db=statistics.mean(d), min_db=min(d), max_db=max(d),
+    summary.update(mean_db=statistics.mean(d), min_db=min(d), max_db=max(d),
                    median_time_ratio=statistics.median(ratio))
     print(f"split - tval3: mean {summary['mean_db']:+.2f} dB (min {summary['min_db']:+.2f}, max "
           f"{summary['max_db']:+.2f}); time split / tval3: median {summary['median_time_ratio']:.2f}")

@@ -295,6 +295,12 @@ def test_bench_onnx_progress_line_has_three_significant_digits():
                  marks=pytest.mark.slow),
     pytest.param("benchmarks/tvl2_convergence.py", ["--max-iter", "0"],
                  "tvl2_convergence.py: error: expected --max-iter", marks=pytest.mark.slow),
+    pytest.param("benchmarks/tvl2_convergence.py", ["--beta", "0"],
+                 "tvl2_convergence.py: error: expected --admm-iter >= 1 and --admm-tol, --beta",
+                 marks=pytest.mark.slow),
+    pytest.param("benchmarks/auto_tv_solver.py", ["--cells", "sky:32"],
+                 "auto_tv_solver.py: error: expected --cells items scene:n:sr:order",
+                 marks=pytest.mark.slow),
 ])
 def test_scripts_parse_their_options_first(script, argv, expect):
     import subprocess
