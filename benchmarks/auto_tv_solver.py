@@ -10,7 +10,8 @@ split / tval3. ``--cells`` takes ``scene:n:sr:order`` items.
     OMP_NUM_THREADS=1 python benchmarks/auto_tv_solver.py --out docs/auto/tv_solver.json
 
 ``--peers-compare F`` instead compares a peers-benchmark JSON of ``auto`` run with
-``benchmarks/peers.py --auto-tv-solver split`` (``docs/auto/tv_solver_peers.json``) with the
+``benchmarks/peers.py --auto-tv-solver split`` (``docs/auto/tv_solver_peers.json``; with
+``--auto-cv-iter 300`` as well: ``docs/auto/tv_solver_cv300_peers.json``) with the
 stored one-call results of ``docs/peers.json``, cell by cell: the mean gap to the best tuned
 peer with each solver, the cells at or above it, and every cell that changed.
 
@@ -72,6 +73,8 @@ def peers_compare(path: Path, stored: Path) -> dict:
                 continue
             peer = old[k]["headline"]["best_peer_psnr"]
             rows.append((k, old[k]["results"][m]["psnr"] - peer, c["results"][m]["psnr"] - peer))
+        if not rows:
+            continue
         gaps_t, gaps_s = [r[1] for r in rows], [r[2] for r in rows]
         changed = sorted((r[2] - r[1], r[0]) for r in rows if abs(r[2] - r[1]) > 0.005)
         out[m] = dict(cells=len(rows), mean_gap_tval3=statistics.mean(gaps_t),
@@ -79,8 +82,8 @@ def peers_compare(path: Path, stored: Path) -> dict:
                       at_or_above_tval3=sum(g >= 0 for g in gaps_t),
                       at_or_above_split=sum(g >= 0 for g in gaps_s),
                       changed=[dict(cell=list(k), db=d) for d, k in changed])
-        print(f"{m}: {len(rows)} cells, mean gap to the best tuned peer tval3 "
-              f"{out[m]['mean_gap_tval3']:+.2f} dB ({out[m]['at_or_above_tval3']} >= 0), split "
+        print(f"{m}: {len(rows)} cells, mean gap to the best tuned peer: docs/peers.json "
+              f"{out[m]['mean_gap_tval3']:+.2f} dB ({out[m]['at_or_above_tval3']} >= 0), {path.name} "
               f"{out[m]['mean_gap_split']:+.2f} dB ({out[m]['at_or_above_split']} >= 0); "
               f"{len(changed)} cells changed")
         for d, k in changed:
