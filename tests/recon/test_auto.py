@@ -745,12 +745,13 @@ def test_split_fits_minimise_tval3s_tv_l2_objective():
     gain = 1.5 / (y.amax(-1) - y.amin(-1))[:, 1:, None]
     one = torch.ones(1, 2, dtype=torch.float64)
 
-    def ref(f):
-        return admm_tv(y[:, 1:] * gain, A, f * mu[:, 1:], 256 * one, one < 0, tv="isotropic",
-                       boundary="neumann", max_iter=it, tol=1e-14).u / gain[..., None]
-
-    assert float((x[:, 1:] - ref(1.0)).abs().max()) < 5e-3
-    assert float((x[:, 1:] - ref(1.25)).abs().max()) > 1.5e-2
+    # one batched exact-step solve: the weights as given and 1.25 times larger
+    b2 = (y[:, 1:] * gain).repeat(1, 2, 1)
+    ref = admm_tv(b2, A, torch.cat([mu[:, 1:], 1.25 * mu[:, 1:]], 1), 256 * one.repeat(1, 2),
+                  one.repeat(1, 2) < 0, tv="isotropic", boundary="neumann", max_iter=it,
+                  tol=1e-14, adaptive=False).u / gain.repeat(1, 2, 1)[..., None]
+    assert float((x[:, 1:] - ref[:, :2]).abs().max()) < 5e-3
+    assert float((x[:, 1:] - ref[:, 2:]).abs().max()) > 1.5e-2
     torch.testing.assert_close(x[:, :1], tval3(y[:, :1], A, mu=2.0**8, max_iter=it,
                                                boundary="neumann"))
     assert n_iter[0, 1:].tolist() == [it, it] and not conv[0, 1:].any()
@@ -763,9 +764,8 @@ def test_tv_solver_option():
         auto(y, A, tv_solver="fista")
     with pytest.raises(ValueError, match="Auto: expected tv_solver in"):
         Auto(A, tv_solver=None)
-    # the previous solver stays selectable; both choose a TV-L2 or constrained model and agree
-    # on this easy square to within the noise
-    a = auto(y, A, tv_solver="tval3", priors=("tv",), cv_iter=30, learned=False)
-    b = auto(y, A, tv_solver="split", priors=("tv",), cv_iter=30, learned=False)
-    x = _square(dtype=torch.float32)
-    assert (a - x).abs().mean() < 0.05 and (b - x).abs().mean() < 0.05
+    # the split solver reconstructs this easy square as well as the default does (every other
+    # auto test runs the default)
+    r = Auto(A, tv_solver="split", priors=("tv",), cv_iter=30, learned=False).solve(y)
+    assert (r.x - _square(dtype=torch.float32)).abs().mean() < 0.05
+    assert "tv_solver='split'" in repr(Auto(A, tv_solver="split"))
