@@ -1,5 +1,5 @@
-"""``auto``'s TV-L2 solver: ``tv_solver="split"`` (the default) against ``"tval3"`` (TVAL3 for
-every TV fit, the previous behaviour), interleaved in one process, one thread.
+"""``auto``'s TV-L2 solver: ``tv_solver="split"`` against ``"tval3"`` (the default: TVAL3 for
+every TV fit), interleaved in one process, one thread.
 
 For each cell (``benchmarks/peers_scenes.py``: scene, n, SR, order, 1 % noise by default) the
 plain ``auto(y, A)`` call runs with each solver in turn, ``--repeats`` rounds, alternating

@@ -16,8 +16,8 @@ The peers cell (``benchmarks/peers_scenes.py``: the piecewise-planar map, cake-c
 Each row reports the objective ``F(u) = TV(u) + μ/2‖Au − b‖²`` in TVAL3's scaled units
 (``b = y·1.5/spread``, ``u = x·1.5/spread``; Hadamard rows are orthonormal, so ``A`` is not
 scaled): a solve with a larger ``F`` is not at the minimiser, whatever its PSNR. ``--sweep``
-adds the minimiser's PSNR for every μ = 2^k of the given exponents (the best converged weight
-the model has, tuned against the truth). PSNR as the peers benchmark scores it; one thread.
+adds the minimiser's PSNR for every μ = 2^k of the given exponents (the best weight the model
+has, tuned against the truth; a row with ``n_iter == --admm-iter`` stopped at the cap). PSNR as the peers benchmark scores it; one thread.
 
 usage: python benchmarks/tvl2_convergence.py [--scene planes] [--n 64] [--sr 0.0625]
        [--mus 1024 4096] [--tol 1e-6] [--tol-inner 1e-5] [--max-outer 50] [--max-iter 20000]

@@ -769,3 +769,25 @@ def test_tv_solver_option():
     r = Auto(A, tv_solver="split", priors=("tv",), cv_iter=30, learned=False).solve(y)
     assert (r.x - _square(dtype=torch.float32)).abs().mean() < 0.05
     assert "tv_solver='split'" in repr(Auto(A, tv_solver="split"))
+
+
+def test_tv_solver_reaches_the_fits(monkeypatch):
+    """tv_solver="split" routes the TV-L2 fits of every stage through split_tv, "tval3" none."""
+    import importlib
+
+    am = importlib.import_module("torchtof.recon.auto")
+    calls = []
+    real = am.split_tv
+
+    def counting(b, *args, **kw):
+        calls.append((b.shape[1], kw["max_iter"]))
+        return real(b, *args, **kw)
+
+    monkeypatch.setattr(am, "split_tv", counting)
+    A = Hadamard(16, sr=0.5)
+    y = _noisy(A, _square(dtype=torch.float32), 0.01)
+    auto(y, A, priors=("tv",), cv_iter=20, learned=False, gauss=False)
+    assert calls == []
+    auto(y, A, tv_solver="split", priors=("tv",), cv_iter=20, learned=False, gauss=False)
+    # stage 1: one call per group (norm x bound) with the TV-L2 weights of every fold
+    assert len(calls) >= 4 and all(it == 20 for _, it in calls[:4])

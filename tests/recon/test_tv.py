@@ -275,3 +275,11 @@ def test_split_tv_refuses_an_operator_without_orthonormal_rows():
     P = PatternOperator(random_binary_patterns(16, 8, generator=g))
     with pytest.raises(ValueError, match="split_tv: expected A with orthonormal rows"):
         split_tv(torch.zeros(1, 1, 16), P, torch.ones(1, 1))
+    H = Hadamard(4, sr=1.0)
+    with pytest.raises(ValueError, match="split_tv: expected tv in"):
+        split_tv(torch.zeros(1, 1, 16), H, torch.ones(1, 1), tv="iso")
+    with pytest.raises(ValueError, match="split_tv: expected bounds with lo < hi"):
+        split_tv(torch.zeros(1, 1, 16), H, torch.ones(1, 1), bounds=(1.0, 0.0))
+    # a float64 weight does not change a float32 solve's dtype
+    assert split_tv(torch.ones(1, 1, 16), H, torch.ones(1, 1, dtype=torch.float64),
+                    max_iter=2).dtype == torch.float32

@@ -70,11 +70,12 @@ operators with orthonormal rows (and their row-masked folds), by
 :func:`~torchtof.recon.tv.split_tv` instead, an ADMM whose every step is exact (SALSA,
 Afonso, Bioucas-Dias & Figueiredo 2010): within 2 % of the minimum after the ``cv_iter`` =
 100 iterations of a fit, within 0.3 % after 300; the refit runs ``max_iter`` of them. The
-default stays ``"tval3"``: on the 90 cells of the peers benchmark the split fits moved the
-choice in 44 cells, from +1.52 dB (the planar map, n = 128, SR 12.5 %) to −2.15 dB (the horse
+default stays ``"tval3"``: on the 90 cells of the peers benchmark the split fits changed the
+result in 44 cells, from +1.52 dB (the planar map, n = 128, SR 12.5 %) to −2.15 dB (the horse
 silhouette, n = 128, SR 12.5 %), −0.07 dB on average. They gain where the TV-L2 weight is the
-question; they lose where TGV², whose fits keep their 100 primal–dual iterations, was the
-better model: the folds then compare converged TV fits with unconverged TGV² fits. Raising
+question; they lose mostly where TGV², whose fits keep their 100 primal–dual iterations, was
+the better model: the folds then compare converged TV fits with unconverged TGV² fits (on
+some cells the converged fits also move the TV-L2 weight to a worse one). Raising
 ``cv_iter`` to 300 for every fit (72 of the cells) did not help either (−0.09 dB on average):
 the constrained model's refit, whose budget is ``cv_iter``, then fits the noise
 (``docs/auto.md``, "TV-L2 convergence").
