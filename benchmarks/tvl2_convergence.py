@@ -62,7 +62,9 @@ def parse(argv=None):
 
 def scaled(y):
     """TVAL3's ``Scaleb`` gain for orthonormal rows: the bucket spread mapped to 1.5."""
-    return 1.5 / (y.amax(-1) - y.amin(-1))
+    from torchtof.recon.tv import bucket_spread
+
+    return 1.5 / bucket_spread(y)
 
 
 def objective(x, y, A, mu: float, tv: str) -> float:

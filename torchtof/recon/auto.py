@@ -206,7 +206,7 @@ from . import learned as _learned_mod
 from .base import relative_residual
 from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
-from .tv import box_bounds, largest_eig_normal, project_box, split_tv
+from .tv import box_bounds, bucket_spread, largest_eig_normal, project_box, split_tv
 from .tval3 import (
     STOP_REASONS,
     MaskedRows,
@@ -377,8 +377,7 @@ def _split_fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_i
             r.x, r.n_iter, r.converged, r.stop_code
     if cols2:
         y2 = y[:, cols2]
-        spread = y2.amax(dim=-1) - y2.amin(dim=-1)
-        spread = torch.where(spread > 0, spread, y2.abs().amax(dim=-1))
+        spread = bucket_spread(y2)
         gain = 1.5 / torch.where(spread > 0, spread, torch.ones_like(spread))  # y = 0: x = 0
         lo, hi = box if box is not None else (None, None)
         x[:, cols2] = split_tv(y2, sub(A, cols2), mu_t[:, cols2] * gain, tv=tv, boundary=bd,

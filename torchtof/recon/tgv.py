@@ -94,6 +94,7 @@ from .tv import (
     BOUNDARIES,
     TV_NORMS,
     box_bounds,
+    bucket_spread,
     grad2,
     grad2_adjoint,
     largest_eig_normal,
@@ -346,8 +347,7 @@ def tgv(
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
     sq = math.sqrt(inv_s2)
-    spread = y.amax(dim=-1) - y.amin(dim=-1)
-    spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
+    spread = bucket_spread(y)
     zero = spread == 0
     safe = torch.where(zero, torch.ones_like(spread), spread)
     if A.orthonormal_rows:

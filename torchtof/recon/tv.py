@@ -62,6 +62,7 @@ __all__ = [
     "group_shrink",
     "box_bounds",
     "project_box",
+    "bucket_spread",
     "laplacian_eigs",
     "laplacian_inverse",
     "ExactFactors",
@@ -234,6 +235,13 @@ def box_bounds(nonneg: bool, bounds, fn: str) -> tuple[float | None, float | Non
         if hi is not None and hi <= lo:
             raise ValueError(f"{fn}: nonneg=True needs bounds hi > 0, got {bounds!r}")
     return lo, hi
+
+
+def bucket_spread(y: torch.Tensor) -> torch.Tensor:
+    """``max y − min y`` over the last axis (the spread TVAL3's ``Scaleb`` scales), or
+    ``max |y|`` where all buckets are equal; 0 only for all-zero buckets."""
+    spread = y.amax(dim=-1) - y.amin(dim=-1)
+    return torch.where(spread > 0, spread, y.abs().amax(dim=-1))
 
 
 def project_box(u: torch.Tensor, lo: float | None, hi: float | None) -> torch.Tensor:
@@ -625,8 +633,7 @@ def split_tv(
     fwd, adj = A.loop_pair(b)
     box = lo is not None or hi is not None
     iso = tv == "isotropic"
-    spread = b.amax(dim=-1) - b.amin(dim=-1)
-    spread = torch.where(spread > 0, spread, b.abs().amax(dim=-1))
+    spread = bucket_spread(b)
     spread = torch.where(spread > 0, spread, torch.ones_like(spread))  # b = 0: u stays 0
     eig = laplacian_eigs(n, n, dtype=b.dtype, device=b.device, boundary=boundary)
     basis = None if boundary == "periodic" else dct_matrix(n, b.dtype, b.device)

@@ -44,6 +44,7 @@ from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (
     BOUNDARIES,
     box_bounds,
+    bucket_spread,
     check_exact_memory,
     exact_factors,
     exact_solve,
@@ -477,8 +478,7 @@ def tval3(
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
     s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
     inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
-    spread = y.amax(dim=-1) - y.amin(dim=-1)
-    spread = torch.where(spread > 0, spread, y.abs().amax(dim=-1))
+    spread = bucket_spread(y)
     zero = spread == 0
     safe = torch.where(zero, torch.ones_like(spread), spread)
     if A.orthonormal_rows:
