@@ -9,6 +9,12 @@ split / tval3. ``--cells`` takes ``scene:n:sr:order`` items.
 
     OMP_NUM_THREADS=1 python benchmarks/auto_tv_solver.py --out docs/auto/tv_solver.json
 
+``--variants`` compares any two (or more) ``solver[:fit_iter]`` settings the same way, e.g.
+the TV-L2/TGV-L2 fits' own budget ``fit_iter`` against the default:
+
+    OMP_NUM_THREADS=1 python benchmarks/auto_tv_solver.py --variants tval3 tval3:300 \
+        --out docs/auto/fit_iter.json
+
 ``--peers-compare F`` instead compares a peers-benchmark JSON of ``auto`` run with
 ``benchmarks/peers.py --auto-tv-solver split`` (``docs/auto/tv_solver_peers.json``; with
 ``--auto-cv-iter 300`` as well: ``docs/auto/tv_solver_cv300_peers.json``) with the
@@ -43,11 +49,20 @@ def parse(argv=None):
     p.add_argument("--repeats", type=int, default=1)
     p.add_argument("--solvers", nargs="+", default=["tval3", "split"], choices=("tval3", "split"))
     p.add_argument("--cv-iter", type=int, default=100, help="auto's cv_iter (every solver)")
+    p.add_argument("--variants", nargs="+", default=None, metavar="SOLVER[:FIT_ITER]",
+                   help="settings to compare instead of --solvers: tv_solver and optionally "
+                        "fit_iter, e.g. tval3 tval3:300 (the first is the reference)")
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--peers-compare", type=Path, default=None, metavar="SPLIT_JSON")
     a = p.parse_args(argv)
     if a.repeats < 1 or a.cv_iter < 1:
         p.error("expected --repeats, --cv-iter >= 1")
+    if a.variants is None:
+        a.variants = list(a.solvers)
+    for v in a.variants:
+        s, _, it = v.partition(":")
+        if s not in ("tval3", "split") or (it and not (it.isdigit() and int(it) >= 1)):
+            p.error(f"expected --variants items tval3|split[:FIT_ITER >= 1], got {v!r}")
     for c in a.cells:
         parts = c.split(":")
         if len(parts) != 4:
@@ -108,31 +123,35 @@ def main(argv=None) -> int:
     for cell in a.cells:
         scene, n, sr, order = cell.split(":")
         x, A, y, _ = ps.make_problem(scene, int(n), float(sr), order, a.noise)
-        res = {s: dict(times=[]) for s in a.solvers}
+        res = {s: dict(times=[]) for s in a.variants}
         for k in range(a.repeats):
-            for s in (a.solvers if k % 2 == 0 else a.solvers[::-1]):
+            for s in (a.variants if k % 2 == 0 else a.variants[::-1]):
+                solver, _, it = s.partition(":")
                 t0 = time.perf_counter()
-                r = auto(y, A, tv_solver=s, cv_iter=a.cv_iter, return_result=True)
+                r = auto(y, A, tv_solver=solver, cv_iter=a.cv_iter,
+                         fit_iter=int(it) if it else None, return_result=True)
                 res[s]["times"].append(time.perf_counter() - t0)
                 res[s].update(psnr=ps.score(r.x, x), choice=_choice(r.choice[0][0]))
         row = dict(cell=cell, noise=a.noise, cv_iter=a.cv_iter,
                    **{s: dict(v, time_s=statistics.median(v["times"])) for s, v in res.items()})
         rows.append(row)
         print(f"{cell:34s} " + "  ".join(f"{s} {row[s]['psnr']:6.2f} dB {row[s]['time_s']:6.1f} s "
-                                         f"[{row[s]['choice']}]" for s in a.solvers), flush=True)
+                                         f"[{row[s]['choice']}]" for s in a.variants), flush=True)
     summary = {}
-    if len(set(a.solvers)) < 2:
+    if len(set(a.variants)) < 2:
         if a.out is not None:
             a.out.write_text(json.dumps({"args": {k: str(v) if isinstance(v, Path) else v
                                                   for k, v in vars(a).items()},
                                          "rows": rows}, indent=1))
         return 0
-    d = [r["split"]["psnr"] - r["tval3"]["psnr"] for r in rows]
-    ratio = [r["split"]["time_s"] / r["tval3"]["time_s"] for r in rows]
-    summary.update(mean_db=statistics.mean(d), min_db=min(d), max_db=max(d),
-                   median_time_ratio=statistics.median(ratio))
-    print(f"split - tval3: mean {summary['mean_db']:+.2f} dB (min {summary['min_db']:+.2f}, max "
-          f"{summary['max_db']:+.2f}); time split / tval3: median {summary['median_time_ratio']:.2f}")
+    ref, new = a.variants[0], a.variants[1]
+    d = [r[new]["psnr"] - r[ref]["psnr"] for r in rows]
+    ratio = [r[new]["time_s"] / r[ref]["time_s"] for r in rows]
+    summary.update(reference=ref, variant=new, mean_db=statistics.mean(d), min_db=min(d),
+                   max_db=max(d), median_time_ratio=statistics.median(ratio))
+    print(f"{new} - {ref}: mean {summary['mean_db']:+.2f} dB (min {summary['min_db']:+.2f}, max "
+          f"{summary['max_db']:+.2f}); time {new} / {ref}: median "
+          f"{summary['median_time_ratio']:.2f}")
     if a.out is not None:
         a.out.write_text(json.dumps({"args": {k: str(v) if isinstance(v, Path) else v
                                               for k, v in vars(a).items()},

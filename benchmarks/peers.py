@@ -199,7 +199,7 @@ def tt_pinv(P: Problem, _p=None):
 
 
 #: Options given to every ``auto`` call (``--auto-tv-solver`` sets ``tv_solver``,
-#: ``--auto-cv-iter`` ``cv_iter``; empty: the plain one-call default).
+#: ``--auto-cv-iter`` ``cv_iter``, ``--auto-fit-iter`` ``fit_iter``; empty: the plain one-call default).
 AUTO_OPTIONS: dict = {}
 
 
@@ -682,6 +682,8 @@ def parse(argv=None):
                         "option, not the one-call default the tables compare")
     p.add_argument("--auto-cv-iter", type=int, default=None,
                    help="pass cv_iter to auto (a study, as --auto-tv-solver)")
+    p.add_argument("--auto-fit-iter", type=int, default=None,
+                   help="pass fit_iter to auto (a study, as --auto-tv-solver)")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
     p.add_argument("--report", type=Path, nargs="+", default=None,
                    help="print the markdown tables of these JSONs (merged) and write the PNG, "
@@ -709,6 +711,8 @@ def main(argv=None) -> int:
         AUTO_OPTIONS["tv_solver"] = a.auto_tv_solver
     if a.auto_cv_iter is not None:
         AUTO_OPTIONS["cv_iter"] = a.auto_cv_iter
+    if a.auto_fit_iter is not None:
+        AUTO_OPTIONS["fit_iter"] = a.auto_fit_iter
     if a.quick:
         a.n, a.scenes, a.sr, a.noise, a.orders = [32], ["sky", "camera"], [0.125, 0.375], [0.01], [
             "cake_cutting"]

@@ -301,6 +301,8 @@ def test_bench_onnx_progress_line_has_three_significant_digits():
     pytest.param("benchmarks/auto_tv_solver.py", ["--cells", "sky:32"],
                  "auto_tv_solver.py: error: expected --cells items scene:n:sr:order",
                  marks=pytest.mark.slow),
+    pytest.param("benchmarks/auto_tv_solver.py", ["--variants", "tval3", "tval3:0"],
+                 "auto_tv_solver.py: error: expected --variants items", marks=pytest.mark.slow),
 ])
 def test_scripts_parse_their_options_first(script, argv, expect):
     import subprocess

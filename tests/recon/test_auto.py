@@ -791,3 +791,41 @@ def test_tv_solver_reaches_the_fits(monkeypatch):
     auto(y, A, tv_solver="split", priors=("tv",), cv_iter=20, learned=False, gauss=False)
     # stage 1: one call per group (norm x bound) with the TV-L2 weights of every fold
     assert len(calls) >= 4 and all(it == 20 for _, it in calls[:4])
+
+
+def test_fit_iter_option_and_budgets(monkeypatch):
+    """fit_iter is the budget of the TV-L2 and TGV-L2 fits on the folds; the constrained fits
+    and their refit keep cv_iter, a TV-L2 refit runs max_iter; None leaves every budget at
+    cv_iter (the calls are those of the default)."""
+    import importlib
+
+    am = importlib.import_module("torchtof.recon.auto")
+    A = Hadamard(16, sr=0.5)
+    y = _noisy(A, _square(dtype=torch.float32), 0.01)
+    for bad, err in ((0, ValueError), (1.5, TypeError), (True, TypeError)):
+        with pytest.raises(err, match="fit_iter"):
+            auto(y, A, fit_iter=bad)
+        with pytest.raises(err, match="fit_iter"):
+            Auto(A, fit_iter=bad)
+    calls = []
+    real = am._fit1
+
+    def record(group, yy, AA, mu, tvl2, max_iter, use_split):
+        kind = "l2" if tvl2 is True else "c" if tvl2 is False else "mixed"
+        calls.append((group[0], kind, yy.shape[0] * yy.shape[1], max_iter))
+        return real(group, yy, AA, mu, tvl2, max_iter, use_split)
+
+    monkeypatch.setattr(am, "_fit1", record)
+    opts = dict(cv_iter=7, max_iter=40, learned=False, gauss=False, infer_box=False)
+    r = auto(y, A, fit_iter=11, return_result=True, **opts)
+    assert {c[1] for c in calls} == {"l2", "c"}  # mixed groups are split by model
+    fits = calls[:-1]  # the last call is the refit of the choice
+    assert {(p, it) for p, k, _, it in fits if k == "l2"} == {("tv", 11), ("tgv", 11)}
+    assert {(p, it) for p, k, _, it in fits if k == "c"} == {("tv", 7), ("tgv", 7)}
+    refit = calls[-1]
+    assert refit[2] == 1 and refit[3] == (7 if r.choice[0][0]["mu"] is None else 40)
+    calls.clear()
+    auto(y, A, **opts)
+    assert {c[1] for c in calls[:-1]} == {"mixed", "l2"}  # one batched call per group
+    assert {c[3] for c in calls[:-1]} == {7}
+    assert "fit_iter=11" in repr(Auto(A, fit_iter=11))

@@ -331,57 +331,70 @@ def _groups(bounds, priors=AUTO_PRIORS) -> list:
 
 
 def _fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int,
-         solver: str = "tval3"):
+         solver: str = "tval3", l2_iter: int | None = None):
     """One batched solve of a candidate group ``(prior, tv, boundary, bounds)``: ``(x, n_iter,
     converged, stop code in STOP_REASONS)``; ``mu`` per sample (constrained: ignored).
-    ``solver="split"``: the TV-L2 candidates of the TV prior on an operator with orthonormal
-    rows are solved by :func:`~torchtof.recon.tv.split_tv` (:func:`_split_fit`)."""
+    ``max_iter`` is the budget of the constrained columns and, unless ``l2_iter`` is given, of
+    the TV-L2 ones too. ``solver="split"``: the TV-L2 candidates of the TV prior on an
+    operator with orthonormal rows are solved by :func:`~torchtof.recon.tv.split_tv`
+    (:func:`_split_fit`). Where the columns need different solvers or budgets, the
+    constrained and the TV-L2 columns are solved apart."""
+    prior, tv, bd, box = group
+    l2_iter = max_iter if l2_iter is None else l2_iter
+    use_split = solver == "split" and prior == "tv" and A.orthonormal_rows
+    if isinstance(tvl2, torch.Tensor) and (use_split or l2_iter != max_iter):
+        r_, k_ = y.shape[0], y.shape[1]
+        mu_t = torch.as_tensor(mu, dtype=y.dtype, device=y.device).expand(r_, k_)
+        l2 = torch.as_tensor(tvl2, device=y.device).expand(r_, k_)[0].tolist()
+        x = y.new_zeros(r_, k_, A.n, A.n)
+        n_iter = torch.zeros(r_, k_, dtype=torch.int64, device=y.device)
+        conv = torch.zeros(r_, k_, dtype=torch.bool, device=y.device)
+        codes = torch.zeros(r_, k_, dtype=torch.int64, device=y.device)
+        sub = (lambda op, cols: MaskedRows(op.inner, op.mask[cols])) \
+            if isinstance(A, MaskedRows) else (lambda op, cols: op)
+        for flag, iters in ((False, max_iter), (True, l2_iter)):
+            cols = [j for j, v in enumerate(l2) if bool(v) == flag]
+            if cols:
+                out = _fit1(group, y[:, cols], sub(A, cols), mu_t[:, cols], flag, iters,
+                            use_split)
+                x[:, cols], n_iter[:, cols], conv[:, cols], codes[:, cols] = out
+        return x, n_iter, conv, codes
+    return _fit1(group, y, A, mu, tvl2, l2_iter if tvl2 is True else max_iter, use_split)
+
+
+def _fit1(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int,
+          use_split: bool):
+    """:func:`_fit` with one solver and one budget for every column."""
     prior, tv, bd, box = group
     if prior == "tgv":
         r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
                 return_result=True)
         to = torch.tensor([STOP_REASONS.index(k) for k in TGV_STOP_REASONS], device=y.device)
         return r.x, r.n_iter, r.converged, to[r.stop_code]
-    if solver == "split" and A.orthonormal_rows and (
-            tvl2 is True or isinstance(tvl2, torch.Tensor)):
-        return _split_fit(group, y, A, mu, tvl2, max_iter)
+    if use_split and tvl2 is True:
+        return _split_fit(group, y, A, mu, max_iter)
     r = tval3(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
               return_result=True)
     return r.x, r.n_iter, r.converged, r.stop_code
 
 
-def _split_fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int):
-    """:func:`_fit` with the TV-L2 columns (``tvl2`` per column, the same for every row) by
-    :func:`~torchtof.recon.tv.split_tv` and the constrained ones by TVAL3. ``μ`` weighs the
-    buckets scaled to spread 1.5 as in TVAL3 (``Scaleb``), so the split solve minimises
+def _split_fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, max_iter: int):
+    """The TV-L2 fits of :func:`_fit` by :func:`~torchtof.recon.tv.split_tv`. ``μ`` weighs
+    the buckets scaled to spread 1.5 as in TVAL3 (``Scaleb``), so the split solve minimises
     TVAL3's TV-L2 objective: ``TV(x) + (μ g/2)‖Ax − y‖²``, ``g = 1.5/spread``. The split
     solve runs its fixed budget: ``n_iter = max_iter``, ``converged`` false, stop reason
     ``"max_iter"``."""
     _, tv, bd, box = group
     r_, k_ = y.shape[0], y.shape[1]
     mu_t = torch.as_tensor(mu, dtype=y.dtype, device=y.device).expand(r_, k_)
-    l2 = torch.as_tensor(tvl2, device=y.device).expand(r_, k_)[0].tolist()
-    cols2 = [j for j, v in enumerate(l2) if v]
-    cols1 = [j for j, v in enumerate(l2) if not v]
-    x = y.new_zeros(r_, k_, A.n, A.n)
+    spread = bucket_spread(y)
+    gain = 1.5 / torch.where(spread > 0, spread, torch.ones_like(spread))  # y = 0: x = 0
+    lo, hi = box if box is not None else (None, None)
+    x = split_tv(y, A, mu_t * gain, tv=tv, boundary=bd, bounds=(lo, hi), max_iter=max_iter)
     n_iter = torch.full((r_, k_), max_iter, dtype=torch.int64, device=y.device)
     conv = torch.zeros(r_, k_, dtype=torch.bool, device=y.device)
     codes = torch.full((r_, k_), STOP_REASONS.index("max_iter"), dtype=torch.int64,
                        device=y.device)
-    sub = (lambda op, cols: MaskedRows(op.inner, op.mask[cols])) if isinstance(A, MaskedRows) \
-        else (lambda op, cols: op)
-    if cols1:
-        r = tval3(y[:, cols1], sub(A, cols1), mu=mu_t[:, cols1], tvl2=False, max_iter=max_iter,
-                  tv=tv, boundary=bd, bounds=box, return_result=True)
-        x[:, cols1], n_iter[:, cols1], conv[:, cols1], codes[:, cols1] = \
-            r.x, r.n_iter, r.converged, r.stop_code
-    if cols2:
-        y2 = y[:, cols2]
-        spread = bucket_spread(y2)
-        gain = 1.5 / torch.where(spread > 0, spread, torch.ones_like(spread))  # y = 0: x = 0
-        lo, hi = box if box is not None else (None, None)
-        x[:, cols2] = split_tv(y2, sub(A, cols2), mu_t[:, cols2] * gain, tv=tv, boundary=bd,
-                               bounds=(lo, hi), max_iter=max_iter)
     return x, n_iter, conv, codes
 
 
@@ -414,7 +427,7 @@ def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tupl
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS,
-           infer_box=True, learned=True, gauss=True, tv_solver="tval3"):
+           infer_box=True, learned=True, gauss=True, tv_solver="tval3", fit_iter=None):
     if tv_solver not in TV_SOLVERS:
         raise ValueError(f"{fn}: expected tv_solver in {TV_SOLVERS}, got {tv_solver!r}")
     for name, v in (("infer_box", infer_box), ("learned", learned), ("gauss", gauss)):
@@ -424,8 +437,9 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIOR
             or any(p not in AUTO_PRIORS for p in priors) or len(set(priors)) != len(priors)):
         raise ValueError(f"{fn}: expected priors a non-empty tuple of distinct names from "
                          f"{AUTO_PRIORS}, got {priors!r}")
-    for name, v, lo in (("folds", folds, 2), ("cv_iter", cv_iter, 1), ("max_iter", max_iter, 1)):
-        if v is None and name == "folds":
+    for name, v, lo in (("folds", folds, 2), ("cv_iter", cv_iter, 1), ("max_iter", max_iter, 1),
+                        ("fit_iter", fit_iter, 1)):
+        if v is None and name in ("folds", "fit_iter"):
             continue
         if isinstance(v, bool) or not isinstance(v, int):
             raise TypeError(f"{fn}: expected {name} to be an int, got {type(v).__name__}")
@@ -524,6 +538,7 @@ def auto(
     gauss: bool = True,
     learned: bool = True,
     tv_solver: str = "tval3",
+    fit_iter: int | None = None,
     return_result: bool = False,
 ) -> torch.Tensor | AutoResult:
     """TV or TGV² reconstruction with prior, bounds and weight chosen by cross-validation (module
@@ -554,7 +569,8 @@ def auto(
             ``j`` holding out the block of ``M/(2(K−1))`` rows ending ``j`` blocks before
             the last row, trained on the rows before it (``None``: ``K = 5``, eighths, of
             which the latest :data:`TAIL_USE` = 3, trained on 7/8, 3/4 and 5/8 of the rows).
-        cv_iter: iteration budget of every cross-validation solve.
+        cv_iter: iteration budget of every cross-validation solve (unless ``fit_iter``)
+            and of the constrained model's refit.
         max_iter: iteration budget of a TV-L2 refit.
         split: ``"random"``, ``"tail"`` or ``None`` (:func:`default_split`: ``"tail"`` for
             Hadamard rows in a low-to-high order, where the unmeasured rows that the
@@ -580,6 +596,9 @@ def auto(
             rows, else by TVAL3); module doc, "The TV-L2 solver". A split refit runs its fixed
             budget: its ``n_iter`` is the budget, ``converged`` is false and ``stop_reason``
             ``"max_iter"``.
+        fit_iter: iteration budget of the TV-L2 (and TGV-L2) cross-validation fits
+            (``None``: ``cv_iter``); the constrained fits and their refit keep ``cv_iter``
+            (module doc, "The fits' budget").
         return_result: return an :class:`AutoResult` instead of ``x``.
 
     Returns:
@@ -598,9 +617,9 @@ def auto(
     fn = "auto"
     check_buckets(y, A, fn)
     _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned,
-           gauss, tv_solver)
+           gauss, tv_solver, fit_iter)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
-                seed=seed, priors=tuple(priors), tv_solver=tv_solver)
+                seed=seed, priors=tuple(priors), tv_solver=tv_solver, fit_iter=fit_iter)
     res = _auto(y, A, bounds, **opts)
     nonempty = y.shape[0] * y.shape[1] > 0
     if bounds is None and infer_box and nonempty:
@@ -620,7 +639,7 @@ def auto(
 
 
 def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv_solver,
-          known=None) -> AutoResult:
+          fit_iter, known=None) -> AutoResult:
     """The choice of :func:`auto` for validated inputs. ``known``: the result of an earlier
     call on the same ``y (1, 1, M)`` without ``bounds``; its stage-1 errors and its refit are
     reused where this call's candidates and choice coincide with it, and the box-only test is
@@ -668,7 +687,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
         if known is not None and (g[0], g[1]) != chosen:
             continue  # the inferred box refines the chosen prior and norm only
         xg = _fit(g, yt1, MaskedRows(A, mask1), mus1.repeat(nf).expand(bc, -1),
-                  tvl2_1.repeat(nf).expand(bc, -1), cv_iter, tv_solver)[0]
+                  tvl2_1.repeat(nf).expand(bc, -1), cv_iter, tv_solver, fit_iter)[0]
         r2 = (A(xg) - ys).square()
         cv_err[:, :, cols] = (r2 * hm1).sum(-1).reshape(bc, nf, len(wts))  # (BC, F, W)
         fit_err[:, cols] = (r2 * tm1).sum(-1).reshape(bc, nf, len(wts)).sum(1)
@@ -691,7 +710,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
         mask2 = train.repeat_interleave(2, dim=0)
         idx = torch.tensor(rows, device=y.device)
         xg = _fit(g, ys[idx] * mask2.to(y.dtype), MaskedRows(A, mask2), mus2.repeat(1, nf),
-                  True, cv_iter, tv_solver)[0]
+                  True, cv_iter, tv_solver, fit_iter)[0]
         r2 = (A(xg) - ys[idx]).square()
         e = (r2 * hm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2)
         f = (r2 * tm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2).sum(1)
@@ -934,7 +953,8 @@ def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dic
     held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
     ys = y.reshape(bc, 1, m)
     choice = [ch for row in res.choice for ch in row]
-    pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"])
+    pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"],
+                            opts["fit_iter"])
     hm = held.to(y.dtype)
     err_a = ((pa - ys).square() * hm).sum(-1)  # (R, F)
     err_g = gauss_cv(ys[:, 0], A, held, train)  # (R, F, L·G)
@@ -1042,8 +1062,8 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
 
 
 def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
-                       train: torch.Tensor, cv_iter: int, tv_solver: str = "tval3"
-                       ) -> torch.Tensor:
+                       train: torch.Tensor, cv_iter: int, tv_solver: str = "tval3",
+                       fit_iter: int | None = None                       ) -> torch.Tensor:
     """Held-out predictions ``A x̂`` ``(R, F, M)`` of each sample's chosen candidate
     (``choices``: ``R`` dicts of :func:`candidates`) fitted on each fold's training rows
     ``train (F, M)``: one batched solve per distinct TV/TGV choice (``cv_iter``
@@ -1066,7 +1086,7 @@ def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
             continue
         mu = (_CONSTRAINED_MU if key[4] is None else ys.new_full((len(rows), nf), key[4]))
         xa[idx] = _fit(key[:4], ys[idx] * tm, masked, mu, key[4] is not None, cv_iter,
-                       tv_solver)[0]
+                       tv_solver, fit_iter)[0]
     pa = A(xa)
     for idx, (_, ell, gamma) in gauss_rows:
         pa[idx] = _gauss_fold_preds(ys[idx, 0], A, train, ell, (gamma,))[:, :, 0].to(ys.dtype)
@@ -1074,13 +1094,13 @@ def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
 
 
 def stack_predictions(ys: torch.Tensor, A: Hadamard, choices: list, train: torch.Tensor,
-                      cv_iter: int, tv_solver: str = "tval3"
+                      cv_iter: int, tv_solver: str = "tval3", fit_iter: int | None = None
                       ) -> tuple[torch.Tensor, torch.Tensor]:
     """Held-out predictions of the stacking (module doc, "Stacking"): for ``ys (R, 1, M)`` and
     its chosen candidates ``choices``, those of :func:`choice_predictions` and those of the
     learned network fitted on each fold's first ``k`` rows (a tail split's training rows are
     a prefix: a plain ``Hadamard(n, m=k)``), each ``(R, F, M)``."""
-    return (choice_predictions(ys, A, choices, train, cv_iter, tv_solver),
+    return (choice_predictions(ys, A, choices, train, cv_iter, tv_solver, fit_iter),
             _learned_predictions(ys, A, train))
 
 
@@ -1104,7 +1124,8 @@ def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: d
     ys = y.reshape(bc, 1, m)
     choice = [ch for row in res.choice for ch in row]
     if pa is None:
-        pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"])
+        pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"],
+                            opts["fit_iter"])
     pl = _learned_predictions(ys, A, train)
     w = stack_weight(pa, pl, ys, held)
     w = torch.where(torch.tensor([ch["prior"] != "box" for ch in choice], device=y.device), w,
@@ -1126,7 +1147,7 @@ class Auto(nn.Module):
 
     Args:
         A: the operator (a submodule). bounds, folds, cv_iter, max_iter, split, slack, seed,
-            priors, infer_box, gauss, learned, tv_solver: as :func:`auto`.
+            priors, infer_box, gauss, learned, tv_solver, fit_iter: as :func:`auto`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -1138,17 +1159,17 @@ class Auto(nn.Module):
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
                  slack: float = 0.0, seed: int = 0, priors: tuple = AUTO_PRIORS,
                  infer_box: bool = True, gauss: bool = True, learned: bool = True,
-                 tv_solver: str = "tval3") -> None:
+                 tv_solver: str = "tval3", fit_iter: int | None = None) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
         _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box,
-               learned, gauss, tv_solver)
+               learned, gauss, tv_solver, fit_iter)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
                             split=split, slack=slack, seed=seed, priors=tuple(priors),
                             infer_box=infer_box, gauss=gauss, learned=learned,
-                            tv_solver=tv_solver)
+                            tv_solver=tv_solver, fit_iter=fit_iter)
 
     def solve(self, y: torch.Tensor) -> AutoResult:
         return auto(y, self.A, return_result=True, **self.options)
@@ -1160,4 +1181,5 @@ class Auto(nn.Module):
         o = self.options
         return (f"bounds={o['bounds']}, folds={o['folds']}, cv_iter={o['cv_iter']}, "
                 f"priors={o['priors']}, infer_box={o['infer_box']}, gauss={o['gauss']}, "
-                f"learned={o['learned']}, tv_solver={o['tv_solver']!r}")
+                f"learned={o['learned']}, tv_solver={o['tv_solver']!r}, "
+                f"fit_iter={o['fit_iter']}")
