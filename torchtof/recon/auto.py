@@ -75,10 +75,21 @@ result in 44 cells, from +1.52 dB (the planar map, n = 128, SR 12.5 %) to −2.1
 silhouette, n = 128, SR 12.5 %), −0.07 dB on average. They gain where the TV-L2 weight is the
 question; they lose mostly where TGV², whose fits keep their 100 primal–dual iterations, was
 the better model: the folds then compare converged TV fits with unconverged TGV² fits (on
-some cells the converged fits also move the TV-L2 weight to a worse one). Raising
-``cv_iter`` to 300 for every fit (72 of the cells) did not help either (−0.09 dB on average):
-the constrained model's refit, whose budget is ``cv_iter``, then fits the noise
-(``docs/auto.md``, "TV-L2 convergence").
+some cells the converged fits also move the TV-L2 weight to a worse one).
+
+**The fits' budget** (``fit_iter``). The TV-L2 and TGV-L2 fits on the folds may get their own
+iteration budget, ``fit_iter`` (default ``None``: ``cv_iter``), while the constrained fits
+and the constrained refit keep ``cv_iter``: the constrained model's iteration count is its
+regulariser (run longer, it fits more noise), a TV-L2 fit's is not. TGV² by primal–dual
+iterations is far from converged after 100 of them: on the planar map at n = 64, SR 6.25 %,
+its best weight scores 29.6 dB after 100 iterations and 31.6 dB after 300 (isotropic;
+anisotropic 28.7 → 31.4, 32.1 after 1000), so with 100 the folds prefer TV there (30.36 dB)
+and with ``fit_iter=300`` TGV² (31.68 dB). Measured on the 90 peers cells
+(``docs/auto.md``, "The fits' budget"): ``fit_iter=300`` gains +0.04 dB on average (33 cells
+changed, −2.67 to +2.10 dB) at about twice the time, so it is an option, not the default;
+with ``tv_solver="split"`` as well it loses (−0.03 dB; 天 n = 64, SR 37.5 % −7.11 dB, where the
+converged TV-L2 fits with the inferred box beat the constrained model on every fold but not
+against the truth).
 
 **The box alone.** Given a finite box ``(lo, hi)``, the image may be determined by the box
 and the measurements without any prior: a binary image is a vertex of the box, and a
