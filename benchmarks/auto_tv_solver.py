@@ -4,13 +4,14 @@ every TV fit), interleaved in one process, one thread.
 For each cell (``benchmarks/peers_scenes.py``: scene, n, SR, order, 1 % noise by default) the
 plain ``auto(y, A)`` call runs with each solver in turn, ``--repeats`` rounds, alternating
 which goes first; the PSNR (as the peers benchmark scores it), the choice and the median wall
-time of each are printed, then the mean PSNR difference and the median time ratio
-split / tval3. ``--cells`` takes ``scene:n:sr:order`` items.
+time of each are printed, then the mean PSNR difference and the median time ratio of the
+second solver given to the first (default ``--solvers tval3 split``: split / tval3). ``--cells`` takes ``scene:n:sr:order`` items.
 
     OMP_NUM_THREADS=1 python benchmarks/auto_tv_solver.py --out docs/auto/tv_solver.json
 
-``--variants`` compares any two (or more) ``solver[:fit_iter]`` settings the same way, e.g.
-the TV-L2/TGV-L2 fits' own budget ``fit_iter`` against the default:
+``--variants`` runs any ``solver[:fit_iter]`` settings the same way (every one is timed and
+printed per cell; the summary compares the second with the first, as ``--solvers`` does in
+the order given), e.g. the TV-L2/TGV-L2 fits' own budget ``fit_iter`` against the default:
 
     OMP_NUM_THREADS=1 python benchmarks/auto_tv_solver.py --variants tval3 tval3:300 \
         --out docs/auto/fit_iter.json

@@ -826,6 +826,40 @@ def test_fit_iter_option_and_budgets(monkeypatch):
     assert refit[2] == 1 and refit[3] == (7 if r.choice[0][0]["mu"] is None else 40)
     calls.clear()
     auto(y, A, **opts)
-    assert {c[1] for c in calls[:-1]} == {"mixed", "l2"}  # one batched call per group
+    kinds = {c[1] for c in calls[:-1]}
+    assert "mixed" in kinds and "c" not in kinds  # one batched call per group, as before
     assert {c[3] for c in calls[:-1]} == {7}
     assert "fit_iter=11" in repr(Auto(A, fit_iter=11))
+
+
+def test_fit_iter_reaches_every_stage(monkeypatch):
+    """fit_iter also reaches the held-out fits of the Gaussian and stacking stages (after the
+    refit) and the split solver's TV-L2 fits."""
+    import importlib
+
+    am = importlib.import_module("torchtof.recon.auto")
+    calls, split_its = [], []
+    real, real_split = am._fit1, am.split_tv
+
+    def record(group, yy, AA, mu, tvl2, max_iter, use_split):
+        calls.append((tvl2 is True, yy.shape[1], max_iter))
+        return real(group, yy, AA, mu, tvl2, max_iter, use_split)
+
+    def record_split(b, *args, **kw):
+        split_its.append(kw["max_iter"])
+        return real_split(b, *args, **kw)
+
+    monkeypatch.setattr(am, "_fit1", record)
+    monkeypatch.setattr(am, "split_tv", record_split)
+    A = Hadamard(32, sr=0.25)
+    y = _noisy(A, _square(n=32, dtype=torch.float32), 0.01)
+    auto(y, A, cv_iter=5, fit_iter=9, max_iter=20, infer_box=False, priors=("tv",))
+    refit = next(i for i, c in enumerate(calls) if c[1] == 1)  # one sample, one channel
+    after = calls[refit + 1:]
+    assert after, "the Gaussian/stacking stages fitted the choice on the folds"
+    for l2, _, it in calls[:refit] + after:
+        assert it == (9 if l2 else 5)
+    calls.clear()
+    auto(y, A, cv_iter=5, fit_iter=9, max_iter=20, infer_box=False, priors=("tv",),
+         learned=False, gauss=False, tv_solver="split")
+    assert split_its and set(split_its) <= {9, 20} and 9 in split_its

@@ -85,11 +85,11 @@ iterations is far from converged after 100 of them: on the planar map at n = 64,
 its best weight scores 29.6 dB after 100 iterations and 31.6 dB after 300 (isotropic;
 anisotropic 28.7 → 31.4, 32.1 after 1000), so with 100 the folds prefer TV there (30.36 dB)
 and with ``fit_iter=300`` TGV² (31.68 dB). Measured on the 90 peers cells
-(``docs/auto.md``, "The fits' budget"): ``fit_iter=300`` gains +0.04 dB on average (33 cells
+(``docs/auto.md``, "The fits' budget"): ``fit_iter=300`` gains +0.05 dB on average (33 cells
 changed, −2.67 to +2.10 dB) at about twice the time, so it is an option, not the default;
 with ``tv_solver="split"`` as well it loses (−0.03 dB; 天 n = 64, SR 37.5 % −7.11 dB, where the
-converged TV-L2 fits with the inferred box beat the constrained model on every fold but not
-against the truth).
+converged TV-L2 fit with the inferred box scores better over the folds than the constrained
+model, but not against the truth).
 
 **The box alone.** Given a finite box ``(lo, hi)``, the image may be determined by the box
 and the measurements without any prior: a binary image is a vertex of the box, and a
@@ -1074,11 +1074,12 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
 
 def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
                        train: torch.Tensor, cv_iter: int, tv_solver: str = "tval3",
-                       fit_iter: int | None = None                       ) -> torch.Tensor:
+                       fit_iter: int | None = None) -> torch.Tensor:
     """Held-out predictions ``A x̂`` ``(R, F, M)`` of each sample's chosen candidate
     (``choices``: ``R`` dicts of :func:`candidates`) fitted on each fold's training rows
-    ``train (F, M)``: one batched solve per distinct TV/TGV choice (``cv_iter``
-    iterations), the closed form of a Gaussian-prior choice, zeros for the box-only solution
+    ``train (F, M)``: one batched solve per distinct TV/TGV choice (a constrained choice
+    ``cv_iter`` iterations, a TV-L2/TGV-L2 choice ``fit_iter``, default ``cv_iter``), the
+    closed form of a Gaussian-prior choice, zeros for the box-only solution
     (which is neither replaced nor stacked)."""
     nf, n = train.shape[0], A.n
     xa = ys.new_zeros(ys.shape[0], nf, n, n)
