@@ -91,9 +91,13 @@ def test_registry_covers_every_inference_stage():
 
 #: Exported in the slow run only: each is a thin variant of a model exported in the default
 #: run (the adjoint and pseudo-inverse of ``hadamard``, TGI and DGI of ``g2``, the U-Net inside
-#: ``dip``, the intensity bucket beside ``depth_bucket``); the default suite keeps under five
-#: minutes on a 2-core machine.
-SLOW_EXPORTS = {"hadamard_adjoint", "hadamard_pinv", "tgi", "dgi", "unet", "intensity_bucket"}
+#: ``dip``, the intensity bucket beside ``depth_bucket``), or a model whose own test file
+#: exports it with an onnxruntime parity check in the default run (``dip``:
+#: tests/recon/test_dip.py, ``tval3``: test_tval3.py, ``unrolled_tval3``: test_unrolled.py,
+#: ``learned``: test_learned.py, ``depth_resolved``: test_depth.py); the default suite keeps
+#: under five minutes on a 2-core machine.
+SLOW_EXPORTS = {"hadamard_adjoint", "hadamard_pinv", "tgi", "dgi", "unet", "intensity_bucket",
+                "dip", "tval3", "unrolled_tval3", "learned", "depth_resolved"}
 
 
 @pytest.mark.parametrize(
