@@ -350,7 +350,7 @@ def _fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: i
     operator with orthonormal rows are solved by :func:`~torchtof.recon.tv.split_tv`
     (:func:`_split_fit`). Where the columns need different solvers or budgets, the
     constrained and the TV-L2 columns are solved apart."""
-    prior, tv, bd, box = group
+    prior = group[0]
     l2_iter = max_iter if l2_iter is None else l2_iter
     use_split = solver == "split" and prior == "tv" and A.orthonormal_rows
     if isinstance(tvl2, torch.Tensor) and (use_split or l2_iter != max_iter):
