@@ -215,6 +215,7 @@ from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
 from .base import relative_residual
+from .gauss import markov_covariance
 from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
 from .tv import box_bounds, bucket_spread, largest_eig_normal, project_box, split_tv
@@ -879,14 +880,7 @@ def gauss_covariance(A: Hadamard, ell: float) -> tuple[torch.Tensor, torch.Tenso
     ``r = a·n + b`` and ``r' = a'·n + b'`` separates, ``K[r, r'] = T[a, a'] T[b, b']``: ``O(M²)``
     to build, no ``n² × n²`` matrix."""
     n = A.n
-    dev = A.index.device
-    t = torch.arange(n, dtype=torch.float64, device=dev)
-    s = torch.exp(-(t[:, None] - t[None, :]).abs() / float(ell))
-    h = torch.ones(1, 1, dtype=torch.float64, device=dev)
-    while h.shape[0] < n:  # Sylvester's construction
-        h = torch.cat([torch.cat([h, h], 1), torch.cat([h, -h], 1)], 0)
-    h = h / math.sqrt(n)
-    tt = h @ s @ h.T
+    s, tt = markov_covariance(n, ell, torch.float64, A.index.device)
     a, b = A.index // n, A.index % n
     return s, tt[a][:, a] * tt[b][:, b]
 

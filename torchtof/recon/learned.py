@@ -79,6 +79,7 @@ from .._checks import check_finite, check_shape, check_tensor, is_tracing
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
+from .gauss import markov_completion
 from .tval3 import bucket_noise_sigma
 from .unrolled import check_n_layers
 
@@ -113,6 +114,12 @@ CLEAN_FLOOR = 1e-2
 #: ``meta["scale"]`` of the two normalisations: ``ν`` noise-corrected (this module's) or the
 #: noisy ``‖y‖`` (weights files without the key).
 SCALE_CLEAN, SCALE_NOISY = "clean", "noisy"
+#: The network's starting estimates ``x₀`` (:class:`Learned`, ``x0``): the adjoint ``Aᵀb``
+#: (the shipped weights') or the Gaussian–Markov completion (:func:`markov_completion`).
+X0_CHOICES = ("adjoint", "markov")
+#: Floor added to the noise variance of the Markov start (conditioning; units of the
+#: normalised buckets, whose image has unit RMS).
+MARKOV_FLOOR = 1e-3
 
 
 class LearnedResult(NamedTuple):
@@ -268,6 +275,12 @@ def check_flips(flips, A: LinearOperator, func: str) -> None:
                          f"{type(A).__name__}")
 
 
+def check_x0(x0, func: str) -> None:
+    """``x0`` is ``None`` or one of :data:`X0_CHOICES`."""
+    if x0 is not None and (not isinstance(x0, str) or x0 not in X0_CHOICES):
+        raise ValueError(f"{func}: expected x0 to be None or one of {X0_CHOICES}, got {x0!r}")
+
+
 def _sigma_of(noise_sigma, y: torch.Tensor, func: str) -> torch.Tensor:
     """``(B, C)`` noise std in the units of ``y`` (orthonormal measurements)."""
     if isinstance(noise_sigma, str):
@@ -318,6 +331,7 @@ def _unrolled(
     func: str,
     clean_scale: bool = True,
     flips: int = 1,
+    x0: str = "adjoint",
 ) -> torch.Tensor:
     """The iteration of the module docstring; ``y`` already checked. ``clean_scale=False``: the
     normalisation of weights files before the noise-corrected norm (``ν = ‖y‖``). ``flips > 1``:
@@ -342,16 +356,18 @@ def _unrolled(
         B = flips * B
     peak = y.abs().amax(dim=-1, keepdim=True).clamp_min(tiny)  # ‖y‖ without over/underflow
     norm = peak * (y / peak).norm(dim=-1, keepdim=True)  # (B, C, 1)
-    x0 = adj(y / norm.clamp_min(tiny))  # unit-norm Aᵀ b
-    sign = torch.where(x0.sum(dim=(-2, -1)) >= 0, 1.0, -1.0).to(y.dtype)[..., None]  # (B, C, 1)
+    xu = adj(y / norm.clamp_min(tiny))  # unit-norm Aᵀ b
+    sign = torch.where(xu.sum(dim=(-2, -1)) >= 0, 1.0, -1.0).to(y.dtype)[..., None]  # (B, C, 1)
     if clean_scale:  # ν = √max(‖y‖² − Mσ², ε‖y‖²), in units of the peak (no overflow)
         rel = (norm / peak) ** 2 - m * (sigma[..., None] / peak) ** 2
         norm = peak * torch.maximum(rel, CLEAN_FLOOR * (norm / peak) ** 2).sqrt()
     s = sign * norm / n  # signed RMS scale of Aᵀ y
     b = y / torch.where(s >= 0, s.clamp_min(tiny), s.clamp_max(-tiny))
-    x = adj(b)
-
-    sigma_n = sigma / norm[..., 0].clamp_min(tiny) * n  # σ / |s|
+    sigma_n = sigma / norm[..., 0].clamp_min(tiny) * n  # σ / |s|: the noise std of b
+    if x0 == "markov":
+        x = markov_completion(b, op, sigma_n[..., None] ** 2 + MARKOV_FLOOR)
+    else:
+        x = adj(b)
     log_sigma = torch.log(sigma_n.clamp_min(0) + SIGMA_FLOOR)
     log_sr = torch.full_like(log_sigma, math.log(m / (n * n)))
     K = step_raw.shape[0]
@@ -417,13 +433,19 @@ class Learned(nn.Module):
             differ and their mean is better on average (measured in ``docs/learned.md``),
             for ``flips`` times the work (one batched call). Hadamard operators and their DMD
             split only.
+        x0: the iteration's starting estimate: ``"adjoint"`` (``Aᵀb``, the pseudo-inverse) or
+            ``"markov"`` (the Gaussian–Markov completion :func:`markov_completion`, which
+            fills the unmeasured coefficients from the measured ones); ``None``: the weights
+            file's (``"adjoint"`` for files without it, the shipped weights included). A
+            network works best with the estimate it was trained on.
 
     Raises:
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
             ``n_layers`` not an int.
         ValueError: if ``A`` has no orthonormal rows (and is not a DMD split), ``A.n`` is
             not divisible by ``2·shuffle``, ``n_layers < 1``, the weights file does not
-            match, or ``flips`` is not 1, 2 or 4 (or above 1 for a non-Hadamard operator).
+            match, ``flips`` is not 1, 2 or 4 (or above 1 for a non-Hadamard operator), or
+            ``x0`` is not one of :data:`X0_CHOICES`.
         FileNotFoundError: if ``pretrained=True`` and the shipped file is missing.
 
     Shape:
@@ -446,10 +468,12 @@ class Learned(nn.Module):
         width: int | None = None,
         shuffle: int | None = None,
         flips: int = 1,
+        x0: str | None = None,
     ) -> None:
         super().__init__()
         func = "Learned"
         _check_operator(A, func)
+        check_x0(x0, func)
         if n_layers is not None:
             check_n_layers(n_layers, func)
         check_flips(flips, A, func)
@@ -492,8 +516,12 @@ class Learned(nn.Module):
         #: files written before it (``meta["scale"]`` absent)
         self.clean_scale = True
         self.weights_file: str | None = None
+        #: the starting estimate (:data:`X0_CHOICES`): the weights file's unless given
+        self.x0 = "adjoint"
         if path is not None:
             self.load_weights(path)
+        if x0 is not None:
+            self.x0 = x0
 
     def meta(self) -> dict:
         """What a weights file must match: ``n_layers``, ``width`` and ``shuffle``."""
@@ -515,6 +543,7 @@ class Learned(nn.Module):
                 f"{ {k: meta.get(k) for k in want} }, expected {want}"
             )
         self.clean_scale = meta.get("scale", SCALE_NOISY) == SCALE_CLEAN
+        self.x0 = meta.get("x0", "adjoint")
         self.prior.load_state_dict(blob["prior"])
         with torch.no_grad():
             self.step_raw.copy_(blob["step_raw"])
@@ -528,6 +557,7 @@ class Learned(nn.Module):
             "step_raw": self.step_raw.detach().clone(),
             "log_tau": self.log_tau.detach().clone(),
             "meta": {**self.meta(), "scale": SCALE_CLEAN if self.clean_scale else SCALE_NOISY,
+                     "x0": self.x0,
                      **meta},
         }
         torch.save(blob, Path(path))
@@ -550,7 +580,7 @@ class Learned(nn.Module):
             return y.new_zeros(0, y.shape[1], self.A.n, self.A.n)
         log_tau = self.log_tau if self.final_dc else None
         return _unrolled(y, self.A, self.prior, self.step_raw, log_tau, self.noise_sigma, func,
-                         self.clean_scale, self.flips)
+                         self.clean_scale, self.flips, self.x0)
 
     def solve(self, y: torch.Tensor) -> LearnedResult:
         """:meth:`forward` plus the per-sample residual ``‖A x − y‖ / ‖y‖`` and the fields of
@@ -573,6 +603,7 @@ class Learned(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"n_layers={self.n_layers}, noise_sigma={self.noise_sigma!r}, flips={self.flips}, "
+            f"x0={self.x0!r}, "
             f"clean_scale={self.clean_scale}, weights_file={self.weights_file!r}"
         )
 
@@ -586,13 +617,14 @@ def learned(
     width: int | None = None,
     shuffle: int | None = None,
     flips: int = 1,
+    x0: str | None = None,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained, width, shuffle, flips: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width, shuffle, flips, x0: as in :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``; differentiable with
@@ -605,6 +637,6 @@ def learned(
         torch.Size([1, 1, 32, 32])
     """
     net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
-                  width=width, shuffle=shuffle, flips=flips)
+                  width=width, shuffle=shuffle, flips=flips, x0=x0)
     # the weights are constants here: the output carries a graph only through ``y``
     return net.requires_grad_(False).to(y.device)(y)

@@ -60,7 +60,14 @@ from ..data import (
 )
 from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
-from .learned import DEFAULT_N_LAYERS, DEFAULT_SHUFFLE, DEFAULT_WIDTH, Learned
+from .learned import (
+    DEFAULT_N_LAYERS,
+    DEFAULT_SHUFFLE,
+    DEFAULT_WIDTH,
+    X0_CHOICES,
+    Learned,
+    check_x0,
+)
 from .train import dist_setup
 
 __all__ = [
@@ -309,6 +316,7 @@ def train_learned(
     workers: int = 0,
     init: str | os.PathLike | None = None,
     families: dict[str, float] | None = None,
+    x0: str = "adjoint",
 ) -> LearnedTrainResult:
     """Train :class:`Learned` from its random initialisation, or fine-tune it from a weights
     file (``init``) (module docstring).
@@ -352,6 +360,8 @@ def train_learned(
             smaller one, and another ``seed`` than the file's run so that its batches are not
             replayed). ``recipe.json`` records the file and its SHA-256. A checkpoint resumed
             (``resume``) takes precedence.
+        x0: the network's starting estimate (:class:`Learned`, ``x0``), also when ``init``
+            was trained with another; the weights file records it.
 
     Returns:
         :class:`LearnedTrainResult`.
@@ -386,6 +396,9 @@ def train_learned(
         raise TypeError(f"{func}: expected init to be a path or None, got {type(init).__name__}")
     if init is not None and not Path(init).is_file():
         raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
+    if x0 is None:
+        raise ValueError(f"{func}: expected x0 to be one of {X0_CHOICES}, got None")
+    check_x0(x0, func)
     sizes = tuple(sorted(sizes))
     device = check_device(device, "device", func)
 
@@ -401,6 +414,7 @@ def train_learned(
                              f"older weights files; training uses the noise-corrected scale")
         init_record = {"path": os.fspath(init_path),
                        "sha256": hashlib.sha256(init_path.read_bytes()).hexdigest()}
+    model.x0 = x0
     model.final_dc = False  # the prior trains without the final step (calibrate_tau sets it)
     model.log_tau.requires_grad_(False)  # so DDP sees no unused parameter
     params = list(model.prior.parameters()) + [model.step_raw]
@@ -511,6 +525,7 @@ def train_learned(
                 "n_layers": n_layers,
                 "width": width,
                 "shuffle": shuffle,
+                "x0": x0,
                 "data": {
                     "families": families,
                     "train_images": list(TRAIN_IMAGES),
