@@ -3,7 +3,9 @@
 An unrolled proximal-gradient iteration (deep unfolding: ISTA-Net, Zhang & Ghanem, CVPR
 2018; learned proximal gradient descent, Mardani et al., NeurIPS 2018) with the exact
 operator at every step and one convolutional prior shared by all ``K`` steps. From
-``x_0 = Aᵀ b`` (the pseudo-inverse for orthonormal rows, ``A Aᵀ = I``; Gong 2015):
+``x_0 = Aᵀ b`` (the pseudo-inverse for orthonormal rows, ``A Aᵀ = I``; Gong 2015), or with
+``x0="markov"`` from the Gaussian–Markov completion of ``b``
+(:func:`torchtof.recon.gauss.markov_completion`):
 
 .. math::
     z_k &= x_{k-1} - γ_k\\, Aᵀ(A x_{k-1} - b) \\\\
