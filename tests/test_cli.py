@@ -372,3 +372,28 @@ def test_bench_writes_json_under_out_and_a_summary(tmp_path, capsys):
     assert json.loads(path.read_text())["rows"][0]["n"] == 8
     assert out[-1].startswith("torchtof bench operators: 1 rows in ") and str(path) in out[-1]
     assert any(", 1 thread, torch" in line for line in out), out  # not "1 threads"
+
+
+def test_calibrate_only_uses_the_runs_starting_estimate(tmp_path, capsys, monkeypatch):
+    """A run trained with --x0 markov is calibrated and saved with that start; asking for
+    another one is a usage error naming --x0."""
+    import torchtof.apps.train as app
+    from torchtof.operators import Hadamard
+    from torchtof.recon.learned import Learned
+    from torchtof.recon.learned_train import train_learned
+
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+                  calibrate=False, out=tmp_path, x0="markov")
+    seen = {}
+
+    def fake(model, seed, **kw):
+        seen["x0"] = model.x0
+        return {"tau": 0.1, "losses": {}, "loss_off": 0.0}
+
+    monkeypatch.setattr(app, "calibrate_tau", fake)
+    net = ["--sizes", "16", "--n-layers", "2", "--width", "4", "--out", str(tmp_path)]
+    assert main(["train", "--calibrate-only", *net]) == 0
+    assert seen["x0"] == "markov"
+    assert Learned(Hadamard(16, sr=0.25), pretrained=tmp_path / "learned.pt").x0 == "markov"
+    assert main(["train", "--calibrate-only", "--x0", "adjoint", *net]) == 2
+    assert "--x0" in capsys.readouterr().err

@@ -52,9 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="channels of the prior" + d)
     p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE,
                    help="pixel-unshuffle factor of the prior" + d)
-    p.add_argument("--x0", choices=list(X0_CHOICES), default="adjoint",
+    p.add_argument("--x0", choices=list(X0_CHOICES), default=None,
                    help="the network's starting estimate: adjoint (A^T b) or markov (the "
-                        "Gaussian-Markov completion)" + d)
+                        "Gaussian-Markov completion) (default: adjoint; --calibrate-only: the "
+                        "run's, from OUT/recipe.json)")
     p.add_argument("--noise-ref", type=nonneg_int, default=NOISE_REF,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
@@ -136,11 +137,15 @@ def main(args: argparse.Namespace) -> int:
         out = Path(args.out)
         state = torch.load(out / "checkpoint.pt", weights_only=False)
         model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
-                        pretrained=False, width=args.width, shuffle=args.shuffle,
-                        x0=args.x0)
+                        pretrained=False, width=args.width, shuffle=args.shuffle)
         model.load_state_dict(state["model"], strict=False)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+        run_x0 = recipe.get("x0", state.get("x0", "adjoint"))
+        if args.x0 is not None and args.x0 != run_x0:
+            raise ValueError(f"argument --x0: the run in {out} was trained with --x0 {run_x0}, "
+                             f"got {args.x0}")
+        model.x0 = run_x0
         # the run's own mixture unless --families says otherwise
         families = (dict(args.families) if args.families is not None
                     else recipe.get("data", {}).get("families"))
@@ -168,7 +173,7 @@ def main(args: argparse.Namespace) -> int:
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,
         command=command, calibrate=not args.no_calibrate, device=args.device,
-        workers=args.workers, init=args.init, x0=args.x0,
+        workers=args.workers, init=args.init, x0=args.x0 or "adjoint",
         families=None if args.families is None else dict(args.families),
     )
     if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process

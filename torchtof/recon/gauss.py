@@ -64,15 +64,24 @@ def markov_completion(
     Args:
         b: buckets ``(B, C, M)`` of an operator with orthonormal rows.
         op: the operator.
-        lam: ``(B, C, 1)`` noise variance over the prior's pixel variance (``> 0``).
-        rho, iters: the Markov correlation in ``(0, 1)`` and the CG steps.
+        lam: ``(B, C, 1)`` noise variance over the prior's pixel variance (``> 0``; not
+            checked here, the function runs inside a network's forward pass).
+        rho, iters: the Markov correlation in ``(0, 1)`` and the CG steps (``>= 1``).
 
     Returns:
         ``(B, C, n, n)`` in the dtype of ``b``, computed in float64: with ``λ`` near
         ``10⁻³`` the system's condition number reaches 10⁵–10⁶, and float32 CG drifted by up to
         1 % of the image's peak between two runtimes (PyTorch and onnxruntime); in float64 they
-        agree to float32 rounding.
+        agree to float32 rounding. (On GPUs with slow float64 this step costs more than the
+        network's own float32 work.)
+
+    Raises:
+        ValueError: if ``rho`` is not in ``(0, 1)`` or ``iters`` is not an int ``>= 1``.
     """
+    if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0 < rho < 1:
+        raise ValueError(f"markov_completion: expected rho in (0, 1), got {rho!r}")
+    if isinstance(iters, bool) or not isinstance(iters, int) or iters < 1:
+        raise ValueError(f"markov_completion: expected iters to be an int >= 1, got {iters!r}")
     out_dtype = b.dtype
     b = b.to(torch.float64)
     lam = lam.to(torch.float64)

@@ -431,6 +431,9 @@ def train_learned(
         if unexpected or set(missing) - {"log_tau"}:  # log_tau: calibrated after training
             raise ValueError(f"{func}: checkpoint {ckpt} does not match the model: "
                              f"missing {missing}, unexpected {unexpected}")
+        if state.get("x0", "adjoint") != x0:
+            raise ValueError(f"{func}: checkpoint {ckpt} was trained with x0="
+                             f"{state.get('x0', 'adjoint')!r}, got x0={x0!r}")
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         start, log, wall0 = state["step"], state["log"], state["wall_s"]
@@ -457,7 +460,7 @@ def train_learned(
             outdir.mkdir(parents=True, exist_ok=True)
             tmp = ckpt.with_suffix(".tmp")
             torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
-                        "sched": sched.state_dict(), "step": step, "log": log,
+                        "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
                         "wall_s": wall0 + time.perf_counter() - t0}, tmp)
             tmp.replace(ckpt)
             (outdir / "log.json").write_text(json.dumps(log, indent=0))
