@@ -87,17 +87,18 @@ def markov_completion(
     lam = lam.to(torch.float64)
     fwd, adj = op.loop_pair(b)
     n, ell = op.n, -1.0 / math.log(rho)
-    s = _exp_kernel(n, ell, b.dtype, b.device)
+    if isinstance(op, Hadamard):
+        s, t = markov_covariance(n, ell, b.dtype, b.device)
+        d = t.diagonal()
+        index = op.index.to(b.device)
+        diag = d[index // n] * d[index % n]  # (M,)
+    else:  # no Sylvester structure (n need not be a power of two): no preconditioner
+        s = _exp_kernel(n, ell, b.dtype, b.device)
+        diag = torch.ones(op.m, device=b.device, dtype=b.dtype)
 
     def sig(v: torch.Tensor) -> torch.Tensor:
         return s @ adj(v) @ s
 
-    if isinstance(op, Hadamard):
-        d = markov_covariance(n, ell, b.dtype, b.device)[1].diagonal()
-        index = op.index.to(b.device)
-        diag = d[index // n] * d[index % n]  # (M,)
-    else:
-        diag = torch.ones(op.m, device=b.device, dtype=b.dtype)
     pre = 1 / (diag + lam)  # (B, C, M)
     tiny = torch.finfo(b.dtype).tiny
     v = torch.zeros_like(b)

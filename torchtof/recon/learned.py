@@ -277,10 +277,13 @@ def check_flips(flips, A: LinearOperator, func: str) -> None:
                          f"{type(A).__name__}")
 
 
-def check_x0(x0, func: str) -> None:
-    """``x0`` is ``None`` or one of :data:`X0_CHOICES`."""
-    if x0 is not None and (not isinstance(x0, str) or x0 not in X0_CHOICES):
-        raise ValueError(f"{func}: expected x0 to be None or one of {X0_CHOICES}, got {x0!r}")
+def check_x0(x0, func: str, optional: bool = True) -> None:
+    """``x0`` is one of :data:`X0_CHOICES` (or ``None`` if ``optional``)."""
+    if optional and x0 is None:
+        return
+    if not isinstance(x0, str) or x0 not in X0_CHOICES:
+        none = "None or " if optional else ""
+        raise ValueError(f"{func}: expected x0 to be {none}one of {X0_CHOICES}, got {x0!r}")
 
 
 def _sigma_of(noise_sigma, y: torch.Tensor, func: str) -> torch.Tensor:

@@ -64,7 +64,6 @@ from .learned import (
     DEFAULT_N_LAYERS,
     DEFAULT_SHUFFLE,
     DEFAULT_WIDTH,
-    X0_CHOICES,
     Learned,
     check_x0,
 )
@@ -396,9 +395,7 @@ def train_learned(
         raise TypeError(f"{func}: expected init to be a path or None, got {type(init).__name__}")
     if init is not None and not Path(init).is_file():
         raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
-    if x0 is None:
-        raise ValueError(f"{func}: expected x0 to be one of {X0_CHOICES}, got None")
-    check_x0(x0, func)
+    check_x0(x0, func, optional=False)
     sizes = tuple(sorted(sizes))
     device = check_device(device, "device", func)
 
