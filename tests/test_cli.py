@@ -245,6 +245,25 @@ def test_train_families_reach_the_run(tmp_path, capsys, monkeypatch):
     capsys.readouterr()
 
 
+def test_train_scales_reach_the_run_and_the_weights(tmp_path, capsys):
+    """``--scales 3`` trains a three-scale prior, records it in recipe.json and the weights
+    file, and the file rebuilds the same network; ``--scales 1`` is refused by argparse."""
+    from torchtof.operators import Hadamard
+    from torchtof.recon.learned import Learned
+
+    out = tmp_path / "s3"
+    assert main(["train", "--steps", "1", "--batch-size", "2", "--sizes", "16", "--n-layers",
+                 "2", "--width", "4", "--scales", "3", "--no-calibrate", "--no-progress",
+                 "--out", str(out)]) == 0
+    assert json.loads((out / "recipe.json").read_text())["scales"] == 3
+    net = Learned(Hadamard(16, sr=0.25), pretrained=out / "learned.pt")
+    assert (net.prior.scales, len(net.prior.deeper)) == (3, 1)
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--scales", "1", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "--scales: expected an int >= 2, got '1'" in capsys.readouterr().err
+
+
 def test_reconstruct_refuses_a_folder_that_is_not_a_store(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["reconstruct", str(tmp_path)])

@@ -29,7 +29,14 @@ from torchtof.data import (
 from torchtof.data.scenes import pick_family, power_law_radii
 from torchtof.operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
 from torchtof.operators.patterns import ORDERS
-from torchtof.recon.learned import DEFAULT_N_LAYERS, WEIGHTS_FILE, Learned, LearnedResult, learned
+from torchtof.recon.learned import (
+    DEFAULT_N_LAYERS,
+    WEIGHTS_FILE,
+    Learned,
+    LearnedPrior,
+    LearnedResult,
+    learned,
+)
 from torchtof.recon.learned_train import (
     P_CLEAN,
     P_NOISE_REF,
@@ -268,6 +275,68 @@ def test_pixel_unshuffle_prior_shape_and_pseudo_inverse(shuffle):
         Learned(Hadamard(8, sr=0.5), width=4, shuffle=8, pretrained=False)
     with pytest.raises(ValueError, match="shuffle"):
         Learned(A, width=4, shuffle=0, pretrained=False)
+
+
+@pytest.mark.parametrize("scales,shuffle", [(3, 1), (4, 1), (3, 2)])
+def test_multi_scale_prior_shape_pseudo_inverse_and_receptive_field(scales, shuffle):
+    """A U-Net prior of ``scales`` resolutions keeps the shapes and the prior-off fixed point,
+    checks the side's divisibility by ``2^(scales-1)·shuffle``, and reaches further: one
+    pass's output pixel depends on more input pixels than the two-scale net's (its receptive
+    field, 19 px at r = 1)."""
+    A = Hadamard(32, sr=0.25)
+    torch.manual_seed(0)
+    net = Learned(A, n_layers=2, width=4, shuffle=shuffle, scales=scales, pretrained=False,
+                  noise_sigma=0.0)
+    assert net.prior.scales == scales and len(net.prior.deeper) == scales - 2
+    y = _y(A, b=2, c=2)
+    assert net(y).shape == (2, 2, 32, 32)
+    torch.testing.assert_close(_prior_off(net)(y), A.adjoint(y), rtol=1e-5, atol=1e-5)
+
+    def reach(prior):  # half-width of the support of the response to a centred impulse
+        z = torch.zeros(1, 1, 64, 64, dtype=torch.float64, requires_grad=True)
+        prior(z, torch.zeros(1, 3, dtype=torch.float64))[0, 0, 32, 32].backward()
+        cols = z.grad[0, 0].abs().sum(0).nonzero().flatten()
+        return int(cols.max() - cols.min())
+
+    torch.manual_seed(0)
+    two = LearnedPrior(4, shuffle=shuffle, scales=2).double()
+    torch.manual_seed(0)
+    deep = LearnedPrior(4, shuffle=shuffle, scales=scales).double()
+    assert reach(deep) > reach(two)
+    f = 2**scales * shuffle  # one scale more than the net above: n = 4 is too small
+    with pytest.raises(ValueError, match=rf"scales-1\)·shuffle = {f}, got n=4"):
+        Learned(Hadamard(4, sr=1.0), width=4, shuffle=shuffle, scales=scales + 1,
+                pretrained=False)
+
+
+@pytest.mark.parametrize("bad", [1, 0, True, 2.0])
+def test_scales_must_be_an_int_of_at_least_two(bad):
+    with pytest.raises(ValueError, match="scales"):
+        Learned(Hadamard(16, sr=0.25), width=4, scales=bad, pretrained=False)
+
+
+def test_scales_come_from_the_weights_file_and_must_match(tmp_path):
+    """The file records ``scales``; files without the key are two-scale; a mismatch raises."""
+    A = Hadamard(16, sr=0.25)
+    torch.manual_seed(0)
+    a = Learned(A, n_layers=2, width=4, scales=3, pretrained=False)
+    path = tmp_path / "s3.pt"
+    a.save_weights(path)
+    b = Learned(A, pretrained=path)
+    assert (b.prior.scales, b.n_layers, b.prior.width) == (3, 2, 4)
+    y = _y(A)
+    torch.testing.assert_close(b(y), a(y))
+    with pytest.raises(ValueError, match="scales"):
+        Learned(A, scales=2, pretrained=path)
+    two = Learned(A, n_layers=2, width=4, pretrained=False)
+    old = tmp_path / "old.pt"
+    two.save_weights(old)
+    blob = torch.load(old, weights_only=True)
+    del blob["meta"]["scales"]  # a file written before the option
+    torch.save(blob, old)
+    assert Learned(A, pretrained=old).prior.scales == 2
+    with pytest.raises(ValueError, match="scales"):
+        Learned(A, scales=3, pretrained=old)
 
 
 def test_weights_file_sets_the_architecture_and_old_files_load_as_shuffle_1(tmp_path):
@@ -593,11 +662,13 @@ def test_train_rejects_bad_device_and_workers(kw, name):
 # -- ONNX ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("n,shuffle", [(32, None), pytest.param(128, None, marks=pytest.mark.slow),
-                                       (16, 2)])
-def test_onnx_parity_other_batch_sizes(n, shuffle, tmp_path):
+@pytest.mark.parametrize("n,shuffle,scales",
+                         [(32, None, None), pytest.param(128, None, None, marks=pytest.mark.slow),
+                          (16, 2, 2), (32, 1, 3)])
+def test_onnx_parity_other_batch_sizes(n, shuffle, scales, tmp_path):
     """Exported at batch 2 (dynamic batch axis), onnxruntime at batch 1 and 3, images in
-    [0, 1]: max abs error <= 1e-4 (shipped weights; and an untrained pixel-unshuffled prior)."""
+    [0, 1]: max abs error <= 1e-4 (shipped weights; and untrained pixel-unshuffled and
+    three-scale priors)."""
     ort = pytest.importorskip("onnxruntime")
     import numpy as np
 
@@ -606,7 +677,7 @@ def test_onnx_parity_other_batch_sizes(n, shuffle, tmp_path):
     if shuffle is None:
         net = Learned(A, pretrained=WEIGHTS_FILE.is_file()).eval()
     else:
-        net = Learned(A, width=8, shuffle=shuffle, pretrained=False).eval()
+        net = Learned(A, width=8, shuffle=shuffle, scales=scales, pretrained=False).eval()
     path = tmp_path / "learned.onnx"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -18,6 +18,7 @@ from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
 from ..recon.learned import (
     DEFAULT_N_LAYERS,
+    DEFAULT_SCALES,
     DEFAULT_SHUFFLE,
     DEFAULT_WIDTH,
     WEIGHTS_FILE,
@@ -52,6 +53,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="channels of the prior" + d)
     p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE,
                    help="pixel-unshuffle factor of the prior" + d)
+    p.add_argument("--scales", type=_scales, default=DEFAULT_SCALES,
+                   help="resolutions of the prior's U-Net, >= 2 (image sides divisible by "
+                        "2^(SCALES-1)*SHUFFLE)" + d)
     p.add_argument("--x0", choices=list(X0_CHOICES), default=None,
                    help="the network's starting estimate: adjoint (A^T b) or markov (the "
                         "Gaussian-Markov completion) (default: adjoint; --calibrate-only: the "
@@ -93,6 +97,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="load OUT/checkpoint.pt, run calibrate_tau (on the run's scene mixture "
                         "from OUT/recipe.json unless --families is given), rewrite "
                         "OUT/learned.pt and add the calibration to OUT/recipe.json")
+
+
+def _scales(text: str) -> int:
+    """An int ``>= 2`` (an argparse type: the prior's resolutions)."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"expected an int >= 2, got {text!r}")
+    return v
 
 
 def _probability(text: str) -> float:
@@ -137,7 +152,8 @@ def main(args: argparse.Namespace) -> int:
         out = Path(args.out)
         state = torch.load(out / "checkpoint.pt", weights_only=False)
         model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
-                        pretrained=False, width=args.width, shuffle=args.shuffle)
+                        pretrained=False, width=args.width, shuffle=args.shuffle,
+                        scales=args.scales)
         model.load_state_dict(state["model"], strict=False)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
@@ -167,8 +183,8 @@ def main(args: argparse.Namespace) -> int:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
         orders=tuple(args.orders), n_layers=args.n_layers, width=args.width,
-        shuffle=args.shuffle, noise_ref=args.noise_ref or None, p_clean=args.p_clean,
-        p_noise_ref=args.p_noise_ref,
+        shuffle=args.shuffle, scales=args.scales, noise_ref=args.noise_ref or None,
+        p_clean=args.p_clean, p_noise_ref=args.p_noise_ref,
         out=args.out,
         checkpoint_every=args.checkpoint_every, resume=args.resume, log_every=args.log_every,
         progress=not args.no_progress, max_minutes=args.max_minutes,

@@ -94,6 +94,7 @@ __all__ = [
     "DEFAULT_N_LAYERS",
     "DEFAULT_WIDTH",
     "DEFAULT_SHUFFLE",
+    "DEFAULT_SCALES",
     "STOP_REASON",
     "FLIPS",
 ]
@@ -105,6 +106,9 @@ DEFAULT_N_LAYERS = 6
 #: Prior channels and pixel-unshuffle factor without a weights file (:class:`LearnedPrior`).
 DEFAULT_WIDTH = 16
 DEFAULT_SHUFFLE = 1
+#: Resolutions of the prior without a weights file (:class:`LearnedPrior`; files without the
+#: key: 2).
+DEFAULT_SCALES = 2
 #: ``LearnedResult.stop_reason``: the fixed depth ran out (there is no convergence test).
 STOP_REASON = "n_layers"
 #: Floor of ``σ_n`` inside the log of the conditioning (noise-free buckets).
@@ -148,19 +152,22 @@ class LearnedResult(NamedTuple):
 
 
 class LearnedPrior(nn.Module):
-    """Residual two-scale CNN ``R_θ(z; c)`` with FiLM conditioning (module docstring).
+    """Residual multi-scale CNN ``R_θ(z; c)`` with FiLM conditioning (module docstring).
 
     Args:
-        width: channels at the first scale (``2·width`` at the second).
+        width: channels at the first scale (``2^(k-1)·width`` at scale ``k``).
         cond_dim: size of the conditioning vector ``c``.
         hidden: hidden units of the FiLM MLP.
         shuffle: ``r``: the image is first rearranged into ``r²`` channels at ``1/r`` of its
             side (pixel unshuffle, Shi et al., CVPR 2016) and the output rearranged back, so
             the two scales of the network are ``1/r`` and ``1/(2r)`` of the side (``r = 1``:
             full and half resolution).
+        scales: ``S >= 2``, the U-Net's resolutions: ``1/r, 1/(2r), …, 1/(2^(S-1) r)`` of the
+            side (``S = 2``: the shipped network). Each scale more about doubles the
+            receptive field of one pass and adds about 0.7× the work of the two-scale net.
 
     Shape:
-        - z: ``(N, 1, H, W)`` with ``H, W`` divisible by ``2r``; c: ``(N, cond_dim)``.
+        - z: ``(N, 1, H, W)`` with ``H, W`` divisible by ``2^(S-1)·r``; c: ``(N, cond_dim)``.
         - Output: ``(N, 1, H, W)``, the correction added to ``z``.
 
     Parameters are stored in float32; :meth:`forward` casts them to the input's dtype (a no-op
@@ -168,11 +175,12 @@ class LearnedPrior(nn.Module):
     """
 
     def __init__(
-        self, width: int = 16, cond_dim: int = 3, hidden: int = 32, shuffle: int = 1
+        self, width: int = 16, cond_dim: int = 3, hidden: int = 32, shuffle: int = 1,
+        scales: int = 2,
     ) -> None:
         super().__init__()
-        w, r = int(width), int(shuffle)
-        self.width, self.shuffle = w, r
+        w, r, S = int(width), int(shuffle), int(scales)
+        self.width, self.shuffle, self.scales = w, r, S
         self.inc = nn.Conv2d(r * r, w, 3, padding=1)
         self.enc = nn.Conv2d(w, w, 3, padding=1)
         self.down = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
@@ -182,7 +190,23 @@ class LearnedPrior(nn.Module):
         self.dec = nn.Conv2d(2 * w, w, 3, padding=1)
         self.out = nn.Conv2d(w, r * r, 3, padding=1)
         # FiLM scale and shift for the six hidden activations (inc, enc, down, mid1, mid2, dec)
-        self.film_sizes = (w, w, 2 * w, 2 * w, 2 * w, w)
+        sizes = [w, w, 2 * w, 2 * w, 2 * w, w]
+        # scales > 2: each further scale k halves the side again and doubles the channels
+        # (c = 2^(k-1)·w in, 2c inside), nested between ``mid1`` and ``mid2`` of the scale
+        # above it (a U-Net, Ronneberger et al., MICCAI 2015); empty for the shipped S = 2,
+        # whose parameter names are unchanged
+        self.deeper = nn.ModuleList()
+        for k in range(2, S):
+            c = 2 ** (k - 1) * w
+            self.deeper.append(nn.ModuleDict({
+                "down": nn.Conv2d(c, 2 * c, 3, stride=2, padding=1),
+                "mid1": nn.Conv2d(2 * c, 2 * c, 3, padding=1),
+                "mid2": nn.Conv2d(2 * c, 2 * c, 3, padding=1),
+                "up": nn.ConvTranspose2d(2 * c, c, 2, stride=2),
+                "dec": nn.Conv2d(2 * c, c, 3, padding=1),
+            }))
+            sizes += [2 * c, 2 * c, 2 * c, c]
+        self.film_sizes = tuple(sizes)
         self.film = nn.Sequential(
             nn.Linear(cond_dim, hidden), nn.SiLU(), nn.Linear(hidden, 2 * sum(self.film_sizes))
         )
@@ -217,11 +241,24 @@ class LearnedPrior(nn.Module):
         h1 = act(self._conv(self.enc, h0), 1)
         d = act(self._conv(self.down, h1), 2)
         d = act(self._conv(self.mid1, d), 3)
+        d = self._deeper(d, 0, act)
         d = act(self._conv(self.mid2, d), 4)
         u = self._conv(self.up, d)
         u = act(self._conv(self.dec, torch.cat((u, h1), dim=1)), 5)
         out = self._conv(self.out, u)
         return F.pixel_shuffle(out, r) if r > 1 else out
+
+    def _deeper(self, x: torch.Tensor, k: int, act) -> torch.Tensor:
+        """Scales ``k + 3, …, S`` nested around ``x`` (identity for ``S = 2``)."""
+        if k == len(self.deeper):
+            return x
+        m, i = self.deeper[k], 6 + 4 * k  # FiLM indices of this scale's four activations
+        e = act(self._conv(m["down"], x), i)
+        e = act(self._conv(m["mid1"], e), i + 1)
+        e = self._deeper(e, k + 1, act)
+        e = act(self._conv(m["mid2"], e), i + 2)
+        u = self._conv(m["up"], e)
+        return act(self._conv(m["dec"], torch.cat((u, x), dim=1)), i + 3)
 
 
 # -- operator plumbing ------------------------------------------------------------------------
@@ -426,9 +463,10 @@ class Learned(nn.Module):
             evaluation, ``docs/learned.md``).
         pretrained: ``True`` loads the shipped weights (:data:`WEIGHTS_FILE`), ``False``
             keeps the random initialisation, a path loads that file.
-        width, shuffle: the prior's channels and pixel-unshuffle factor
-            (:class:`LearnedPrior`); ``None``: the weights file's (:data:`DEFAULT_WIDTH`,
-            :data:`DEFAULT_SHUFFLE` without one); given, they must match it.
+        width, shuffle, scales: the prior's channels, pixel-unshuffle factor and number of
+            resolutions (:class:`LearnedPrior`); ``None``: the weights file's
+            (:data:`DEFAULT_WIDTH`, :data:`DEFAULT_SHUFFLE`, :data:`DEFAULT_SCALES` without
+            one); given, they must match it.
         flips: ``1`` (default), ``2`` or ``4``: average the reconstructions of the image and
             of its flips (left–right; then up–down and both), a self-ensemble (test-time
             augmentation; Timofte, Rothe & Van Gool, CVPR 2016, "Seven ways to improve
@@ -448,9 +486,9 @@ class Learned(nn.Module):
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
             ``n_layers`` not an int.
         ValueError: if ``A`` has no orthonormal rows (and is not a DMD split), ``A.n`` is
-            not divisible by ``2·shuffle``, ``n_layers < 1``, the weights file does not
-            match, ``flips`` is not 1, 2 or 4 (or above 1 for a non-Hadamard operator), or
-            ``x0`` is not one of :data:`X0_CHOICES`.
+            not divisible by ``2^(scales-1)·shuffle``, ``scales < 2``, ``n_layers < 1``, the
+            weights file does not match, ``flips`` is not 1, 2 or 4 (or above 1 for a
+            non-Hadamard operator), or ``x0`` is not one of :data:`X0_CHOICES`.
         FileNotFoundError: if ``pretrained=True`` and the shipped file is missing.
 
     Shape:
@@ -474,6 +512,7 @@ class Learned(nn.Module):
         shuffle: int | None = None,
         flips: int = 1,
         x0: str | None = None,
+        scales: int | None = None,
     ) -> None:
         super().__init__()
         func = "Learned"
@@ -482,9 +521,9 @@ class Learned(nn.Module):
         if n_layers is not None:
             check_n_layers(n_layers, func)
         check_flips(flips, A, func)
-        for name, v in (("width", width), ("shuffle", shuffle)):
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-                raise ValueError(f"{func}: expected {name} to be an int >= 1, got {v!r}")
+        for name, v, lo in (("width", width, 1), ("shuffle", shuffle, 1), ("scales", scales, 2)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < lo):
+                raise ValueError(f"{func}: expected {name} to be an int >= {lo}, got {v!r}")
         if not isinstance(noise_sigma, torch.Tensor):
             _sigma_of(noise_sigma, torch.zeros(1, 1, 1), func)  # validate once here
         path = None
@@ -505,14 +544,16 @@ class Learned(nn.Module):
             width = int(file_meta.get("width", DEFAULT_WIDTH))
         if shuffle is None:
             shuffle = int(file_meta.get("shuffle", 1 if file_meta else DEFAULT_SHUFFLE))
-        if A.n % (2 * shuffle):
+        if scales is None:
+            scales = int(file_meta.get("scales", 2 if file_meta else DEFAULT_SCALES))
+        if A.n % (f := 2 ** (scales - 1) * shuffle):
             raise ValueError(
-                f"{func}: expected A.n divisible by 2·shuffle = {2 * shuffle}, got n={A.n}")
+                f"{func}: expected A.n divisible by 2^(scales-1)·shuffle = {f}, got n={A.n}")
         self.A = A
         self.n_layers = n_layers
         self.noise_sigma = noise_sigma
         self.flips = flips
-        self.prior = LearnedPrior(width=width, shuffle=shuffle)
+        self.prior = LearnedPrior(width=width, shuffle=shuffle, scales=scales)
         self.step_raw = nn.Parameter(torch.zeros(n_layers))
         self.log_tau = nn.Parameter(torch.tensor(math.log(TAU_INIT)))
         #: apply the final data-consistency step (training of the prior switches it off)
@@ -529,18 +570,20 @@ class Learned(nn.Module):
             self.x0 = x0
 
     def meta(self) -> dict:
-        """What a weights file must match: ``n_layers``, ``width`` and ``shuffle``."""
+        """What a weights file must match: ``n_layers``, ``width``, ``shuffle``, ``scales``."""
         return {"model": "learned", "n_layers": self.n_layers, "width": self.prior.width,
-                "shuffle": self.prior.shuffle}
+                "shuffle": self.prior.shuffle, "scales": self.prior.scales}
 
     def load_weights(self, path: str | os.PathLike) -> None:
         """Load a file written by :meth:`save_weights` (``torch.load(weights_only=True)``).
 
         Raises:
-            ValueError: if its ``n_layers``/``width`` differ from this module's.
+            ValueError: if its ``n_layers``/``width``/``shuffle``/``scales`` differ from this
+                module's.
         """
         blob = _load_blob(os.fspath(Path(path).resolve()))
-        meta = {"shuffle": 1, **blob.get("meta", {})}  # files before ``shuffle``: r = 1
+        # files before ``shuffle``/``scales``: r = 1, S = 2
+        meta = {"shuffle": 1, "scales": 2, **blob.get("meta", {})}
         want = self.meta()
         if any(meta.get(k) != v for k, v in want.items()):
             raise ValueError(
@@ -623,13 +666,15 @@ def learned(
     shuffle: int | None = None,
     flips: int = 1,
     x0: str | None = None,
+    scales: int | None = None,
 ) -> torch.Tensor:
     """Reconstruct ``y = A x`` with the learned proximal-gradient network (:class:`Learned`).
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m`` (``2M`` DMD frames for a DMD split).
         A: the operator (see :class:`Learned`).
-        n_layers, noise_sigma, pretrained, width, shuffle, flips, x0: as in :class:`Learned`.
+        n_layers, noise_sigma, pretrained, width, shuffle, flips, x0, scales: as in
+            :class:`Learned`.
 
     Returns:
         ``(B, C, n, n)`` reconstruction, dtype and device of ``y``; differentiable with
@@ -642,6 +687,6 @@ def learned(
         torch.Size([1, 1, 32, 32])
     """
     net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
-                  width=width, shuffle=shuffle, flips=flips, x0=x0)
+                  width=width, shuffle=shuffle, flips=flips, x0=x0, scales=scales)
     # the weights are constants here: the output carries a graph only through ``y``
     return net.requires_grad_(False).to(y.device)(y)

@@ -62,6 +62,7 @@ from ..operators.hadamard import Hadamard
 from ..operators.patterns import ORDERS
 from .learned import (
     DEFAULT_N_LAYERS,
+    DEFAULT_SCALES,
     DEFAULT_SHUFFLE,
     DEFAULT_WIDTH,
     Learned,
@@ -299,6 +300,7 @@ def train_learned(
     n_layers: int = DEFAULT_N_LAYERS,
     width: int = DEFAULT_WIDTH,
     shuffle: int = DEFAULT_SHUFFLE,
+    scales: int = DEFAULT_SCALES,
     noise_ref: int | None = NOISE_REF,
     p_clean: float = P_CLEAN,
     p_noise_ref: float = P_NOISE_REF,
@@ -329,7 +331,7 @@ def train_learned(
         p_large: probability of the largest size.
         sr_range: ``(lo, hi)`` sampling rates, ``0 < lo <= hi <= 1``.
         orders: Hadamard orders drawn.
-        n_layers, width, shuffle: the network (:class:`Learned`).
+        n_layers, width, shuffle, scales: the network (:class:`Learned`).
         noise_ref: Gaussian noise levels scaled to this size (:func:`noise_levels`;
             ``None``: the same levels at every size).
         p_clean: probability of a noise-free sample, in ``[0, 1]``.
@@ -354,11 +356,11 @@ def train_learned(
             ``None``: :data:`torchtof.data.FAMILIES`, the shipped weights' mixture).
         init: a weights file (:meth:`Learned.save_weights`, e.g. the shipped
             :data:`~torchtof.recon.learned.WEIGHTS_FILE`) to start from instead of the random
-            initialisation: fine-tuning on another data recipe. Its ``n_layers``, ``width`` and
-            ``shuffle`` must equal these arguments. The schedule starts again at ``lr`` (give a
-            smaller one, and another ``seed`` than the file's run so that its batches are not
-            replayed). ``recipe.json`` records the file and its SHA-256. A checkpoint resumed
-            (``resume``) takes precedence.
+            initialisation: fine-tuning on another data recipe. Its ``n_layers``, ``width``,
+            ``shuffle`` and ``scales`` must equal these arguments. The schedule starts again
+            at ``lr`` (give a smaller one, and another ``seed`` than the file's run so that its
+            batches are not replayed). ``recipe.json`` records the file and its SHA-256. A
+            checkpoint resumed (``resume``) takes precedence.
         x0: the network's starting estimate (:class:`Learned`, ``x0``), also when ``init``
             was trained with another; the weights file records it.
 
@@ -401,7 +403,7 @@ def train_learned(
 
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
-                    width=width, shuffle=shuffle).to(device)
+                    width=width, shuffle=shuffle, scales=scales).to(device)
     init_record = None
     if init is not None:
         init_path = Path(init)
@@ -525,6 +527,7 @@ def train_learned(
                 "n_layers": n_layers,
                 "width": width,
                 "shuffle": shuffle,
+                "scales": scales,
                 "x0": x0,
                 "data": {
                     "families": families,
