@@ -5,7 +5,7 @@ Same image, rows, noise draw and PSNR as ``benchmarks/peers.py`` (``peers_scenes
 candidate replaces :data:`torchtof.recon.learned.WEIGHTS_FILE` in this process only.
 
 usage: OMP_NUM_THREADS=1 python benchmarks/learned_candidate_peers.py WEIGHTS \\
-           [--min-n 64] [--level 0.01] [--shard I/K] [--out rows.json]
+           [--min-n 64] [--max-n 256] [--level 0.01 [0.05]] [--shard I/K] [--out rows.json]
        python benchmarks/learned_candidate_peers.py --summary rows_0.json rows_1.json
 """
 
@@ -26,13 +26,14 @@ import peers_scenes as ps  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(weights: str, min_n: int, level: float, shard: tuple[int, int], out: str | None) -> list:
+def run(weights: str, min_n: int, max_n: int, levels: list[float], shard: tuple[int, int],
+        out: str | None) -> list:
     lm = importlib.import_module("torchtof.recon.learned")
     am = importlib.import_module("torchtof.recon.auto")
     lm.WEIGHTS_FILE = Path(weights).resolve()
     torch.set_num_threads(1)
     cells = [c for c in json.loads((ROOT / "docs" / "peers.json").read_text())["cells"]
-             if c["n"] >= min_n and c["level"] == level]
+             if min_n <= c["n"] <= max_n and c["level"] in levels]
     rows = []
     for i, c in enumerate(cells):
         if i % shard[1] != shard[0]:
@@ -41,6 +42,7 @@ def run(weights: str, min_n: int, level: float, shard: tuple[int, int], out: str
         res = c["results"]
         best = max(v["psnr"] for v in res.values() if v.get("peer") != "torchtof")
         rows.append({"scene": c["scene"], "n": c["n"], "sr": c["sr"], "order": c["order"],
+                     "level": c["level"],
                      "auto": ps.score(am.auto(y, A), x), "learned": ps.score(lm.learned(y, A), x),
                      "auto_shipped": res["torchtof auto"]["psnr"],
                      "learned_shipped": res["torchtof learned"]["psnr"], "best_peer": best})
@@ -55,6 +57,11 @@ def summary(files: list[str]) -> None:
     groups = {"all": rows}
     for order in sorted({r["order"] for r in rows}):
         groups[order] = [r for r in rows if r["order"] == order]
+    for key, name in (("n", "n = {}"), ("level", "noise {:g}")):
+        vals = sorted({r.get(key, 0.01) for r in rows})
+        if len(vals) > 1:
+            for v in vals:
+                groups[name.format(v)] = [r for r in rows if r.get(key, 0.01) == v]
     print("| cells | auto − best peer, candidate (≥ 0, worst) | shipped | learned − best peer, "
           "candidate | shipped |")
     print("|---|---|---|---|---|")
@@ -72,7 +79,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("weights", nargs="?")
     p.add_argument("--min-n", type=int, default=64)
-    p.add_argument("--level", type=float, default=0.01)
+    p.add_argument("--max-n", type=int, default=256)
+    p.add_argument("--level", type=float, nargs="+", default=[0.01])
     p.add_argument("--shard", default="0/1")
     p.add_argument("--out", default=None)
     p.add_argument("--summary", nargs="+", default=None)
@@ -83,7 +91,7 @@ def main() -> int:
     if not a.weights:
         p.error("WEIGHTS is required unless --summary is given")
     i, k = (int(v) for v in a.shard.split("/"))
-    run(a.weights, a.min_n, a.level, (i, k), a.out)
+    run(a.weights, a.min_n, a.max_n, a.level, (i, k), a.out)
     return 0
 
 

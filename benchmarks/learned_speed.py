@@ -1,0 +1,69 @@
+"""Time per image of several learned weights files and TVAL3's defaults, interleaved.
+
+On the three held-out depth scenes of ``eval_learned.py`` at SR 12.5 % and 1 % noise (one
+batched call of 3 scenes, divided by 3), one thread: a warm-up call each, then ``rounds``
+rounds that call every method once in turn; the minimum per method (the least disturbed
+by other processes). Only the ratios within one run compare.
+
+usage: OMP_NUM_THREADS=1 python benchmarks/learned_speed.py W1 [W2 ...] [--sizes 32 128 256]
+           [--rounds 5] [--out speed.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import eval_learned as ev  # noqa: E402
+
+from torchtof.operators import Hadamard  # noqa: E402
+from torchtof.recon.learned import Learned  # noqa: E402
+from torchtof.recon.tval3 import tval3  # noqa: E402
+
+
+def run(weights: list[str], sizes: list[int], rounds: int) -> list[dict]:
+    torch.set_num_threads(1)
+    rows = []
+    for n in sizes:
+        A = Hadamard(n, sr=0.125)
+        x = ev.scenes("depth", n)
+        y = ev.buckets(A, x, 0.01, salt=n)
+        fns = {w: Learned(A, pretrained=w) for w in weights}
+        fns["tval3"] = lambda v, A=A: tval3(v, A)
+        t = {k: [] for k in fns}
+        with torch.no_grad():
+            for fn in fns.values():
+                fn(y[:1])
+            for _ in range(rounds):
+                for k, fn in fns.items():
+                    t0 = time.perf_counter()
+                    fn(y)
+                    t[k].append((time.perf_counter() - t0) / y.shape[0])
+        row = {"n": n, "ms": {k: 1e3 * min(v) for k, v in t.items()},
+               "load_avg": os.getloadavg()[0]}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("weights", nargs="+")
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 128, 256])
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--out", default=None)
+    a = p.parse_args()
+    rows = run(a.weights, a.sizes, a.rounds)
+    if a.out:
+        Path(a.out).write_text(json.dumps({"rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
