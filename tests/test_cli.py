@@ -264,6 +264,37 @@ def test_train_scales_reach_the_run_and_the_weights(tmp_path, capsys):
     assert "--scales: expected an int >= 2, got '1'" in capsys.readouterr().err
 
 
+def test_calibrate_only_builds_the_runs_network(tmp_path, capsys, monkeypatch):
+    """--calibrate-only on a --scales 3 --width 4 run rebuilds that network from recipe.json
+    when the options are left at their defaults (its weights load, the file records them);
+    a different explicit value is a usage error naming the option."""
+    import torchtof.apps.train as app
+    from torchtof.operators import Hadamard
+    from torchtof.recon.learned import Learned
+    from torchtof.recon.learned_train import train_learned
+
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, scales=3,
+                  progress=False, calibrate=False, out=tmp_path)
+    seen = {}
+
+    def fake(model, seed, **kw):
+        seen.update(scales=model.prior.scales, width=model.prior.width, n=model.n_layers)
+        return {"tau": 0.1, "losses": {}, "loss_off": 0.0}
+
+    monkeypatch.setattr(app, "calibrate_tau", fake)
+    out = ["--sizes", "16", "--out", str(tmp_path)]
+    assert main(["train", "--calibrate-only", *out]) == 0
+    assert seen == {"scales": 3, "width": 4, "n": 2}
+    net = Learned(Hadamard(16, sr=0.25), pretrained=tmp_path / "learned.pt")
+    assert (net.prior.scales, net.prior.width, net.n_layers) == (3, 4, 2)
+    state = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["model"]
+    torch.testing.assert_close(net.prior.deeper[0]["mid1"].weight,
+                               state["prior.deeper.0.mid1.weight"])
+    capsys.readouterr()
+    assert main(["train", "--calibrate-only", "--scales", "4", *out]) == 2
+    assert "argument --scales: the run in" in capsys.readouterr().err
+
+
 def test_reconstruct_refuses_a_folder_that_is_not_a_store(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["reconstruct", str(tmp_path)])

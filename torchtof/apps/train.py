@@ -95,7 +95,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="leave the final data-consistency step off (no calibrate_tau)")
     p.add_argument("--calibrate-only", action="store_true",
                    help="load OUT/checkpoint.pt, run calibrate_tau (on the run's scene mixture "
-                        "from OUT/recipe.json unless --families is given), rewrite "
+                        "from OUT/recipe.json unless --families is given; the network's "
+                        "--n-layers/--width/--shuffle/--scales from it too), rewrite "
                         "OUT/learned.pt and add the calibration to OUT/recipe.json")
 
 
@@ -151,12 +152,20 @@ def main(args: argparse.Namespace) -> int:
     if args.calibrate_only:
         out = Path(args.out)
         state = torch.load(out / "checkpoint.pt", weights_only=False)
-        model = Learned(Hadamard(args.sizes[0], sr=0.25), n_layers=args.n_layers,
-                        pretrained=False, width=args.width, shuffle=args.shuffle,
-                        scales=args.scales)
-        model.load_state_dict(state["model"], strict=False)
         recipe_path = out / "recipe.json"
         recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
+        # the run's network: an option left at its default takes the run's value
+        arch = {}
+        for key, default in (("n_layers", DEFAULT_N_LAYERS), ("width", DEFAULT_WIDTH),
+                             ("shuffle", DEFAULT_SHUFFLE), ("scales", DEFAULT_SCALES)):
+            given, run = getattr(args, key), recipe.get(key)
+            if run is not None and given != run and given != default:
+                flag = "--" + key.replace("_", "-")
+                raise ValueError(f"argument {flag}: the run in {out} was trained with "
+                                 f"{flag} {run}, got {given}")
+            arch[key] = run if run is not None else given
+        model = Learned(Hadamard(args.sizes[0], sr=0.25), pretrained=False, **arch)
+        model.load_state_dict(state["model"], strict=False)
         run_x0 = recipe.get("x0", state.get("x0", "adjoint"))
         if args.x0 is not None and args.x0 != run_x0:
             raise ValueError(f"argument --x0: the run in {out} was trained with --x0 {run_x0}, "
