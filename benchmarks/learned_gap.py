@@ -5,8 +5,9 @@ For each ``(n, SR)`` (cake-cutting rows, Gaussian noise of ``level × (max y −
 convention of ``eval_learned.py``), the mean PSNR of the learned network and of TVAL3's
 defaults on three scene sets:
 
-- ``seen``: scenes of the weights' own training run (the scene seeds of its first steps,
-  ``scene_seed(seed, step, i)``, drawn at this ``n``);
+- ``seen``: the scene seeds of the weights' own training run (its first two steps,
+  ``scene_seed(seed, step, i)``, drawn at this ``n``: those steps trained at n = 32, so at
+  larger ``n`` they are the same scenes rendered at another size);
 - ``fresh <family>``: each training family (``torchtof.data.FAMILIES``) drawn from seeds no
   training run uses (``EVAL_SEED_BASE + 5000`` and up; the natural family crops the training
   photographs anew);
@@ -59,10 +60,10 @@ def scene_sets(n: int, per_family: int, recipe_seed: int) -> dict[str, torch.Ten
 
 def run(sizes, srs, level, per_family, weights, draws) -> list[dict]:
     torch.set_num_threads(1)
-    recipe = json.loads((Path(weights).parent / "recipe.json").read_text())
+    seed = torch.load(weights, weights_only=True)["meta"]["seed"]  # the run's seed
     rows = []
     for n in sizes:
-        sets = scene_sets(n, per_family, recipe["seed"])
+        sets = scene_sets(n, per_family, seed)
         for sr in srs:
             A = Hadamard(n, sr=sr, order="cake_cutting")
             net = Learned(A, pretrained=weights)

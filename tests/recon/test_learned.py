@@ -292,7 +292,7 @@ def test_multi_scale_prior_shape_pseudo_inverse_and_receptive_field(scales, shuf
     assert net(y).shape == (2, 2, 32, 32)
     torch.testing.assert_close(_prior_off(net)(y), A.adjoint(y), rtol=1e-5, atol=1e-5)
 
-    def reach(prior):  # half-width of the support of the response to a centred impulse
+    def reach(prior):  # width − 1 of the input support of one output pixel (18 for S = 2)
         z = torch.zeros(1, 1, 64, 64, dtype=torch.float64, requires_grad=True)
         prior(z, torch.zeros(1, 3, dtype=torch.float64))[0, 0, 32, 32].backward()
         cols = z.grad[0, 0].abs().sum(0).nonzero().flatten()
@@ -313,6 +313,29 @@ def test_multi_scale_prior_shape_pseudo_inverse_and_receptive_field(scales, shuf
 def test_scales_must_be_an_int_of_at_least_two(bad):
     with pytest.raises(ValueError, match="scales"):
         Learned(Hadamard(16, sr=0.25), width=4, scales=bad, pretrained=False)
+    with pytest.raises(ValueError, match="LearnedPrior: expected scales"):
+        LearnedPrior(4, scales=bad)
+
+
+@pytest.mark.parametrize("scales", [2, 3, 4])
+def test_every_film_slot_modulates_its_own_layer(scales):
+    """Each FiLM slot (a gain and a shift per channel of one hidden layer) reaches the output
+    and has the channel count of its layer: the gradient of the output with respect to every
+    slot's rows of the FiLM projection is non-zero, so no slot is skipped or used twice in
+    place of another."""
+    torch.manual_seed(0)
+    prior = LearnedPrior(4, scales=scales).double()
+    assert len(prior.film_sizes) == 6 + 4 * (scales - 2)
+    z = torch.rand(2, 1, 32, 32, dtype=torch.float64)
+    prior(z, torch.rand(2, 3, dtype=torch.float64)).square().sum().backward()
+    g = prior.film[-1].weight.grad.abs().sum(dim=1)  # one entry per gain, then per shift
+    total = sum(prior.film_sizes)
+    assert g.shape == (2 * total,)
+    start = 0
+    for size in prior.film_sizes:
+        for half in (0, total):  # gains, shifts
+            assert bool((g[half + start : half + start + size] > 0).all())
+        start += size
 
 
 def test_scales_come_from_the_weights_file_and_must_match(tmp_path):

@@ -21,16 +21,18 @@ shrinkage of it as the noise grows (``τ``: one scalar, set by
 :func:`~torchtof.recon.learned_train.calibrate_tau` on training data).
 ``γ_k = 2 sigmoid(g_k) ∈ (0, 2)`` are learned step sizes (``A Aᵀ = I`` makes ``AᵀA`` a
 projector, so any ``γ`` in that interval is a contraction of the data term). ``R_θ`` is a
-residual two-scale CNN (a small U-Net, Ronneberger et al. 2015) whose weights are the same
-at every step; it is told what varies by a FiLM conditioning (Perez et al., AAAI 2018):
+residual two-scale CNN (a small U-Net, Ronneberger et al. 2015; ``scales=S`` deepens it to
+``S`` resolutions) whose weights are the same at every step; it is told what varies by a
+FiLM conditioning (Perez et al., AAAI 2018):
 ``c_k = (log σ_n, log SR, k/K)`` goes through a two-layer MLP into a per-channel scale and
 shift of every hidden layer. ``σ_n`` is the bucket noise std in the normalised units below
 (``noise_sigma``: given, or estimated from the high-order tail of ``y`` by
 :func:`~torchtof.recon.tval3.bucket_noise_sigma`).
 
 Only convolutions, a stride-2 down- and a transposed up-sampling, and the fast operator act
-on the image, so one set of weights applies to every ``n`` divisible by 2 (by ``2r`` for a
-prior with pixel unshuffle ``r``; the package's Hadamard sizes 32–256) and every
+on the image, so one set of weights applies to every ``n`` divisible by 2 (by
+``2^(S-1)·r`` for a prior of ``S`` scales with pixel unshuffle ``r``; the package's Hadamard
+sizes 32–256) and every
 ``(SR, order)``; the work per step is bounded
 (``O(n²)`` convolutions plus one ``A`` and one ``Aᵀ``) and there is no data-dependent control
 flow (it exports to ONNX).
@@ -160,12 +162,16 @@ class LearnedPrior(nn.Module):
         hidden: hidden units of the FiLM MLP.
         shuffle: ``r``: the image is first rearranged into ``r²`` channels at ``1/r`` of its
             side (pixel unshuffle, Shi et al., CVPR 2016) and the output rearranged back, so
-            the two scales of the network are ``1/r`` and ``1/(2r)`` of the side (``r = 1``:
-            full and half resolution).
+            the first two scales of the network are ``1/r`` and ``1/(2r)`` of the side
+            (``r = 1``: full and half resolution).
         scales: ``S >= 2``, the U-Net's resolutions: ``1/r, 1/(2r), …, 1/(2^(S-1) r)`` of the
             side (``S = 2``: the shipped network). Each scale more about doubles the
             receptive field of one pass (19, 43, 87 pixels for ``S = 2, 3, 4``) and adds
-            about 0.7× the work of the two-scale net.
+            about 0.8× the multiply-adds of the two-scale prior.
+
+    Raises:
+        ValueError: if ``width``, ``shuffle`` are not ints ``>= 1`` or ``scales`` not an int
+            ``>= 2``.
 
     Shape:
         - z: ``(N, 1, H, W)`` with ``H, W`` divisible by ``2^(S-1)·r``; c: ``(N, cond_dim)``.
@@ -180,7 +186,10 @@ class LearnedPrior(nn.Module):
         scales: int = 2,
     ) -> None:
         super().__init__()
-        w, r, S = int(width), int(shuffle), int(scales)
+        for name, v, lo in (("width", width, 1), ("shuffle", shuffle, 1), ("scales", scales, 2)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ValueError(f"LearnedPrior: expected {name} to be an int >= {lo}, got {v!r}")
+        w, r, S = width, shuffle, scales
         self.width, self.shuffle, self.scales = w, r, S
         self.inc = nn.Conv2d(r * r, w, 3, padding=1)
         self.enc = nn.Conv2d(w, w, 3, padding=1)
@@ -228,8 +237,8 @@ class LearnedPrior(nn.Module):
         lin1, lin2 = self.film[0], self.film[2]
         h = F.silu(F.linear(c, lin1.weight.to(z), lin1.bias.to(z)))
         mod = F.linear(h, lin2.weight.to(z), lin2.bias.to(z))
-        scales, shifts = mod.split(sum(self.film_sizes), dim=-1)
-        sc = scales.split(self.film_sizes, dim=-1)
+        gains, shifts = mod.split(sum(self.film_sizes), dim=-1)
+        sc = gains.split(self.film_sizes, dim=-1)
         sh = shifts.split(self.film_sizes, dim=-1)
 
         def act(x: torch.Tensor, i: int) -> torch.Tensor:
