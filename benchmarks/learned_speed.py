@@ -3,15 +3,18 @@
 On the three held-out depth scenes of ``eval_learned.py`` at SR 12.5 % and 1 % noise (one
 batched call of 3 scenes, divided by 3), one thread: a warm-up call each, then ``rounds``
 rounds that call every method once in turn; the minimum per method (the least disturbed
-by other processes). Only the ratios within one run compare.
+by other processes). Only the ratios within one run compare. ``--auto``: instead, the time
+of :func:`torchtof.recon.auto.auto` (which stacks the network) with each file in place of the
+shipped one, on the same buckets, interleaved the same way.
 
 usage: OMP_NUM_THREADS=1 python benchmarks/learned_speed.py W1 [W2 ...] [--sizes 32 128 256]
-           [--rounds 5] [--out speed.json]
+           [--rounds 5] [--auto] [--out speed.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -24,18 +27,32 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import eval_learned as ev  # noqa: E402
 
 from torchtof.operators import Hadamard  # noqa: E402
+from torchtof.recon.auto import auto  # noqa: E402
 from torchtof.recon.learned import Learned  # noqa: E402
 from torchtof.recon.tval3 import tval3  # noqa: E402
 
+lm = importlib.import_module("torchtof.recon.learned")  # the module (the package exports a function of that name)
 
-def run(weights: list[str], sizes: list[int], rounds: int) -> list[dict]:
+
+def _with_weights(w: str, A: Hadamard):
+    def fn(v):
+        lm.WEIGHTS_FILE = Path(w).resolve()  # what auto stacks
+        return auto(v, A)
+    return fn
+
+
+def run(weights: list[str], sizes: list[int], rounds: int, with_auto: bool = False) -> list[dict]:
     torch.set_num_threads(1)
+    shipped = lm.WEIGHTS_FILE
     rows = []
     for n in sizes:
         A = Hadamard(n, sr=0.125)
         x = ev.scenes("depth", n)
         y = ev.buckets(A, x, 0.01, salt=n)
-        fns = {w: Learned(A, pretrained=w) for w in weights}
+        if with_auto:
+            fns = {w: _with_weights(w, A) for w in weights}
+        else:
+            fns = {w: Learned(A, pretrained=w) for w in weights}
         fns["tval3"] = lambda v, A=A: tval3(v, A)
         t = {k: [] for k in fns}
         with torch.no_grad():
@@ -46,7 +63,8 @@ def run(weights: list[str], sizes: list[int], rounds: int) -> list[dict]:
                     t0 = time.perf_counter()
                     fn(y)
                     t[k].append((time.perf_counter() - t0) / y.shape[0])
-        row = {"n": n, "ms": {k: 1e3 * min(v) for k, v in t.items()},
+        lm.WEIGHTS_FILE = shipped
+        row = {"n": n, "auto": with_auto, "ms": {k: 1e3 * min(v) for k, v in t.items()},
                "load_avg": os.getloadavg()[0]}
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -58,9 +76,10 @@ def main() -> None:
     p.add_argument("weights", nargs="+")
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 128, 256])
     p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--auto", action="store_true", help="time auto stacking each file")
     p.add_argument("--out", default=None)
     a = p.parse_args()
-    rows = run(a.weights, a.sizes, a.rounds)
+    rows = run(a.weights, a.sizes, a.rounds, a.auto)
     if a.out:
         Path(a.out).write_text(json.dumps({"rows": rows}, indent=1))
 
