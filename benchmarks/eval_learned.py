@@ -327,6 +327,21 @@ def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
     return out
 
 
+def interleaved_min(fns: dict, y: torch.Tensor, rounds: int) -> dict:
+    """Seconds per image of each ``fns[k](y)``: a warm-up call on one sample each, then
+    ``rounds`` rounds calling every method once in turn; the minimum per method."""
+    t = {k: [] for k in fns}
+    with torch.no_grad():
+        for fn in fns.values():
+            fn(y[:1])
+        for _ in range(rounds):
+            for k, fn in fns.items():
+                t0 = time.perf_counter()
+                fn(y)
+                t[k].append((time.perf_counter() - t0) / y.shape[0])
+    return {k: min(v) for k, v in t.items()}
+
+
 def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True,
           flips_options=(1,)) -> list[dict]:
     """Time per image, learned vs TVAL3's defaults, on the three depth scenes at SR 12.5 % and
@@ -343,16 +358,8 @@ def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True,
         fns = {"learned" if k == 1 else f"learned_f{k}": Learned(A, pretrained=weights, flips=k)
                for k in flips_options}
         fns["tval3"] = lambda v, A=A: tval3(v, A)
-        t = {k: [] for k in fns}
-        with torch.no_grad():
-            for fn in fns.values():
-                fn(y[:1])
-            for _ in range(repeats):
-                for k, fn in fns.items():
-                    t0 = time.perf_counter()
-                    fn(y)
-                    t[k].append((time.perf_counter() - t0) / y.shape[0])
-        row = {"n": n, **{f"{k}_ms": 1e3 * min(v) for k, v in t.items()},
+        t = interleaved_min(fns, y, repeats)
+        row = {"n": n, **{f"{k}_ms": 1e3 * v for k, v in t.items()},
                "load_avg": os.getloadavg()[0]}
         for k in flips_options:
             name = "learned" if k == 1 else f"learned_f{k}"

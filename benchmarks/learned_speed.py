@@ -18,7 +18,6 @@ import importlib
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 import torch
@@ -54,17 +53,9 @@ def run(weights: list[str], sizes: list[int], rounds: int, with_auto: bool = Fal
         else:
             fns = {w: Learned(A, pretrained=w) for w in weights}
         fns["tval3"] = lambda v, A=A: tval3(v, A)
-        t = {k: [] for k in fns}
-        with torch.no_grad():
-            for fn in fns.values():
-                fn(y[:1])
-            for _ in range(rounds):
-                for k, fn in fns.items():
-                    t0 = time.perf_counter()
-                    fn(y)
-                    t[k].append((time.perf_counter() - t0) / y.shape[0])
+        t = ev.interleaved_min(fns, y, rounds)
         lm.WEIGHTS_FILE = shipped
-        row = {"n": n, "auto": with_auto, "ms": {k: 1e3 * min(v) for k, v in t.items()},
+        row = {"n": n, "auto": with_auto, "ms": {k: 1e3 * v for k, v in t.items()},
                "load_avg": os.getloadavg()[0]}
         rows.append(row)
         print(json.dumps(row), flush=True)

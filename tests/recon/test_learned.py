@@ -338,6 +338,15 @@ def test_every_film_slot_modulates_its_own_layer(scales):
         start += size
 
 
+def _file_without(net, path, key):
+    """``net``'s weights file as written before the option ``key`` existed (key absent)."""
+    net.save_weights(path)
+    blob = torch.load(path, weights_only=True)
+    del blob["meta"][key]
+    torch.save(blob, path)
+    return path
+
+
 def test_scales_come_from_the_weights_file_and_must_match(tmp_path):
     """The file records ``scales``; files without the key are two-scale; a mismatch raises."""
     A = Hadamard(16, sr=0.25)
@@ -351,12 +360,8 @@ def test_scales_come_from_the_weights_file_and_must_match(tmp_path):
     torch.testing.assert_close(b(y), a(y))
     with pytest.raises(ValueError, match="scales"):
         Learned(A, scales=2, pretrained=path)
-    two = Learned(A, n_layers=2, width=4, pretrained=False)
-    old = tmp_path / "old.pt"
-    two.save_weights(old)
-    blob = torch.load(old, weights_only=True)
-    del blob["meta"]["scales"]  # a file written before the option
-    torch.save(blob, old)
+    old = _file_without(Learned(A, n_layers=2, width=4, pretrained=False), tmp_path / "old.pt",
+                        "scales")
     assert Learned(A, pretrained=old).prior.scales == 2
     with pytest.raises(ValueError, match="scales"):
         Learned(A, scales=3, pretrained=old)
@@ -366,11 +371,7 @@ def test_weights_file_sets_the_architecture_and_old_files_load_as_shuffle_1(tmp_
     A = Hadamard(16, sr=0.25)
     torch.manual_seed(0)
     a = Learned(A, n_layers=2, width=4, shuffle=1, pretrained=False)
-    path = tmp_path / "old.pt"
-    a.save_weights(path)
-    blob = torch.load(path, weights_only=True)
-    del blob["meta"]["shuffle"]  # a file written before the pixel-unshuffle option
-    torch.save(blob, path)
+    path = _file_without(a, tmp_path / "old.pt", "shuffle")
     b = Learned(A, n_layers=2, pretrained=path)  # width and shuffle from the file
     assert (b.prior.width, b.prior.shuffle) == (4, 1)
     y = _y(A)
