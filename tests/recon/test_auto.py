@@ -573,10 +573,48 @@ def test_not_stacked_where_the_network_does_not_apply():
     A16 = Hadamard(16, sr=0.5)
     r = auto(A16(_square()), A16, cv_iter=10, max_iter=50, return_result=True)
     assert r.choice[0][0]["learned_weight"] is None
-    with pytest.raises(TypeError, match="auto: expected learned to be a bool"):
+    with pytest.raises(TypeError, match="auto: expected learned to be a bool or a weights"):
         auto(y, A, learned=1)
-    with pytest.raises(TypeError, match="Auto: expected learned to be a bool"):
+    with pytest.raises(ValueError, match="Auto: expected learned to be a bool or an existing"):
         Auto(A, learned="yes")
+
+
+def test_a_weights_file_stacks_that_network(tmp_path, monkeypatch):
+    """``learned=PATH`` stacks the network of that file: every pass of the network inside
+    ``auto`` gets it (a three-scale net written here), the blend is the convex combination
+    with that network's reconstruction, and the shipped file's path gives the default's
+    result exactly."""
+    import importlib
+
+    from torchtof.recon.learned import WEIGHTS_FILE, Learned, learned
+
+    am = importlib.import_module("torchtof.recon.auto")  # the module, not the function
+
+    A = Hadamard(32, sr=0.25)
+    y = _noisy(A, torch.cat([_grey(32, 0), _grey(32, 1).flip(-1)]), 0.01)
+    torch.manual_seed(0)
+    path = tmp_path / "mine.pt"
+    Learned(A, n_layers=2, width=4, scales=3, pretrained=False).save_weights(path)
+    seen = []
+
+    def spy(*args, **kw):
+        seen.append(kw.get("pretrained"))
+        return learned(*args, **kw)
+
+    monkeypatch.setattr(am, "learned_recon", spy)
+    on = auto(y, A, cv_iter=20, max_iter=200, learned=path, return_result=True)
+    assert len(seen) == 4 and all(p == path for p in seen)  # 3 folds and all rows
+    off = auto(y, A, cv_iter=20, max_iter=200, learned=False)
+    w = torch.tensor([[ch["learned_weight"] for ch in row] for row in on.choice])
+    want = off + w[..., None, None] * (learned(y, A, pretrained=path) - off)
+    torch.testing.assert_close(on.x, want, rtol=1e-5, atol=1e-5)
+    if WEIGHTS_FILE.is_file():
+        seen.clear()
+        torch.testing.assert_close(
+            auto(y, A, cv_iter=20, max_iter=200, learned=str(WEIGHTS_FILE)),
+            auto(y, A, cv_iter=20, max_iter=200), rtol=0, atol=0)
+        assert seen == [WEIGHTS_FILE] * 8  # the same file both ways
+    assert f"learned={path}," in repr(Auto(A, learned=path))
 
 
 @pytest.mark.slow

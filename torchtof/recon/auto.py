@@ -182,8 +182,10 @@ the fewest rows and was measured to cost 6 dB on the paper's character at n = 64
 result is ``(1 − w) x̂ + w x̂_learned`` of the two full-row reconstructions (projected onto
 the caller's ``bounds`` if given: the image obeys them); ``choice["learned_weight"]`` is
 ``w`` (``0``: the TV/TGV choice alone; ``None``: not stacked). The box-only solution is
-never stacked. The rule was chosen among seven on the peers benchmark's cells and checked on
-the cells of ``benchmarks/auto_eval.py``, which it was not chosen on (``docs/auto.md``).
+never stacked. ``learned=PATH`` stacks another weights file's network the same way (e.g.
+one trained with ``torchtof train`` on the caller's own scenes). The rule was chosen among
+seven on the peers benchmark's cells and checked on the cells of
+``benchmarks/auto_eval.py``, which it was not chosen on (``docs/auto.md``).
 
 Cost (defaults: tail split, 3 folds, ``cv_iter=100``): stage 1 is one batched solve per
 (prior, norm, bounds) group — 8 calls (12 with a box) of 3 folds × 7 weights = 21 channels ×
@@ -204,7 +206,9 @@ one default TVAL3 solve is in ``docs/auto.md``.
 from __future__ import annotations
 
 import math
+import os
 import warnings
+from pathlib import Path
 from typing import NamedTuple
 
 import torch
@@ -442,9 +446,15 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIOR
            infer_box=True, learned=True, gauss=True, tv_solver="tval3", fit_iter=None):
     if tv_solver not in TV_SOLVERS:
         raise ValueError(f"{fn}: expected tv_solver in {TV_SOLVERS}, got {tv_solver!r}")
-    for name, v in (("infer_box", infer_box), ("learned", learned), ("gauss", gauss)):
+    for name, v in (("infer_box", infer_box), ("gauss", gauss)):
         if not isinstance(v, bool):
             raise TypeError(f"{fn}: expected {name} to be a bool, got {type(v).__name__}")
+    if not isinstance(learned, (bool, str, os.PathLike)):
+        raise TypeError(f"{fn}: expected learned to be a bool or a weights file path, got "
+                        f"{type(learned).__name__}")
+    if not isinstance(learned, bool) and not Path(learned).is_file():
+        raise ValueError(f"{fn}: expected learned to be a bool or an existing weights file "
+                         f"(Learned.save_weights, torchtof train), got {os.fspath(learned)!r}")
     if (not isinstance(priors, (tuple, list)) or not priors
             or any(p not in AUTO_PRIORS for p in priors) or len(set(priors)) != len(priors)):
         raise ValueError(f"{fn}: expected priors a non-empty tuple of distinct names from "
@@ -548,7 +558,7 @@ def auto(
     priors: tuple[str, ...] = AUTO_PRIORS,
     infer_box: bool = True,
     gauss: bool = True,
-    learned: bool = True,
+    learned: bool | str | os.PathLike = True,
     tv_solver: str = "tval3",
     fit_iter: int | None = None,
     return_result: bool = False,
@@ -602,7 +612,10 @@ def auto(
         learned: stack the shipped learned network (:func:`~torchtof.recon.learned`) with the
             choice, weighted by cross-validation, where it applies (:func:`stackable`: a
             Hadamard operator, ``n ≥ 32``, the tail split; module doc, "Stacking");
-            ``choice["learned_weight"]`` is the weight (``None`` where not stacked).
+            ``choice["learned_weight"]`` is the weight (``None`` where not stacked). A path
+            stacks the network of that weights file instead (one written by
+            :meth:`~torchtof.recon.learned.Learned.save_weights` or ``torchtof train``, e.g.
+            trained on the caller's own scenes); ``False`` does not stack.
         tv_solver: ``"tval3"`` (every TV fit by TVAL3) or ``"split"`` (the TV-L2 fits of
             the TV prior by :func:`~torchtof.recon.tv.split_tv` where ``A`` has orthonormal
             rows, else by TVAL3); module doc, "The TV-L2 solver". A split refit runs its fixed
@@ -639,9 +652,10 @@ def auto(
     pa = None
     if gauss and gauss_applies(A, split) and nonempty:
         res, pa = _with_gauss(res, y, A, bounds, opts)
-    if learned and stackable(A, split) and nonempty:
-        if _learned_mod.WEIGHTS_FILE.is_file():
-            res = _with_learned(res, y, A, bounds, opts, pa)
+    if learned is not False and stackable(A, split) and nonempty:
+        weights = _learned_mod.WEIGHTS_FILE if learned is True else Path(learned)
+        if weights.is_file():
+            res = _with_learned(res, y, A, bounds, opts, pa, weights)
         else:
             warnings.warn(f"{fn}: the learned network's weights "
                           f"({_learned_mod.WEIGHTS_FILE}) are missing: returning the TV/TGV "
@@ -1100,30 +1114,36 @@ def choice_predictions(ys: torch.Tensor, A: LinearOperator, choices: list,
 
 
 def stack_predictions(ys: torch.Tensor, A: Hadamard, choices: list, train: torch.Tensor,
-                      cv_iter: int, tv_solver: str = "tval3", fit_iter: int | None = None
+                      cv_iter: int, tv_solver: str = "tval3", fit_iter: int | None = None,
+                      weights: bool | str | os.PathLike = True
                       ) -> tuple[torch.Tensor, torch.Tensor]:
     """Held-out predictions of the stacking (module doc, "Stacking"): for ``ys (R, 1, M)`` and
     its chosen candidates ``choices``, those of :func:`choice_predictions` and those of the
-    learned network fitted on each fold's first ``k`` rows (a tail split's training rows are
-    a prefix: a plain ``Hadamard(n, m=k)``), each ``(R, F, M)``."""
+    learned network (``weights``: ``pretrained`` of :class:`~torchtof.recon.learned.Learned`)
+    fitted on each fold's first ``k`` rows (a tail split's training rows are a prefix: a plain
+    ``Hadamard(n, m=k)``), each ``(R, F, M)``."""
     return (choice_predictions(ys, A, choices, train, cv_iter, tv_solver, fit_iter),
-            _learned_predictions(ys, A, train))
+            _learned_predictions(ys, A, train, weights))
 
 
-def _learned_predictions(ys: torch.Tensor, A: Hadamard, train: torch.Tensor) -> torch.Tensor:
-    xl = [learned_recon(ys[..., :k], Hadamard(A.n, m=k, order=A.order).to(ys.device))
+def _learned_predictions(ys: torch.Tensor, A: Hadamard, train: torch.Tensor,
+                         weights: bool | str | os.PathLike = True) -> torch.Tensor:
+    xl = [learned_recon(ys[..., :k], Hadamard(A.n, m=k, order=A.order).to(ys.device),
+                        pretrained=weights)
           for k in train.sum(-1).tolist()]
     return A(torch.cat(xl, dim=1))
 
 
 def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dict,
-                  pa: torch.Tensor | None = None) -> AutoResult:
+                  pa: torch.Tensor | None = None,
+                  weights: bool | str | os.PathLike = True) -> AutoResult:
     """Stage 5 of :func:`auto` (module doc, "Stacking"): the chosen candidate and the learned
     network are fitted on the same tail folds, the weight of the network is the least-squares
     stacking weight of their held-out predictions (:func:`stack_weight`), and the result is
     that convex combination of the two full-row reconstructions (projected onto the caller's
     ``bounds``, if any). ``pa``: the choice's held-out predictions when already computed
-    (:func:`_with_gauss`)."""
+    (:func:`_with_gauss`); ``weights``: the network's weights file (``True``: the shipped
+    one)."""
     b, c, m = y.shape
     bc, n = b * c, A.n
     held, train = cv_folds(A, y, opts["folds"], opts["seed"], "tail")
@@ -1132,11 +1152,11 @@ def _with_learned(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: d
     if pa is None:
         pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"],
                             opts["fit_iter"])
-    pl = _learned_predictions(ys, A, train)
+    pl = _learned_predictions(ys, A, train, weights)
     w = stack_weight(pa, pl, ys, held)
     w = torch.where(torch.tensor([ch["prior"] != "box" for ch in choice], device=y.device), w,
                     torch.zeros_like(w))
-    x_full = learned_recon(ys, A).reshape(b, c, n, n)
+    x_full = learned_recon(ys, A, pretrained=weights).reshape(b, c, n, n)
     wi = w.reshape(b, c, 1, 1)
     x = res.x + wi * (x_full - res.x)
     if bounds is not None:  # the caller's box holds for the image: project the blend onto it
@@ -1164,7 +1184,8 @@ class Auto(nn.Module):
     def __init__(self, A: LinearOperator, bounds: tuple | None = None, folds: int | None = None,
                  cv_iter: int = 100, max_iter: int = 1025, split: str | None = None,
                  slack: float = 0.0, seed: int = 0, priors: tuple = AUTO_PRIORS,
-                 infer_box: bool = True, gauss: bool = True, learned: bool = True,
+                 infer_box: bool = True, gauss: bool = True,
+                 learned: bool | str | os.PathLike = True,
                  tv_solver: str = "tval3", fit_iter: int | None = None) -> None:
         super().__init__()
         if not isinstance(A, LinearOperator):
