@@ -658,7 +658,7 @@ def auto(
             res = _with_learned(res, y, A, bounds, opts, pa, weights)
         else:
             warnings.warn(f"{fn}: the learned network's weights "
-                          f"({_learned_mod.WEIGHTS_FILE}) are missing: returning the TV/TGV "
+                          f"({weights}) are missing: returning the TV/TGV "
                           "choice without stacking (learned=False does so silently)",
                           stacklevel=2)
     return res if return_result else res.x
