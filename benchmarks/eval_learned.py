@@ -71,6 +71,13 @@ def scenes(cls: str, n: int) -> torch.Tensor:
     return torch.cat(xs).float()
 
 
+def recipe_of(weights: Path) -> Path:
+    """The ``recipe.json`` of a weights file: ``NAME.recipe.json`` beside it (the candidates
+    kept in ``docs/learned/candidates``) or ``recipe.json`` in its folder (a training run's)."""
+    own = weights.with_suffix(".recipe.json")
+    return own if own.is_file() else weights.parent / "recipe.json"
+
+
 def check_seeds_unseen(recipe: dict) -> None:
     """Every scene seed of the shipped run differs from the evaluation seeds."""
     steps, batch, seed = recipe["steps_run"], recipe["batch_size"], recipe["seed"]
@@ -283,7 +290,7 @@ def gen_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
+def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5, weights=True) -> list[dict]:
     """Export at batch 2 (dynamic batch) to a temporary file, then the median time per image
     of onnxruntime (1 thread) and of eager PyTorch on a batch of ``batch`` at SR 12.5 %, and
     the max abs difference on [0, 1] scenes."""
@@ -294,7 +301,7 @@ def onnx_times(sizes=(32, 128), batch: int = 8, repeats: int = 5) -> list[dict]:
     out = []
     for n in sizes:
         A = Hadamard(n, sr=0.125)
-        net = Learned(A).eval()
+        net = Learned(A, pretrained=weights).eval()
         x = torch.cat([draw_scene(n, EVAL_SEED_BASE + 10 + i) for i in range(batch)])
         y = A(x)
         with tempfile.TemporaryDirectory() as d, warnings.catch_warnings():
@@ -369,7 +376,7 @@ def speed(sizes=(32, 64, 128, 256), repeats: int = 3, weights=True,
     return out
 
 
-def paper(realisations: int = 3) -> list[dict]:
+def paper(realisations: int = 3, weights=True) -> list[dict]:
     """The paper's experiment (:class:`torchtof.experiment.PaperExperiment`, 天 at n = 32, in
     air, default stray light), depth buckets without and with the 3 m gate, the paper's SRs:
     :func:`torchtof.metrics.compare` (8-bit PSNR after min-max normalisation, physics
@@ -385,7 +392,7 @@ def paper(realisations: int = 3) -> list[dict]:
             x = data.x.to(y.dtype).expand(y.shape[0], -1, -1, -1)
             pol = data.polarity(gate)
             row = {"sr": sr, "gate": gate}
-            for name, fn in (("learned", lambda v, A=A: Learned(A)(v)),
+            for name, fn in (("learned", lambda v, A=A: Learned(A, pretrained=weights)(v)),
                              ("tval3", lambda v, A=A: tval3(v, A))):
                 with torch.no_grad():
                     s = compare(fn(y), x, pol)
@@ -443,7 +450,8 @@ def main() -> int:
             rows = speed(weights=args.weights or True,
                          flips_options=(1,) if args.flips == 1 else (1, args.flips))
         else:
-            rows = onnx_times() if args.onnx else paper()
+            w = args.weights or True
+            rows = onnx_times(weights=w) if args.onnx else paper(weights=w)
         if args.out:
             with open(args.out, "w") as f:
                 json.dump(rows, f, indent=0)
@@ -453,7 +461,7 @@ def main() -> int:
     if "learned" in args.methods:
         if not weights.is_file():
             raise SystemExit(f"no weights at {weights}")
-        recipe = json.loads((weights.parent / "recipe.json").read_text())
+        recipe = json.loads(recipe_of(weights).read_text())
         check_seeds_unseen(recipe)
     rows = []
     t0 = time.perf_counter()
