@@ -153,6 +153,16 @@ class LearnedResult(NamedTuple):
 # -- the prior network ----------------------------------------------------------------------
 
 
+def check_prior_sizes(func: str, width, shuffle, scales, optional: bool = False) -> None:
+    """``width`` and ``shuffle`` ints ``>= 1``, ``scales`` an int ``>= 2`` (each may be
+    ``None`` if ``optional``: read from a weights file later)."""
+    for name, v, lo in (("width", width, 1), ("shuffle", shuffle, 1), ("scales", scales, 2)):
+        if optional and v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise ValueError(f"{func}: expected {name} to be an int >= {lo}, got {v!r}")
+
+
 class LearnedPrior(nn.Module):
     """Residual multi-scale CNN ``R_θ(z; c)`` with FiLM conditioning (module docstring).
 
@@ -186,9 +196,7 @@ class LearnedPrior(nn.Module):
         scales: int = 2,
     ) -> None:
         super().__init__()
-        for name, v, lo in (("width", width, 1), ("shuffle", shuffle, 1), ("scales", scales, 2)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise ValueError(f"LearnedPrior: expected {name} to be an int >= {lo}, got {v!r}")
+        check_prior_sizes("LearnedPrior", width, shuffle, scales)
         w, r, S = width, shuffle, scales
         self.width, self.shuffle, self.scales = w, r, S
         self.inc = nn.Conv2d(r * r, w, 3, padding=1)
@@ -531,9 +539,7 @@ class Learned(nn.Module):
         if n_layers is not None:
             check_n_layers(n_layers, func)
         check_flips(flips, A, func)
-        for name, v, lo in (("width", width, 1), ("shuffle", shuffle, 1), ("scales", scales, 2)):
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < lo):
-                raise ValueError(f"{func}: expected {name} to be an int >= {lo}, got {v!r}")
+        check_prior_sizes(func, width, shuffle, scales, optional=True)
         if not isinstance(noise_sigma, torch.Tensor):
             _sigma_of(noise_sigma, torch.zeros(1, 1, 1), func)  # validate once here
         path = None
