@@ -387,6 +387,19 @@ def _check_train(args: argparse.Namespace) -> None:
             check_families(dict(args.families), "train")
         except ValueError as exc:
             raise ValueError(f"argument --families: {exc}") from None
+    if not args.calibrate_only or args.images:
+        from .recon.learned_train import check_user_paths, user_mixture
+
+        try:
+            paths = check_user_paths(args.images, "train")
+        except (TypeError, FileNotFoundError, ValueError) as exc:
+            raise ValueError(f"argument --images: {exc}") from None
+        try:
+            user_mixture(None if args.families is None else dict(args.families), paths, "train")
+        except ValueError as exc:
+            flag = "--images" if args.images else "--families"
+            raise ValueError(f"argument {flag}: {exc} (give --images with user=P in "
+                             "--families, or --images alone)") from None
     check_device(args.device, "the device", "argument --device")
 
 

@@ -420,13 +420,17 @@ def test_bad_inputs_raise():
 
 @pytest.mark.parametrize("family", list(FAMILIES))
 def test_scenes_seeded_in_range_and_shard_invariant(family):
-    a = draw_scene(32, 7, family)
-    assert torch.equal(a, draw_scene(32, 7, family))
-    assert not torch.equal(a, draw_scene(32, 8, family))
+    # the "user" family crops the caller's images: two smooth random fields here
+    g = torch.Generator().manual_seed(0)
+    kw = {"user_images": [torch.rand(40, 56, generator=g), torch.rand(64, 64, generator=g)]
+          if family == "user" else ()}
+    a = draw_scene(32, 7, family, **kw)
+    assert torch.equal(a, draw_scene(32, 7, family, **kw))
+    assert not torch.equal(a, draw_scene(32, 8, family, **kw))
     assert a.shape == (1, 1, 32, 32) and 0 <= float(a.min()) and float(a.max()) <= 1
-    whole = draw_scenes(32, 3, 5, range(4), family)
-    torch.testing.assert_close(whole, torch.cat([draw_scenes(32, 3, 5, range(0, 2), family),
-                                                 draw_scenes(32, 3, 5, range(2, 4), family)]))
+    whole = draw_scenes(32, 3, 5, range(4), family, **kw)
+    torch.testing.assert_close(whole, torch.cat([draw_scenes(32, 3, 5, range(0, 2), family, **kw),
+                                                 draw_scenes(32, 3, 5, range(2, 4), family, **kw)]))
 
 
 def test_held_out_images_are_disjoint_and_never_drawn_for_training():
@@ -476,7 +480,7 @@ def test_families_mixture_and_its_checks():
     for seed in range(5):
         assert torch.equal(draw_scene(32, seed, families={"leaves": 1.0}),
                            draw_scene(32, seed, "leaves"))
-    assert FAMILIES["leaves"] == 0.0
+    assert FAMILIES["leaves"] == 0.0 and FAMILIES["user"] == 0.0
     # the shipped weights' mixture picks as it did before "leaves" existed: the previous
     # release's rule, a running float sum over the five families, written out here
     names = ("planar", "smooth", "silhouette", "strokes", "natural")

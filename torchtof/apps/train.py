@@ -71,6 +71,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--families", type=_family, nargs="+", default=None, metavar="NAME=P",
                    help="probabilities of the scene families, summing to 1, from "
                         f"{', '.join(FAMILIES)} (default: {_default_families()})")
+    p.add_argument("--images", nargs="+", default=None, metavar="PATH",
+                   help="your own scenes for the 'user' family, to adapt the network to your "
+                        "domain (with --init shipped): image files (png, jpg, tif, bmp; grey "
+                        "or RGB), .npy (a 2-D image or a 3-D stack), .npz, or folders of them; "
+                        "each min-max normalised; random crops as for 'natural'. Without "
+                        "--families: user=0.5 and the default mixture halved (default: none)")
     p.add_argument("--out", default="train_learned_out",
                    help="folder of checkpoint.pt, log.json, learned.pt, recipe.json" + d)
     p.add_argument("--checkpoint-every", type=nonneg_int, default=100,
@@ -174,11 +180,14 @@ def main(args: argparse.Namespace) -> int:
         # the run's own mixture unless --families says otherwise
         families = (dict(args.families) if args.families is not None
                     else recipe.get("data", {}).get("families"))
+        # ... and its own images unless --images says otherwise
+        images = args.images or [r["path"] for r in recipe.get("data", {}).get("user_images", [])]
         t0 = time.perf_counter()
         calib = calibrate_tau(model, args.seed, sizes=tuple(args.sizes), p_large=args.p_large,
                               sr_range=tuple(args.sr_range), orders=tuple(args.orders),
                               noise_ref=args.noise_ref or None, p_clean=args.p_clean,
-                              p_noise_ref=args.p_noise_ref, families=families)
+                              p_noise_ref=args.p_noise_ref, families=families,
+                              user_images=images or None)
         recipe.update(final_step_calibration=calib, calibration_command=command,
                       calibration_families=families,
                       calibration_wall_s=round(time.perf_counter() - t0, 1))
@@ -200,6 +209,7 @@ def main(args: argparse.Namespace) -> int:
         command=command, calibrate=not args.no_calibrate, device=args.device,
         workers=args.workers, init=args.init, x0=args.x0 or "adjoint",
         families=None if args.families is None else dict(args.families),
+        user_images=args.images,
     )
     if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process
         print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")

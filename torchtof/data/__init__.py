@@ -5,11 +5,13 @@ from .scenes import (
     EVAL_SEED_BASE,
     FAMILIES,
     HELD_OUT_IMAGES,
+    IMAGE_SUFFIXES,
     TRAIN_IMAGES,
     check_families,
     draw_scene,
     draw_scenes,
     grey_image,
+    load_images,
     planar_depth,
 )
 
@@ -22,6 +24,8 @@ __all__ = [
     "draw_scene",
     "draw_scenes",
     "grey_image",
+    "load_images",
+    "IMAGE_SUFFIXES",
     "planar_depth",
     "NoiseRecipe",
     "noisy_buckets",

@@ -14,7 +14,11 @@ sees (a binary character, objects at several depths, the paper's §3.1) and natu
   drawn for training;
 - ``"leaves"``: textured dead-leaves images (occluding discs of power-law sizes), a
   procedural stand-in for natural images (probability 0 in :data:`FAMILIES`; a training run
-  may give it one).
+  may give it one);
+- ``"user"``: random crops, as ``"natural"``, of the caller's own images
+  (:func:`load_images`: image files, ``.npy``/``.npz`` arrays, folders of them), for adapting
+  the network to a domain (probability 0 in :data:`FAMILIES`; a run that passes images
+  gives it one).
 
 A binary scene is inverted (``1 − x``) with probability 0.3 and gets random levels with
 probability 0.3 (the ungated depth bucket gives negative images, paper §3.1).
@@ -29,7 +33,9 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -46,6 +52,8 @@ __all__ = [
     "draw_scene",
     "draw_scenes",
     "grey_image",
+    "load_images",
+    "IMAGE_SUFFIXES",
     "pick_family",
     "planar_depth",
     "power_law_radii",
@@ -60,6 +68,7 @@ FAMILIES: dict[str, float] = {
     "strokes": 0.15,
     "natural": 0.25,
     "leaves": 0.0,
+    "user": 0.0,
 }
 #: scikit-image images drawn for training (bundled with scikit-image, no download).
 TRAIN_IMAGES: tuple[str, ...] = (
@@ -113,6 +122,116 @@ def grey_image(name: str) -> torch.Tensor:
             f"grey_image: expected name in {TRAIN_IMAGES + HELD_OUT_IMAGES}, got {name!r}"
         )
     return torch.from_numpy(_grey_np(name))
+
+
+#: File types :func:`load_images` reads (the image formats through ``skimage.io.imread``).
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".npy",
+                                   ".npz")
+
+
+def _image_files(path: Path, func: str) -> list[Path]:
+    if path.is_dir():
+        files = sorted(f for f in path.iterdir()
+                       if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise ValueError(f"{func}: expected images in folder {os.fspath(path)!r} "
+                             f"(files ending {', '.join(IMAGE_SUFFIXES)}), found none")
+        return files
+    if not path.is_file():
+        raise FileNotFoundError(f"{func}: no such image file or folder: {os.fspath(path)!r}")
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise ValueError(f"{func}: expected an image file ending {', '.join(IMAGE_SUFFIXES)}, "
+                         f"got {os.fspath(path)!r}")
+    return [path]
+
+
+def _arrays_of(f: Path) -> list[tuple[str, np.ndarray]]:
+    """``(label, 2-D or 3-D array)`` of one file; a 3-D ``.npy``/``.npz`` array is a stack."""
+    suffix = f.suffix.lower()
+    if suffix == ".npy":
+        a = np.load(f, allow_pickle=False)
+        return [(os.fspath(f), a)]
+    if suffix == ".npz":
+        with np.load(f, allow_pickle=False) as z:
+            return [(f"{os.fspath(f)}[{k}]", z[k]) for k in sorted(z.files)]
+    import skimage.color
+    import skimage.io
+
+    img = np.asarray(skimage.io.imread(f))
+    if img.ndim == 3 and img.shape[-1] == 4:
+        img = skimage.color.rgba2rgb(img)
+    if img.ndim == 3 and img.shape[-1] == 3:
+        img = skimage.color.rgb2gray(img)
+    return [(os.fspath(f), img)]
+
+
+def load_images(paths: str | os.PathLike | Sequence[str | os.PathLike],
+                func: str = "load_images") -> tuple[torch.Tensor, ...]:
+    """The caller's own scenes for the ``"user"`` family, each a float32 ``(H, W)`` tensor
+    min–max normalised to ``[0, 1]``.
+
+    ``paths``: files or folders (a folder's files ending in :data:`IMAGE_SUFFIXES`, sorted,
+    not recursive). Image files are read with ``skimage.io.imread`` (RGB(A) made grey as for
+    the bundled images); a ``.npy`` holds one 2-D image or a 3-D stack ``(K, H, W)``; a ``.npz``
+    any number of them. Values are any real units (depth in metres, counts, intensities):
+    the network is scale-equivariant, so only the shape of the image matters.
+
+    Raises:
+        FileNotFoundError: for a path that does not exist.
+        ValueError: for an unsupported file, an empty folder, an array that is not 2-D or 3-D,
+            a side below 8 pixels, a value that is not finite (mark invalid depth pixels by
+            filling them first) or a constant image; the message names the file.
+
+    Example:
+        >>> import tempfile, numpy as np
+        >>> f = tempfile.NamedTemporaryFile(suffix=".npy", delete=False).name
+        >>> np.save(f, np.arange(200.0).reshape(10, 20))
+        >>> [tuple(t.shape) for t in load_images(f)], float(load_images(f)[0].max())
+        ([(10, 20)], 1.0)
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    if isinstance(paths, (bytes, torch.Tensor)) or not isinstance(paths, Sequence) or not paths:
+        raise TypeError(f"{func}: expected paths to be a path or a non-empty sequence of paths, "
+                        f"got {type(paths).__name__}")
+    out = []
+    for path in paths:
+        if not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"{func}: expected paths of str or os.PathLike, "
+                            f"got {type(path).__name__}")
+        for f in _image_files(Path(path), func):
+            for label, a in _arrays_of(f):
+                if a.dtype.kind not in "biuf" or a.ndim not in (2, 3):
+                    raise ValueError(f"{func}: expected a real 2-D image or 3-D stack in "
+                                     f"{label!r}, got dtype {a.dtype} and shape {a.shape}")
+                for k, img in enumerate(a if a.ndim == 3 else a[None]):
+                    name = label if a.ndim == 2 else f"{label}[{k}]"
+                    img = img.astype(np.float64)
+                    if min(img.shape) < 8:
+                        raise ValueError(f"{func}: expected images of side >= 8, got shape "
+                                         f"{img.shape} in {name!r}")
+                    if not np.isfinite(img).all():
+                        raise ValueError(f"{func}: expected finite values in {name!r} (fill "
+                                         "invalid pixels first), got NaN or inf")
+                    lo, hi = img.min(), img.max()
+                    if not hi > lo:
+                        raise ValueError(f"{func}: expected a non-constant image, {name!r} is "
+                                         f"constant ({lo:g})")
+                    out.append(torch.from_numpy((img - lo) / (hi - lo)).to(torch.float32))
+    return tuple(out)
+
+
+def _check_user_images(user_images, func: str) -> tuple[torch.Tensor, ...]:
+    if isinstance(user_images, torch.Tensor) or not isinstance(user_images, Sequence):
+        raise TypeError(f"{func}: expected user_images to be a sequence of (H, W) tensors, "
+                        f"got {type(user_images).__name__}")
+    for t in user_images:
+        if (not isinstance(t, torch.Tensor) or t.ndim != 2 or not t.is_floating_point()
+                or min(t.shape) < 8):
+            raise ValueError(f"{func}: expected user_images of floating (H, W) tensors with "
+                             f"H, W >= 8 (torchtof.data.load_images), got "
+                             f"{getattr(t, 'shape', type(t).__name__)}")
+    return tuple(user_images)
 
 
 class _Draw:
@@ -217,7 +336,13 @@ def _strokes(d: _Draw, yy: torch.Tensor, xx: torch.Tensor, n: int) -> torch.Tens
 
 
 def _natural(d: _Draw, n: int, images: Sequence[str]) -> torch.Tensor:
-    img = grey_image(images[d.i(0, len(images) - 1)])
+    return _crop(d, n, grey_image(images[d.i(0, len(images) - 1)]))
+
+
+def _crop(d: _Draw, n: int, img: torch.Tensor) -> torch.Tensor:
+    """A random square crop of ``img (H, W)`` (a quarter of its shorter side to all of it),
+    resized to ``n × n`` with anti-aliasing, turned by a random quarter, flipped with
+    probability ½, min–max normalised, then given a random contrast span in [0.6, 1]."""
     h, w = img.shape
     side = int(round(min(h, w) * d.u(0.25, 1.0)))
     side = max(side, min(n, h, w))
@@ -300,6 +425,7 @@ def draw_scene(
     images: Sequence[str] = TRAIN_IMAGES,
     dtype: torch.dtype = torch.float32,
     families: dict[str, float] | None = None,
+    user_images: Sequence[torch.Tensor] = (),
 ) -> torch.Tensor:
     """One scene in ``[0, 1]`` from its own generator seeded ``seed``.
 
@@ -312,35 +438,45 @@ def draw_scene(
         dtype: floating dtype of the result.
         families: probabilities of the families (keys from :data:`FAMILIES`, summing to 1);
             ``None``: :data:`FAMILIES`.
+        user_images: the ``"user"`` family's images, ``(H, W)`` tensors in ``[0, 1]``
+            (:func:`load_images`); needed only where that family can be drawn.
 
     Returns:
         The scene, shape ``(1, 1, n, n)``.
 
     Raises:
-        ValueError: if ``n < 8``, ``family`` is unknown or ``images`` is empty.
+        ValueError: if ``n < 8``, ``family`` is unknown, ``images`` is empty, or the
+            ``"user"`` family can be drawn without ``user_images``.
 
     Example:
         >>> draw_scene(32, seed=1, family="planar").shape
         torch.Size([1, 1, 32, 32])
     """
-    probs = _check_scene_args(n, family, images, families, "draw_scene")
-    return _draw_scene(n, seed, family, images, dtype, probs)
+    probs, user = _check_scene_args(n, family, images, families, user_images, "draw_scene")
+    return _draw_scene(n, seed, family, images, dtype, probs, user)
 
 
-def _check_scene_args(n, family, images, families, func: str) -> dict[str, float]:
+def _check_scene_args(n, family, images, families, user_images,
+                      func: str) -> tuple[dict[str, float], tuple[torch.Tensor, ...]]:
     """The checks of :func:`draw_scene` and :func:`draw_scenes` (once per call); returns the
-    family probabilities."""
+    family probabilities and the user images."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 8:
         raise ValueError(f"{func}: expected n to be an int >= 8, got {n!r}")
     if family is not None and family not in FAMILIES:
         raise ValueError(f"{func}: expected family in {tuple(FAMILIES)} or None, got {family!r}")
     if len(images) == 0:
         raise ValueError(f"{func}: expected a non-empty images, got {images!r}")
-    return FAMILIES if families is None else check_families(families, func)
+    probs = FAMILIES if families is None else check_families(families, func)
+    user = _check_user_images(user_images, func)
+    if not user and (family == "user" if family is not None else probs.get("user", 0) > 0):
+        raise ValueError(f"{func}: expected user_images for the 'user' family "
+                         "(torchtof.data.load_images), got none")
+    return probs, user
 
 
 def _draw_scene(n: int, seed: int, family: str | None, images: Sequence[str],
-                dtype: torch.dtype, probs: dict[str, float]) -> torch.Tensor:
+                dtype: torch.dtype, probs: dict[str, float],
+                user_images: tuple[torch.Tensor, ...] = ()) -> torch.Tensor:
     """:func:`draw_scene` on checked arguments."""
     d = _Draw(seed)
     r = d.u(0, 1)
@@ -353,6 +489,8 @@ def _draw_scene(n: int, seed: int, family: str | None, images: Sequence[str],
         x = _natural(d, n, images)
     elif family == "leaves":
         x = _leaves(d, n)
+    elif family == "user":
+        x = _crop(d, n, user_images[d.i(0, len(user_images) - 1)].to(torch.float32))
     else:
         m = _silhouette(d, yy, xx) if family == "silhouette" else _strokes(d, yy, xx, n)
         x = m.to(torch.float32)
@@ -373,11 +511,12 @@ def draw_scenes(
     images: Sequence[str] = TRAIN_IMAGES,
     dtype: torch.dtype = torch.float32,
     families: dict[str, float] | None = None,
+    user_images: Sequence[torch.Tensor] = (),
 ) -> torch.Tensor:
     """Scenes ``indices`` of the global batch of ``step`` in a run seeded ``seed``.
 
     Scene ``i`` is ``draw_scene(n, scene_seed(seed, step, i), family, images, dtype,
-    families)``
+    families, user_images)``
     (:func:`~torchtof.recon.synthetic.scene_seed` mixes the three integers), so any split of
     the indices over processes draws the same global batch.
 
@@ -393,9 +532,9 @@ def draw_scenes(
     """
     if len(indices) == 0:
         raise ValueError("draw_scenes: expected a non-empty indices, got 0 indices")
-    probs = _check_scene_args(n, family, images, families, "draw_scenes")
+    probs, user = _check_scene_args(n, family, images, families, user_images, "draw_scenes")
     return torch.cat(
-        [_draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, probs)
+        [_draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, probs, user)
          for i in indices]
     )
 

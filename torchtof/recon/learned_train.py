@@ -34,6 +34,7 @@ Command line: ``torchtof train --model learned`` (:func:`add_arguments`, :func:`
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -55,6 +56,7 @@ from ..data import (
     TRAIN_LEVELS,
     check_families,
     draw_scenes,
+    load_images,
     noisy_buckets,
     training_noise,
 )
@@ -100,6 +102,67 @@ class LearnedTrainResult(NamedTuple):
     model: Learned
     losses: list[float]
     wall_s: float
+
+
+#: Probability of the ``"user"`` family when a run gets its own images but no ``families``
+#: (the rest: the shipped mixture, scaled).
+P_USER = 0.5
+
+
+@functools.lru_cache(maxsize=4)
+def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
+    """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process."""
+    return load_images(list(paths), "train_learned") if paths else ()
+
+
+def user_image_record(paths: tuple[str, ...]) -> list[dict]:
+    """What ``recipe.json`` records of a run's own images: each file's path, SHA-256 and the
+    number of images in it (a folder is listed file by file)."""
+    from ..data.scenes import _image_files
+
+    out = []
+    for p in paths:
+        for f in _image_files(Path(p), "train_learned"):
+            out.append({"path": os.fspath(f.resolve()),
+                        "sha256": hashlib.sha256(f.read_bytes()).hexdigest(),
+                        "images": len(load_images(f, "train_learned"))})
+    return out
+
+
+def user_mixture(families: dict[str, float] | None, user_paths: tuple[str, ...],
+                 func: str) -> dict[str, float]:
+    """The checked family probabilities of a run: ``families``, or with images and no
+    ``families`` the shipped mixture scaled by ``1 − P_USER`` and ``user`` at ``P_USER``; the
+    ``"user"`` family needs images and images need the family."""
+    if families is None:
+        if not user_paths:
+            return FAMILIES
+        families = {k: v * (1 - P_USER) for k, v in FAMILIES.items() if v > 0}
+        families["user"] = P_USER
+    families = check_families(families, func)
+    if families.get("user", 0) > 0 and not user_paths:
+        raise ValueError(f"{func}: expected user_images for families['user'] = "
+                         f"{families['user']:g}, got none")
+    if user_paths and not families.get("user", 0) > 0:
+        raise ValueError(f"{func}: expected families['user'] > 0 with user_images, got "
+                         f"{families.get('user', 0):g}")
+    return families
+
+
+def check_user_paths(user_images, func: str) -> tuple[str, ...]:
+    """``user_images`` (``None``, a path or paths) as absolute path strings, every image read
+    once here so that a bad file fails before training (``TypeError``/``ValueError``)."""
+    if user_images is None:
+        return ()
+    if isinstance(user_images, (str, os.PathLike)):
+        user_images = [user_images]
+    if not isinstance(user_images, (list, tuple)) or not user_images or not all(
+            isinstance(p, (str, os.PathLike)) for p in user_images):
+        raise TypeError(f"{func}: expected user_images to be None, a path or a non-empty list "
+                        f"of paths, got {user_images!r}")
+    paths = tuple(os.fspath(Path(p).resolve()) for p in user_images)
+    load_images(list(paths), func)
+    return paths
 
 
 #: Floor of the per-sample MSE inside :func:`psnr_loss` (PSNR 60 dB on [0, 1]).
@@ -182,8 +245,9 @@ def _recipes(seed: int, step: int, n: int, indices: range, noise_ref: int | None
 
 def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
            noise_ref: int | None = None, p_clean: float = P_CLEAN, p_noise_ref: float = 1.0,
-           families: dict[str, float] | None = None):
-    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES, families=families)
+           families: dict[str, float] | None = None, user_paths: tuple[str, ...] = ()):
+    x = draw_scenes(n, seed, step, indices, images=TRAIN_IMAGES, families=families,
+                    user_images=_user_images(user_paths))
     gens, recipes = _recipes(seed, step, n, indices, noise_ref, p_clean, p_noise_ref)
     A = Hadamard(n, m=m, order=order)
     with torch.no_grad():
@@ -194,12 +258,12 @@ def _batch(seed: int, step: int, n: int, m: int, order: str, indices: range,
 def _step_data(args: tuple) -> tuple:
     """``(n, m, order, x, y)`` of one training step (a top-level function, so that data
     processes can run it): ``args = (seed, step, sizes, p_large, sr_range, orders, indices,
-    noise_ref, p_clean, p_noise_ref, families)``."""
+    noise_ref, p_clean, p_noise_ref, families, user_paths)``."""
     (seed, step, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref,
-     families) = args
+     families, user_paths) = args
     n, m, order = step_config(seed, step, sizes, p_large, sr_range, orders)
     _, x, y = _batch(seed, step, n, m, order, indices, noise_ref, p_clean, p_noise_ref,
-                     families)
+                     families, user_paths)
     return n, m, order, x, y
 
 
@@ -251,6 +315,7 @@ def calibrate_tau(
     p_clean: float = P_CLEAN,
     p_noise_ref: float = 1.0,
     families: dict[str, float] | None = None,
+    user_images: tuple[str, ...] | None = None,
 ) -> dict:
     """Set ``model.log_tau`` to the ``τ`` of ``grid`` with the best mean PSNR (the lowest
     :func:`psnr_loss`) on ``batches`` batches of the training recipe at steps
@@ -258,8 +323,11 @@ def calibrate_tau(
 
     The network up to the last prior step is run once per batch; each ``τ`` then costs one
     ``A`` and one ``Aᵀ``. Returns ``{"tau": τ, "losses": {τ: loss}, "loss_off": loss}``
-    (``loss_off``: without the final step).
+    (``loss_off``: without the final step). ``user_images``: the run's own images (paths,
+    as :func:`train_learned`), needed where ``families`` gives ``"user"`` a probability.
     """
+    user_paths = check_user_paths(user_images, "calibrate_tau")
+    families = user_mixture(families, user_paths, "calibrate_tau")
     outs = []
     model.final_dc = False
     device = model.log_tau.device
@@ -268,7 +336,7 @@ def calibrate_tau(
             step = CALIBRATION_STEP0 + k
             n, m, order = step_config(seed, step, tuple(sorted(sizes)), p_large, sr_range, orders)
             A, x, y = _batch(seed, step, n, m, order, range(batch_size), noise_ref, p_clean,
-                             p_noise_ref, families)
+                             p_noise_ref, families, user_paths)
             A, x, y = A.to(device), x.to(device), y.to(device)
             model.A = A
             outs.append((A, x, y, model(y)))
@@ -318,6 +386,7 @@ def train_learned(
     init: str | os.PathLike | None = None,
     families: dict[str, float] | None = None,
     x0: str = "adjoint",
+    user_images: str | os.PathLike | list | tuple | None = None,
 ) -> LearnedTrainResult:
     """Train :class:`Learned` from its random initialisation, or fine-tune it from a weights
     file (``init``) (module docstring).
@@ -363,6 +432,12 @@ def train_learned(
             checkpoint resumed (``resume``) takes precedence.
         x0: the network's starting estimate (:class:`Learned`, ``x0``), also when ``init``
             was trained with another; the weights file records it.
+        user_images: the caller's own scenes for the ``"user"`` family: a path or paths of
+            image files, ``.npy``/``.npz`` arrays or folders (:func:`torchtof.data.load_images`;
+            read once at the entry and once per data process). Without ``families`` the run
+            draws ``"user"`` with probability ``P_USER`` = 0.5 and the shipped mixture, scaled,
+            otherwise; with ``families`` it must give ``"user"`` a probability. With ``init``
+            this adapts the network to a domain. ``recipe.json`` records each file's SHA-256.
 
     Returns:
         :class:`LearnedTrainResult`.
@@ -392,7 +467,8 @@ def train_learned(
     bad = [o for o in orders if o not in ORDERS]
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
-    families = FAMILIES if families is None else check_families(families, func)
+    user_paths = check_user_paths(user_images, func)
+    families = user_mixture(families, user_paths, func)
     if init is not None and not isinstance(init, (str, os.PathLike)):
         raise TypeError(f"{func}: expected init to be a path or None, got {type(init).__name__}")
     if init is not None and not Path(init).is_file():
@@ -470,7 +546,7 @@ def train_learned(
         step = start
         stream = _step_stream(range(start, steps), workers, (
             seed, sizes, p_large, sr_range, orders, indices, noise_ref, p_clean, p_noise_ref,
-            families))
+            families, user_paths))
         for step, (n, m, order, x, y) in zip(range(start, steps), stream):
             x, y = x.to(device), y.to(device)
             model.A = Hadamard(n, m=m, order=order).to(device)
@@ -509,7 +585,8 @@ def train_learned(
         t_cal = time.perf_counter()
         calib = calibrate_tau(model, seed, sizes=sizes, p_large=p_large, sr_range=(lo, hi),
                               orders=orders, noise_ref=noise_ref, p_clean=p_clean,
-                              p_noise_ref=p_noise_ref, families=families) if calibrate else None
+                              p_noise_ref=p_noise_ref, families=families,
+                              user_images=user_paths or None) if calibrate else None
         if outdir is not None and rank == 0:
             recipe = {
                 "command": command,
@@ -532,6 +609,7 @@ def train_learned(
                 "data": {
                     "families": families,
                     "train_images": list(TRAIN_IMAGES),
+                    "user_images": user_image_record(user_paths),
                     "noise": {"p_clean": p_clean, "gaussian_levels": list(TRAIN_LEVELS),
                               "levels_scaled_to_n": noise_ref,
                               "p_levels_scaled": p_noise_ref if noise_ref else None,
