@@ -11,6 +11,7 @@ from .scenes import (
     draw_scene,
     draw_scenes,
     grey_image,
+    image_files,
     load_images,
     planar_depth,
 )
@@ -25,6 +26,7 @@ __all__ = [
     "draw_scenes",
     "grey_image",
     "load_images",
+    "image_files",
     "IMAGE_SUFFIXES",
     "planar_depth",
     "NoiseRecipe",

@@ -53,6 +53,7 @@ __all__ = [
     "draw_scenes",
     "grey_image",
     "load_images",
+    "image_files",
     "IMAGE_SUFFIXES",
     "pick_family",
     "planar_depth",
@@ -129,7 +130,11 @@ IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".b
                                    ".npz")
 
 
-def _image_files(path: Path, func: str) -> list[Path]:
+def image_files(path: str | os.PathLike, func: str = "image_files") -> list[Path]:
+    """The files :func:`load_images` reads for one path: the file itself, or a folder's files
+    ending in :data:`IMAGE_SUFFIXES`, sorted by name (``FileNotFoundError``/``ValueError``
+    naming the path otherwise)."""
+    path = Path(path)
     if path.is_dir():
         files = sorted(f for f in path.iterdir()
                        if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
@@ -199,7 +204,7 @@ def load_images(paths: str | os.PathLike | Sequence[str | os.PathLike],
         if not isinstance(path, (str, os.PathLike)):
             raise TypeError(f"{func}: expected paths of str or os.PathLike, "
                             f"got {type(path).__name__}")
-        for f in _image_files(Path(path), func):
+        for f in image_files(Path(path), func):
             for label, a in _arrays_of(f):
                 if a.dtype.kind not in "biuf" or a.ndim not in (2, 3):
                     raise ValueError(f"{func}: expected a real 2-D image or 3-D stack in "

@@ -56,6 +56,7 @@ from ..data import (
     TRAIN_LEVELS,
     check_families,
     draw_scenes,
+    image_files,
     load_images,
     noisy_buckets,
     training_noise,
@@ -118,11 +119,9 @@ def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
 def user_image_record(paths: tuple[str, ...]) -> list[dict]:
     """What ``recipe.json`` records of a run's own images: each file's path, SHA-256 and the
     number of images in it (a folder is listed file by file)."""
-    from ..data.scenes import _image_files
-
     out = []
     for p in paths:
-        for f in _image_files(Path(p), "train_learned"):
+        for f in image_files(Path(p), "train_learned"):
             out.append({"path": os.fspath(f.resolve()),
                         "sha256": hashlib.sha256(f.read_bytes()).hexdigest(),
                         "images": len(load_images(f, "train_learned"))})

@@ -1,0 +1,158 @@
+"""Adapting the learned network to a user's own scenes (``torchtof train --images``): one real
+depth map split in two, the network fine-tuned on one part and scored on the other.
+
+The domain: the Middlebury "motorcycle" disparity that scikit-image bundles (Scharstein et al.
+2014; no download), turned into depth ``z ∝ 1/δ`` with invalid pixels filled from the nearest
+valid one (as :func:`torchtof.scenes.motorcycle_depth`). Its left half (columns
+``[0, W/2)``) is the user's training data, written by ``--make-data DIR`` as
+``DIR/motorcycle_left.npy``; its right half gives the evaluation scenes, three fixed square
+crops (top, bottom, and a zoom on the rear wheel), none of whose pixels training sees.
+
+Each cell (n, SR, noise level) scores TVAL3's defaults and every weights file given (the
+shipped network unless ``--weights`` says otherwise) on the same buckets: cake-cutting
+Hadamard rows, Gaussian noise of ``level × (max y − min y)``, one seeded draw per scene,
+PSNR of the output clipped to [0, 1] (``benchmarks/eval_learned.py``'s conventions).
+
+    python benchmarks/learned_user_domain.py --make-data ud
+    torchtof --threads 1 train --init shipped --images ud/motorcycle_left.npy \\
+        --steps 1500 --lr 5e-4 --seed 1 --out ft_moto
+    OMP_NUM_THREADS=1 python benchmarks/learned_user_domain.py \\
+        --weights shipped ft_moto/learned.pt --out user_domain.json
+
+``--auto`` also scores ``auto(y, A, learned=W)`` for each file (its stacking with that
+network; about 5–10 s per cell at n = 32–64).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_learned import buckets, score  # noqa: E402  (the held-out evaluation's conventions)
+
+from torchtof.apps.args import OneLineParser  # noqa: E402
+from torchtof.operators import Hadamard  # noqa: E402
+from torchtof.recon.auto import auto  # noqa: E402
+from torchtof.recon.learned import WEIGHTS_FILE, Learned  # noqa: E402
+from torchtof.recon.tval3 import tval3  # noqa: E402
+
+#: The evaluation crops of the right half ``(row, column, side)`` (it is 500 × 370).
+CROPS = ((0, 0, 370), (130, 0, 370), (150, 120, 200))
+
+
+def depth_map() -> np.ndarray:
+    """The full-resolution depth (arbitrary units, ``1/δ``) of the motorcycle scene."""
+    import skimage.data
+    from scipy.ndimage import distance_transform_edt
+
+    disp = np.asarray(skimage.data.stereo_motorcycle()[2], dtype=np.float64)
+    invalid = ~np.isfinite(disp) | (disp <= 0)
+    idx = distance_transform_edt(invalid, return_distances=False, return_indices=True)
+    return 1.0 / disp[tuple(idx)]
+
+
+def halves() -> tuple[np.ndarray, np.ndarray]:
+    z = depth_map()
+    w = z.shape[1] // 2
+    return z[:, :w], z[:, w:]
+
+
+def eval_scenes(n: int) -> torch.Tensor:
+    """The right half's crops at side ``n``, each min–max normalised to [0, 1]: ``(3, 1, n, n)``."""
+    right = torch.from_numpy(halves()[1])
+    xs = []
+    for r, c, s in CROPS:
+        crop = right[r : r + s, c : c + s][None, None]
+        x = F.interpolate(crop, size=(n, n), mode="bilinear", antialias=True)
+        xs.append((x - x.amin()) / (x.amax() - x.amin()))
+    return torch.cat(xs).float()
+
+
+def run(sizes, srs, levels, weights: list[str], with_auto: bool = False) -> list[dict]:
+    rows = []
+    for n in sizes:
+        x = eval_scenes(n)
+        for sr in srs:
+            A = Hadamard(n, sr=sr, order="cake_cutting")
+            nets = {w: Learned(A, pretrained=WEIGHTS_FILE if w == "shipped" else w).eval()
+                    for w in weights}
+            for level in levels:
+                y = buckets(A, x, level, salt=7 * n + int(sr * 1e4) + int(level * 1e4))
+                row = {"n": n, "sr": sr, "level": level}
+                with torch.no_grad():
+                    row["tval3"] = score(tval3(y, A), x)[0]
+                    for w, net in nets.items():
+                        row[w] = score(net(y), x)[0]
+                    for w in weights if with_auto else ():
+                        row[f"auto+{w}"] = score(auto(y, A, learned=WEIGHTS_FILE if w == "shipped"
+                                                      else w), x)[0]
+                rows.append(row)
+                print(f"n={n} SR {sr * 100:g} % noise {level * 100:g} %: TVAL3 "
+                      f"{row['tval3']:.2f} dB; " + "; ".join(
+                          f"{w} {row[w] - row['tval3']:+.2f}" for w in row
+                          if w not in ("n", "sr", "level", "tval3")), flush=True)
+    return rows
+
+
+def table(rows: list[dict], weights: list[str]) -> str:
+    """Markdown: mean Δ against TVAL3 per (noise, n) for each weights file, and overall."""
+    out = ["| weights | " + " | ".join(
+        f"{lv * 100:g} %, n = {n}" for lv in sorted({r['level'] for r in rows})
+        for n in sorted({r['n'] for r in rows})) + " | all cells | worst cell |",
+        "|---" * (3 + len({r['level'] for r in rows}) * len({r['n'] for r in rows})) + "|"]
+    for w in weights:
+        cells = []
+        for lv in sorted({r["level"] for r in rows}):
+            for n in sorted({r["n"] for r in rows}):
+                d = [r[w] - r["tval3"] for r in rows if r["n"] == n and r["level"] == lv]
+                cells.append(f"{np.mean(d):+.2f}")
+        d = [r[w] - r["tval3"] for r in rows]
+        out.append(f"| {w} | " + " | ".join(cells) + f" | {np.mean(d):+.2f} | {min(d):+.2f} |")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    p = OneLineParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--make-data", type=Path, default=None, metavar="DIR",
+                   help="write DIR/motorcycle_left.npy (the training half) and exit")
+    p.add_argument("--weights", nargs="+", default=["shipped"],
+                   help="weights files to score ('shipped': the package's)")
+    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
+    p.add_argument("--srs", type=float, nargs="+", default=[0.0625, 0.125, 0.25])
+    p.add_argument("--levels", type=float, nargs="+", default=[0.0, 0.01, 0.05])
+    p.add_argument("--auto", action="store_true",
+                   help="also score auto(y, A, learned=W) for each weights file (slow)")
+    p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--table", type=Path, default=None, help="print a stored --out file's table")
+    a = p.parse_args(argv)
+    if a.make_data is not None:
+        a.make_data.mkdir(parents=True, exist_ok=True)
+        left = halves()[0]
+        np.save(a.make_data / "motorcycle_left.npy", left)
+        print(f"wrote {a.make_data / 'motorcycle_left.npy'} ({left.shape[0]} × {left.shape[1]})")
+        return 0
+    if a.table is not None:
+        d = json.loads(a.table.read_text())
+        print(table(d["rows"], [k for k in d["rows"][0] if k not in ("n", "sr", "level",
+                                                                          "tval3")]))
+        return 0
+    for w in a.weights:
+        if w != "shipped" and not Path(w).is_file():
+            p.error(f"argument --weights: no such file: {w!r}")
+    torch.set_num_threads(1)
+    rows = run(a.sizes, a.srs, a.levels, a.weights, a.auto)
+    print(table(rows, [k for k in rows[0] if k not in ("n", "sr", "level", "tval3")]))
+    if a.out is not None:
+        a.out.write_text(json.dumps({"weights": a.weights, "crops": CROPS, "rows": rows},
+                                    indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
