@@ -153,3 +153,49 @@ def test_a_real_terminal_gets_the_bar_and_a_pipe_the_summary(tmp_path):
     assert frames and all(f.startswith("torchtof export: tracing unrolled_tval3") for f in frames)
     assert "00:0" in frames[-1]
     assert out.count("\n") == 1 and "onnxruntime matches PyTorch at batch 3" in out
+
+
+def test_export_learned_with_a_trained_weights_file(tmp_path, capsys):
+    """``--weights`` exports that file's network: onnxruntime gives what ``Learned(A,
+    pretrained=file)`` gives on new buckets, which differs from the shipped network's."""
+    import numpy as np
+    import onnxruntime as ort
+    import torch
+
+    from torchtof.operators import Hadamard
+    from torchtof.recon.learned import Learned
+    from torchtof.recon.learned_train import train_learned
+
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+                  calibrate=False, out=tmp_path / "run")
+    w = tmp_path / "run" / "learned.pt"
+    onnx_file = tmp_path / "mine.onnx"
+    assert main(["export", "learned", "--n", "16", "--sr", "0.25", "--weights", str(w),
+                 "--no-progress", "-o", str(onnx_file)]) == 0
+    out = capsys.readouterr().out
+    assert f"learned from {w} (n=16" in out and "matches PyTorch at batch 3" in out
+    A = Hadamard(16, sr=0.25)
+    y = A(torch.rand(2, 1, 16, 16, generator=torch.Generator().manual_seed(3)))
+    with torch.no_grad():
+        mine, shipped = Learned(A, pretrained=w)(y), Learned(A)(y)
+    sess = ort.InferenceSession(str(onnx_file), providers=["CPUExecutionProvider"])
+    got = sess.run(None, {"y": y.numpy()})[0]
+    np.testing.assert_allclose(got, mine.numpy(), atol=1e-4)
+    assert float((mine - shipped).abs().max()) > 1e-2  # the file, not the shipped weights
+    with pytest.raises(ValueError, match="weights"):
+        onnx_models.export_model("bp", n=8, sr=0.5, path=tmp_path / "x.onnx", weights=w)
+
+
+@pytest.mark.parametrize(("argv", "msg"), [
+    (["export", "bp", "--weights", "{w}"], "only the learned model loads a weights file"),
+    (["export", "learned", "--weights", "{missing}"], "no such weights file"),
+])
+def test_export_weights_mistakes_are_usage_errors(tmp_path, capsys, argv, msg):
+    (tmp_path / "w.pt").write_bytes(b"x")
+    argv = [a.format(w=tmp_path / "w.pt", missing=tmp_path / "none.pt") for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument --weights: {msg}" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()

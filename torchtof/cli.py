@@ -220,9 +220,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     path = args.output or Path(args.out) / f"{args.model}_n{args.n}_sr{args.sr:g}.onnx"
     what = f"{args.model} (n={args.n}, SR {args.sr:.2%})"
+    if args.weights is not None:
+        what = f"{args.model} from {args.weights} (n={args.n}, SR {args.sr:.2%})"
     with _elapsed_bar(f"torchtof export: tracing {what}", enabled=not args.no_progress):
+        extra = {} if args.weights is None else {"weights": args.weights}
         res = onnx_models.export_checked(args.model, n=args.n, sr=args.sr, path=path,
-                                         opset=args.opset)
+                                         opset=args.opset, **extra)
     par = res["parity"]
     if par["ok"]:
         err = max(o["max_abs_err"] for o in par["outputs"])
@@ -354,6 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-progress", action="store_true",
                    help="no elapsed-time bar on stderr during the export (none is drawn when "
                         "stderr is not a terminal either)")
+    e.add_argument("--weights", default=None, metavar="FILE",
+                   help="learned only: export this weights file's network (e.g. a torchtof "
+                        "train run's OUT/learned.pt) instead of the shipped one")
     e.set_defaults(func=cmd_export, check=_check_export, parser=e)
 
     t = sub.add_parser("train", help="train the learned reconstructor (weights + recipe.json)",
@@ -405,6 +411,12 @@ def _check_train(args: argparse.Namespace) -> None:
 
 def _check_export(args: argparse.Namespace) -> None:
     check_patterns(args.n, args.sr)
+    if args.weights is not None:
+        if args.model != "learned":
+            raise ValueError(f"argument --weights: only the learned model loads a weights file, "
+                             f"got {args.model}")
+        if not Path(args.weights).is_file():
+            raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
 
 
 def _check_bench(args: argparse.Namespace) -> None:

@@ -57,6 +57,8 @@ class ModelSpec:
         doc: one line for the README.
         exporter: the default exporter (see the module docstring).
         n_iter: default iteration count of an iterative model (``None``: not iterative).
+        weights: whether ``build`` takes a ``weights`` file (a trained model's own weights
+            instead of the shipped ones).
     """
 
     build: Callable[..., tuple[nn.Module, tuple[torch.Tensor, ...]]]
@@ -66,6 +68,7 @@ class ModelSpec:
     doc: str
     exporter: str = "dynamo"
     n_iter: int | None = None
+    weights: bool = False
 
     def __call__(
         self,
@@ -75,12 +78,20 @@ class ModelSpec:
         batch: int = EXPORT_BATCH,
         seed: int = 0,
         n_iter: int | None = None,
+        weights: str | os.PathLike | None = None,
     ) -> tuple[nn.Module, tuple[torch.Tensor, ...]]:
         if n_iter is not None and self.n_iter is None:
             raise ValueError(f"ModelSpec: n_iter given for a model without iterations: {self.doc}")
         if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
             raise ValueError(f"ModelSpec: expected batch to be an int >= 1, got {batch!r}")
-        return self.build(n, sr, batch, seed, self.n_iter if n_iter is None else n_iter)
+        n_iter = self.n_iter if n_iter is None else n_iter
+        if weights is None:
+            return self.build(n, sr, batch, seed, n_iter)
+        if not self.weights:
+            raise ValueError(f"ModelSpec: weights given for a model that loads none: {self.doc}")
+        if not isinstance(weights, (str, os.PathLike)) or not Path(weights).is_file():
+            raise ValueError(f"ModelSpec: expected weights to be a weights file, got {weights!r}")
+        return self.build(n, sr, batch, seed, n_iter, weights=weights)
 
 
 def _gen(seed: int, salt: int) -> torch.Generator:
@@ -222,10 +233,12 @@ def _build_unrolled(n, sr, batch, seed, n_iter):
     return net, (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
 
 
-def _build_learned(n, sr, batch, seed, n_iter):
-    """:class:`~torchtof.recon.learned.Learned` with its shipped weights (one file, any n)."""
+def _build_learned(n, sr, batch, seed, n_iter, weights=None):
+    """:class:`~torchtof.recon.learned.Learned` with its shipped weights (one file, any n), or
+    those of ``weights`` (e.g. a ``torchtof train`` run's ``learned.pt``)."""
     A = Hadamard(n, sr=sr)
-    return Learned(A).eval(), (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
+    net = Learned(A, pretrained=True if weights is None else weights)
+    return net.eval(), (_hadamard_buckets(A, _scenes(n, batch, seed), seed),)
 
 
 def _build_depth_resolved(n, sr, batch, seed, n_iter):
@@ -449,8 +462,10 @@ MODELS: dict[str, ModelSpec] = {
     ),
     "learned": ModelSpec(
         _build_learned, ("y",), ("x",), {"y": _MEAS, "x": _IMG},
-        "learned proximal-gradient network, shipped weights (one file for every n, SR, order)",
+        "learned proximal-gradient network, shipped weights (one file for every n, SR, order) "
+        "or a trained file's (--weights)",
         exporter="torchscript",
+        weights=True,
     ),
 }
 
@@ -465,6 +480,7 @@ def export_model(
     n_iter: int | None = None,
     exporter: str | None = None,
     dynamic_batch: bool = True,
+    weights: str | os.PathLike | None = None,
 ) -> Path:
     """Build ``MODELS[name]`` for ``(n, sr)`` and export it (``torchtof export MODEL``).
 
@@ -476,6 +492,8 @@ def export_model(
         n_iter: iterations of an iterative model (default: the registry's).
         exporter: ``"dynamo"``/``"torchscript"`` (default: the registry's choice).
         dynamic_batch: dynamic batch axis.
+        weights: a weights file for a model that loads one (``learned``: e.g. a
+            ``torchtof train`` run's ``learned.pt``; default: the shipped weights).
 
     Returns:
         The path written.
@@ -484,16 +502,19 @@ def export_model(
         ValueError: unknown ``name`` (or as :func:`export`).
     """
     return _export_spec(name, n, sr, path, opset, n_iter=n_iter, exporter=exporter,
-                        dynamic_batch=dynamic_batch)[0]
+                        dynamic_batch=dynamic_batch, weights=weights)[0]
 
 
 def _export_spec(name, n, sr, path, opset, *, n_iter=None, exporter=None, dynamic_batch=True,
-                 func="export_model"):
+                 func="export_model", weights=None):
     """:func:`export_model`, returning ``(path, module, example inputs)``."""
     if name not in MODELS:
         raise ValueError(f"{func}: expected name in {sorted(MODELS)}, got {name!r}")
     spec = MODELS[name]
-    module, inputs = spec(n, sr, n_iter=n_iter)
+    if weights is not None and not spec.weights:
+        raise ValueError(f"{func}: expected weights only for a model that loads them "
+                         f"({', '.join(k for k, v in MODELS.items() if v.weights)}), got {name!r}")
+    module, inputs = spec(n, sr, n_iter=n_iter, weights=weights)
     if path is None:
         path = f"{name}_n{n}_sr{sr:g}.onnx"
     path = export(
@@ -520,6 +541,7 @@ def export_checked(
     exporter: str | None = None,
     rtol: float = 1e-4,
     atol: float = 1e-5,
+    weights: str | os.PathLike | None = None,
 ) -> dict:
     """:func:`export_model`, then onnxruntime against eager PyTorch on the file
     (:func:`torchtof.onnx.check`, ``rtol``/``atol``) at a batch of 3, one more than the
@@ -536,7 +558,8 @@ def export_checked(
     from ..onnx import check
 
     path, module, inputs = _export_spec(name, n, sr, path, opset, n_iter=n_iter,
-                                        exporter=exporter, func="export_checked")
+                                        exporter=exporter, func="export_checked",
+                                        weights=weights)
     batch3 = tuple(torch.cat([t, t[:1]]) for t in inputs)  # EXPORT_BATCH + 1 samples
     try:
         parity = check(path, module, batch3, rtol=rtol, atol=atol)
