@@ -21,6 +21,7 @@ buckets (ungated depth → negative, paper §3.1).
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -70,7 +71,7 @@ class _SignedDIP(torch.nn.Module):
         return self.sign * self.dip(self.sign * y)
 
 
-def _build(spec: ReconSpec, data, sr, gate, kind, **kwargs) -> Method:
+def _build(spec: ReconSpec, data, sr, gate, kind, _weights=None, **kwargs) -> Method:
     if spec.operator == "split":  # raw 0/1 DMD buckets (module docstring)
         _no_options(spec.label, kwargs)
         A, y = data.split_operator(sr), data.split_buckets(sr, kind, gate)
@@ -78,6 +79,8 @@ def _build(spec: ReconSpec, data, sr, gate, kind, **kwargs) -> Method:
         if not spec.iterative:
             _no_options(spec.label, kwargs)
         A, y = data.measurements(sr, kind, gate)
+    if _weights is not None:  # (option, file): build_method checked the pair
+        kwargs = {**kwargs, _weights[0]: _weights[1]}
     module = spec.build(A, **kwargs)
     if spec.positive_prior:
         sign = -1.0 if data.polarity(gate, kind) == "negative" else 1.0
@@ -95,15 +98,31 @@ DEFAULT_METHODS: tuple[str, ...] = ("CGI", "DGI", "PINV", "BP", "TVAL3", "Auto",
                                      "Learned", "DIP")
 
 
+#: The methods that load a learned network's weights file, and the constructor option that
+#: takes it (``build_method(..., weights=FILE)``, ``torchtof reconstruct --weights``).
+WEIGHTS_OPTION: dict[str, str] = {"Learned": "pretrained", "Auto": "learned"}
+
+
 def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: str = "depth",
-                 **options):
+                 weights: str | os.PathLike | None = None, **options):
     """Bind method ``name`` (a registry label or name) to the run; ``options`` go to its
-    constructor (iterative methods only) over the registry's defaults."""
+    constructor (iterative methods only) over the registry's defaults. ``weights``: a learned
+    network's weights file (e.g. from ``torchtof train``) for the methods of
+    :data:`WEIGHTS_OPTION` (``Learned`` reconstructs with it, ``Auto`` stacks it)."""
     try:
         spec = registry.get(name)
     except (ValueError, TypeError):
         raise ValueError(f"build_method: expected name in {tuple(METHODS)}, got {name!r}") from None
-    return _build(spec, data, sr, gate, kind, **options)
+    if weights is None:
+        return _build(spec, data, sr, gate, kind, **options)
+    if spec.label not in WEIGHTS_OPTION:
+        raise ValueError(f"build_method: expected weights only for {tuple(WEIGHTS_OPTION)}, "
+                         f"got {spec.label}")
+    if not isinstance(weights, (str, os.PathLike)):
+        raise TypeError(f"build_method: expected weights to be a path, got "
+                        f"{type(weights).__name__}")
+    return _build(spec, data, sr, gate, kind, _weights=(WEIGHTS_OPTION[spec.label], weights),
+                  **options)
 
 
 def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:

@@ -336,3 +336,34 @@ def test_real_bench_sets_the_whole_sensor_without_camera_roi(monkeypatch):
                               "camera_roi": roi, "display": 1})()
         hcli._open_devices(args, {})
         assert seen[-1] == want
+
+
+def test_reconstruct_with_a_trained_weights_file(uninterrupted, tmp_path, capsys):
+    """``--weights`` reconstructs with that file's network (Learned) or stacks it (Auto):
+    the images equal what the library gives with the same file, and differ from the shipped
+    network's; any other method, or a missing file, is a one-line usage error."""
+    from torchtof.recon.learned_train import train_learned
+
+    train_learned(steps=1, batch_size=2, sizes=(8,), n_layers=2, width=4, progress=False,
+                  calibrate=False, out=tmp_path / "run")
+    w = str(tmp_path / "run" / "learned.pt")
+    ref = PaperExperiment(sr=0.25, n=8, roi_px=16, srs=(0.25,), shot=None, read_noise_e=0.0,
+                          chunk_frames=1).run(seed=0)
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(uninterrupted), "--method", "learned", "--weights", w,
+                 "--out", str(out)]) == 0
+    img = torch.load(out / "Learned_depth.pt")
+    with torch.no_grad():
+        mine = build_method("Learned", ref, 0.25, False, weights=w)()
+        shipped = build_method("Learned", ref, 0.25, False)()
+    assert torch.equal(img, mine) and not torch.allclose(mine, shipped)
+    capsys.readouterr()
+    for argv, msg in ((["--method", "tval3", "--weights", w], "only Learned and Auto"),
+                      (["--method", "learned", "--weights", w + ".none"], "no such weights")):
+        with pytest.raises(SystemExit) as exc:
+            main(["reconstruct", str(uninterrupted), *argv, "--out", str(tmp_path / "x")])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"argument --weights: {msg}" in err[0], err
+    with pytest.raises(ValueError, match="weights"):
+        build_method("TVAL3", ref, 0.25, False, weights=w)

@@ -147,7 +147,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         return 2
     name = args.method  # a label: checked by _method
     sr = data.config.srs[0]
-    method = build_method(name, data, sr, args.gate, args.kind)
+    method = build_method(name, data, sr, args.gate, args.kind, weights=args.weights)
     with torch.enable_grad() if name == "DIP" else torch.no_grad():
         img = method().detach()
     out = Path(args.out)
@@ -184,6 +184,14 @@ def _method(text: str) -> str:
 def _check_reconstruct(args: argparse.Namespace) -> None:
     """``reconstruct STORE``: a directory holding a zarr group, checked after the options'
     types (a wrong ``--method`` is named first) and before the store is opened."""
+    from ..methods import WEIGHTS_OPTION
+
+    if args.weights is not None:
+        if args.method not in WEIGHTS_OPTION:
+            raise ValueError(f"argument --weights: only {' and '.join(WEIGHTS_OPTION)} load a "
+                             f"weights file, got --method {args.method}")
+        if not Path(args.weights).is_file():
+            raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
     path = Path(args.store)
     if not path.exists():
         raise ValueError(f"argument STORE: no such store: {args.store}")
@@ -306,4 +314,9 @@ def add_parsers(sub) -> None:
                    help="buckets to reconstruct from")
     r.add_argument("--gate", action="store_true", help="use the depth-gated buckets")
     r.add_argument("--out", default="reconstruct_out", help="folder of the .pt and .png")
+    r.add_argument("--weights", default=None, metavar="FILE",
+                   help="Learned and Auto only: a learned network's weights file (e.g. a "
+                        "torchtof train run's OUT/learned.pt, trained on your own recordings "
+                        "with --images); Learned reconstructs with it, Auto stacks it "
+                        "(default: the shipped weights)")
     r.set_defaults(func=cmd_reconstruct, check=_check_reconstruct, parser=r)
