@@ -447,3 +447,30 @@ def test_calibrate_only_uses_the_runs_starting_estimate(tmp_path, capsys, monkey
     assert Learned(Hadamard(16, sr=0.25), pretrained=tmp_path / "learned.pt").x0 == "markov"
     assert main(["train", "--calibrate-only", "--x0", "adjoint", *net]) == 2
     assert "--x0" in capsys.readouterr().err
+
+
+def test_train_never_overwrites_a_run_and_resume_checks_the_network(tmp_path, capsys):
+    """A second run into the same --out without --resume is a usage error (the first run's
+    checkpoint survives); --resume with another network names the difference in one line;
+    --resume without a checkpoint says it starts afresh."""
+    net = ["--batch-size", "2", "--sizes", "16", "--n-layers", "2", "--no-progress",
+           "--no-calibrate", "--out", str(tmp_path / "run")]
+    assert main(["train", "--steps", "2", "--width", "4", *net]) == 0
+    assert "learned.pt" in capsys.readouterr().out
+    ckpt = tmp_path / "run" / "checkpoint.pt"
+    before = torch.load(ckpt, weights_only=False)["step"]
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--steps", "1", "--width", "4", *net])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --out:" in err[0] and "--resume" in err[0], err
+    assert torch.load(ckpt, weights_only=False)["step"] == before == 2
+    assert main(["train", "--steps", "3", "--width", "8", "--resume", *net]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "width=4 (got 8)" in err[0], err
+    assert main(["train", "--steps", "3", "--width", "4", "--resume", *net]) == 0
+    assert torch.load(ckpt, weights_only=False)["step"] == 3
+    capsys.readouterr()
+    fresh = [a if a != str(tmp_path / "run") else str(tmp_path / "new") for a in net]
+    assert main(["train", "--steps", "1", "--width", "4", "--resume", *fresh]) == 0
+    assert "starting at step 0" in capsys.readouterr().err

@@ -393,6 +393,12 @@ def _check_train(args: argparse.Namespace) -> None:
             check_families(dict(args.families), "train")
         except ValueError as exc:
             raise ValueError(f"argument --families: {exc}") from None
+    ckpt = Path(args.out) / "checkpoint.pt"
+    if not args.calibrate_only and not args.resume and ckpt.is_file():
+        raise ValueError(f"argument --out: {args.out} holds a training run ({ckpt.name}); pass "
+                         "--resume to continue it, or another --out")
+    if args.calibrate_only and not ckpt.is_file():
+        raise ValueError(f"argument --calibrate-only: no {ckpt}")
     if not args.calibrate_only or args.images:
         from .recon.learned_train import check_user_paths, user_mixture
 

@@ -619,6 +619,23 @@ def test_resume_continues_the_same_run(tmp_path):
     assert (tmp_path / "recipe.json").is_file() and (tmp_path / "learned.pt").is_file()
 
 
+def test_resume_refuses_a_checkpoint_of_another_network(tmp_path):
+    """A checkpoint records its network; resuming with another width names it, and an older
+    checkpoint without that record still fails with a ValueError, not a size-mismatch
+    traceback."""
+    kw = dict(batch_size=2, sizes=(16,), n_layers=2, progress=False, calibrate=False)
+    train_learned(steps=1, width=4, out=tmp_path, **kw)
+    ckpt = tmp_path / "checkpoint.pt"
+    assert torch.load(ckpt, weights_only=False)["meta"]["width"] == 4
+    with pytest.raises(ValueError, match=r"another network: width=4 \(got 8\)"):
+        train_learned(steps=2, width=8, out=tmp_path, resume=True, **kw)
+    state = torch.load(ckpt, weights_only=False)
+    del state["meta"]
+    torch.save(state, ckpt)
+    with pytest.raises(ValueError, match="does not match the network"):
+        train_learned(steps=2, width=8, out=tmp_path, resume=True, **kw)
+
+
 def test_init_starts_from_the_weights_file_and_records_it(tmp_path):
     """``init``: the first step's loss is the loss of the file's network on that step's batch
     (computed here from the recipe's draws, not read from the run), not the random start's;

@@ -197,6 +197,9 @@ def main(args: argparse.Namespace) -> int:
         recipe_path.write_text(json.dumps(recipe, indent=1))
         print(f"tau = {calib['tau']}; wrote {out / 'learned.pt'}")
         return 0
+    if args.resume and not (Path(args.out) / "checkpoint.pt").is_file():
+        print(f"torchtof train: no {Path(args.out) / 'checkpoint.pt'} to resume: starting at "
+              "step 0", file=sys.stderr)
     r = train_learned(
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
         sizes=tuple(args.sizes), p_large=args.p_large, sr_range=tuple(args.sr_range),
@@ -212,5 +215,8 @@ def main(args: argparse.Namespace) -> int:
         user_images=args.images,
     )
     if int(os.environ.get("RANK", "0")) == 0:  # one line per run, not per torchrun process
-        print(f"wrote {Path(args.out) / 'learned.pt'}; {len(r.losses)} steps in {r.wall_s:.0f} s")
+        out = Path(args.out)
+        print(f"wrote {out / 'learned.pt'}, {out / 'recipe.json'}, {out / 'log.json'}"
+              + (f", {out / 'checkpoint.pt'}" if (out / "checkpoint.pt").is_file() else "")
+              + f"; {len(r.losses)} steps in {r.wall_s:.0f} s")
     return 0

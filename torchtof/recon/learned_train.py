@@ -501,7 +501,18 @@ def train_learned(
     ckpt = outdir / "checkpoint.pt" if outdir is not None else None
     if resume and ckpt is not None and ckpt.is_file():
         state = torch.load(ckpt, weights_only=False, map_location=device)
-        missing, unexpected = model.load_state_dict(state["model"], strict=False)
+        want = {k: v for k, v in model.meta().items() if k != "model"}
+        have = state.get("meta")  # checkpoints before it: the shapes below say it
+        if have is not None and {k: have.get(k) for k in want} != want:
+            diff = ", ".join(f"{k}={have.get(k)} (got {v})" for k, v in want.items()
+                             if have.get(k) != v)
+            raise ValueError(f"{func}: checkpoint {ckpt} was trained with another network: "
+                             f"{diff}")
+        try:
+            missing, unexpected = model.load_state_dict(state["model"], strict=False)
+        except RuntimeError as exc:  # a size mismatch of a checkpoint without "meta"
+            raise ValueError(f"{func}: checkpoint {ckpt} does not match the network "
+                             f"{want}: {str(exc).strip().splitlines()[-1].strip()}") from None
         if unexpected or set(missing) - {"log_tau"}:  # log_tau: calibrated after training
             raise ValueError(f"{func}: checkpoint {ckpt} does not match the model: "
                              f"missing {missing}, unexpected {unexpected}")
@@ -535,6 +546,7 @@ def train_learned(
             tmp = ckpt.with_suffix(".tmp")
             torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
                         "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
+                        "meta": model.meta(),
                         "wall_s": wall0 + time.perf_counter() - t0}, tmp)
             tmp.replace(ckpt)
             (outdir / "log.json").write_text(json.dumps(log, indent=0))
