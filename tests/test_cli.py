@@ -474,3 +474,16 @@ def test_train_never_overwrites_a_run_and_resume_checks_the_network(tmp_path, ca
     fresh = [a if a != str(tmp_path / "run") else str(tmp_path / "new") for a in net]
     assert main(["train", "--steps", "1", "--width", "4", "--resume", *fresh]) == 0
     assert "starting at step 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("cmd", [["demo"], ["bench", "operators"], ["export", "g2"],
+                                 ["train"], ["reproduce", "--quick"]])
+def test_out_that_is_a_file_is_a_usage_error(cmd, tmp_path, capsys):
+    f = tmp_path / "a_file"
+    f.write_text("keep me")
+    with pytest.raises(SystemExit) as exc:
+        main([*cmd, "--out", str(f)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument --out: expected a folder, {f} is a file" in err[0], err
+    assert f.read_text() == "keep me"

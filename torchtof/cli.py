@@ -448,6 +448,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     OneLineParser.debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    out = getattr(args, "out", None)  # every command's --out is a folder it writes into
+    if isinstance(out, str) and Path(out).exists() and not Path(out).is_dir():
+        args.parser.error(f"argument --out: expected a folder, {out} is a file")
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work
         try:
