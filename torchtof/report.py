@@ -6,6 +6,7 @@ commands; it imports nothing from them (the library proper never imports it).
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import torch
@@ -58,6 +59,39 @@ def print_method_rows(rows: list[dict]) -> None:
     print_table(table, ["method", "buckets", "PSNR dB", "SSIM", "time s"])
 
 
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend, or ``None`` without the ``plot`` extra (the
+    callers then write a plain montage or skip a curve plot, saying so)."""
+    try:
+        import matplotlib
+    except ImportError:
+        return None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def no_plot(what: str) -> None:
+    """Say on stderr that ``what`` was not drawn for want of matplotlib."""
+    print(f"(no matplotlib: {what} not drawn; pip install 'torchtof[plot]' for it)",
+          file=sys.stderr)
+
+
+def save_montage(path: Path, grid: list[list[torch.Tensor]]) -> Path:
+    """A plain grey PNG of ``grid`` (rows of ``(H, W)`` images in ``[0, 1]``, same sizes),
+    without matplotlib."""
+    import numpy as np
+    from skimage.io import imsave
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = np.concatenate([np.concatenate([t.float().clamp(0, 1).numpy() for t in row], axis=1)
+                          for row in grid])
+    imsave(str(path), (img * 255).round().astype("uint8"), check_contrast=False)
+    return path
+
+
 def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[str] | None = None,
               title: str = "") -> Path:
     """Save images as a labelled grid PNG (matplotlib; a plain montage without it).
@@ -81,20 +115,9 @@ def save_grid(path: Path, columns: list[tuple[str, torch.Tensor]], rows: list[st
     imgs = [[normalize_image(t[min(r, t.shape[0] - 1) : min(r, t.shape[0] - 1) + 1].float())[0, 0]
              for r in range(len(rows))] for _, t in columns]
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - plot extra not installed
-        import numpy as np
-        from skimage.io import imsave
-
-        grid = np.concatenate(
-            [np.concatenate([c[r].numpy() for c in imgs], axis=1) for r in range(len(rows))]
-        )
-        imsave(str(path), (grid * 255).astype("uint8"), check_contrast=False)
-        return path
+    plt = pyplot()
+    if plt is None:  # the plot extra is not installed: a plain montage
+        return save_montage(path, [[c[r] for c in imgs] for r in range(len(rows))])
     fig, axes = plt.subplots(len(rows), len(columns),
                              figsize=(1.6 * len(columns), 1.75 * len(rows)), squeeze=False)
     for c, (label, _) in enumerate(columns):
@@ -144,10 +167,9 @@ def save_image(path: Path, img: torch.Tensor, title: str, polarity: str = "posit
         note += "; negative image (dark pixels read 5 m) shown flipped"
     if score is not None:
         note += f"\nPSNR {score['psnr']:.2f} dB, SSIM {score['ssim']:.3f} vs the simulated object"
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    if plt is None:  # the plot extra is not installed: the image alone
+        return save_montage(path, [[show]])
 
     fig, ax = plt.subplots(figsize=(5.0, 5.4))
     im = ax.imshow(show.numpy(), cmap="gray", vmin=0, vmax=1, interpolation="nearest")

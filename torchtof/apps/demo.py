@@ -73,16 +73,19 @@ def demo_figure(path: Path, data, images: dict, rows: list[dict], methods, title
     """The demo's picture: one row per bucket kind, the object, the raw ToF depth map (metres,
     colour bar) and each method (identical ones merged), PSNR/SSIM in every panel; negative
     images are flipped by the physics rule the scoring uses (README 'Scoring')."""
+    from ..metrics import normalize_image
+    from ..report import pyplot, save_grid
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..metrics import normalize_image
-
     kinds = [k for k in ("depth", "depth_gated", "taps") if k in images]
+    plt = pyplot()
+    if plt is None:  # the plot extra is not installed: a plain montage, a row per bucket kind
+        cols = [("object", data.x[:1]), ("raw ToF", data.raw_tof_image[:1])]
+        for g in _merge_identical(methods, images):
+            cols.append((g[0], torch.cat([images[k].get(g[0], data.x)[:1] for k in kinds])))
+        return save_grid(path, cols, rows=kinds, title=title)
+
     groups = _merge_identical(methods, images)
     score = {(r["method"], r["buckets"]): r for r in rows}
     ncol = 2 + len(groups)
@@ -182,11 +185,12 @@ def run_demo(args: argparse.Namespace) -> int:
           f"gate 'taps': torchtof's per-tap I/Q buckets, Eq. 8 amplitude per pixel")
     print_method_rows(rows)
     out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "demo.json").write_text(json.dumps(rows, indent=2))  # before the figure
     png = demo_figure(out / "demo.png", data, images, rows, methods,
                       title=f"ToF-CGI, scene {args.scene!r}, SR {args.sr:.2%}, "
                             f"{'scattering sheet' if args.scattering else 'in air'} "
                             f"(cf. paper Fig. 5)")
-    (out / "demo.json").write_text(json.dumps(rows, indent=2))
     best = max(rows[1:], key=lambda r: r["psnr"])
     kinds = {"depth": "depth buckets", "depth_gated": "gated depth buckets", "taps": "tap buckets"}
     print(f"\ntorchtof demo: best {best['method']} ({kinds[best['buckets']]}) "

@@ -112,15 +112,17 @@ def evaluate_depth(data: ExperimentData, sr: float, methods=DEPTH_METHODS):
 
 def plot_depth_maps(path: Path, truth: torch.Tensor, maps: dict, rows: list[dict],
                     title: str) -> Path:
-    """Save the true depth map and each method's map (metres, colour bar) as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Save the true depth map and each method's map (metres, colour bar) as a PNG (without
+    matplotlib: a plain montage on the true map's range)."""
+    from ..report import pyplot, save_montage
 
     lo, hi = float(truth.min()), float(truth.max())
     cols = [("true depth", truth, None)] + [(m, maps[m], r["rmse_m"]) for m, r in
                                              zip(maps, rows, strict=True)]
+    plt = pyplot()
+    if plt is None:  # the plot extra is not installed
+        return save_montage(path, [[((img[0, 0] - lo) / max(hi - lo, 1e-12))
+                                    for _, img, _ in cols]])
     fig, axes = plt.subplots(1, len(cols), figsize=(1.75 * len(cols), 2.3), squeeze=False)
     for ax, (label, img, err) in zip(axes[0], cols, strict=True):
         im = ax.imshow(img[0, 0].detach().cpu().numpy(), cmap="viridis", vmin=lo, vmax=hi)
@@ -172,10 +174,12 @@ def run_depth_demo(args) -> int:
 
 
 def _plot_curves(path: Path, scene: str, rows: list[dict]) -> None:
-    import matplotlib
+    from ..report import no_plot, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    if plt is None:
+        no_plot(path.name)
+        return
 
     fig, axes = plt.subplots(1, 2, figsize=(8.4, 3.2), sharey=False)
     for ax, mp in zip(axes, ("on", "off"), strict=True):

@@ -35,10 +35,12 @@ METHODS = ("CGI", "BP", "TVAL3", "Unrolled", "DIP")
 
 
 def _plot_curves(path: Path, case: str, rows: list[dict], raw: dict) -> None:
-    import matplotlib
+    from ..report import no_plot, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    if plt is None:
+        no_plot(path.name)
+        return
 
     fig, ax = plt.subplots(figsize=(4.6, 3.4))
     for m in METHODS:

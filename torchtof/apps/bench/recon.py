@@ -143,11 +143,15 @@ def pareto(rows: list[dict]) -> list[dict]:
     return sorted(pts, key=lambda p: (p["n"], p["sr"], p["time_s"]))
 
 
-def plot_sweep(points: list[dict], path: Path, title: str = "") -> Path:
-    import matplotlib
+def plot_sweep(points: list[dict], path: Path, title: str = "") -> Path | None:
+    """The time-vs-PSNR curves of :func:`sweep` per (n, SR) with the Pareto front; ``None``
+    (and a note on stderr) without matplotlib."""
+    from ...report import no_plot, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    if plt is None:
+        no_plot(Path(path).name)
+        return None
 
     ns = sorted({p["n"] for p in points})
     srs = sorted({p["sr"] for p in points})
@@ -196,7 +200,8 @@ def bench_recon(quick: bool = False, plot: bool = False, out: str | Path = "benc
            "threads": torch.get_num_threads(), "torch": torch.__version__, "points": pts,
            "rows": rows, "total_s": time.perf_counter() - t0}
     if plot:
-        res["plot"] = str(plot_sweep(pts, Path(out) / "recon.png", "torchtof bench recon"))
+        png = plot_sweep(pts, Path(out) / "recon.png", "torchtof bench recon")
+        res["plot"] = None if png is None else str(png)
     return res
 
 

@@ -54,7 +54,8 @@ def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out") -> dict:
     res = {"benchmark": "tradeoff", "quick": quick, "noise": 0.01, "scenes": list(scenes),
            "threads": torch.get_num_threads(), "torch": torch.__version__, "points": pts,
            "rows": rows, "recommend": recommend(pts)}
-    res["plot"] = str(plot_sweep(pts, out / "tradeoff.png", "run time vs PSNR (bench tradeoff)"))
+    png = plot_sweep(pts, out / "tradeoff.png", "run time vs PSNR (bench tradeoff)")
+    res["plot"] = None if png is None else str(png)
     res["total_s"] = time.perf_counter() - t0
     (out / "tradeoff.json").write_text(json.dumps(res, indent=2, default=str))
     res["json"] = str(out / "tradeoff.json")
@@ -68,4 +69,4 @@ def print_tradeoff(res: dict) -> None:
 
     print_table([{**r, "psnr": "-" if r["psnr"] is None else f"{r['psnr']:.2f}"}
                  for r in res["recommend"]], ["n", "budget_s", "method", "psnr", "time_s"])
-    print(f"wrote {res['json']} and {res['plot']}")
+    print(f"wrote {res['json']}" + (f" and {res['plot']}" if res['plot'] else ""))
