@@ -487,3 +487,33 @@ def test_out_that_is_a_file_is_a_usage_error(cmd, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"argument --out: expected a folder, {f} is a file" in err[0], err
     assert f.read_text() == "keep me"
+
+
+@pytest.mark.parametrize(("argv", "msg"), [
+    (["--depth", "steps", "--scene", "sky"], "argument --scene: not used with --depth"),
+    (["--depth", "--methods", "CGI"], "argument --methods: not used with --depth"),
+    (["--depth", "--auto"], "argument --auto: not used with --depth"),
+    (["--auto", "--methods", "CGI"], "argument --methods: not used with --auto"),
+    (["--auto", "--realisations", "3"], "argument --realisations: --auto runs one"),
+])
+def test_demo_modes_refuse_options_they_would_ignore(argv, msg, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0], err
+
+
+def test_demo_defaults_and_the_auto_maximum_sr(monkeypatch):
+    """Without --sr the demo runs at 12.5 % and --auto up to 37.5 %; --auto --sr S makes S the
+    maximum (it was raised to 37.5 % silently)."""
+    import torchtof.apps.auto_demo as auto_demo
+    import torchtof.apps.demo as demo
+
+    seen = []
+    monkeypatch.setattr(demo, "run_demo", lambda a: seen.append((a.sr, a.scene)) or 0)
+    monkeypatch.setattr(auto_demo, "demo_auto", lambda a: seen.append((a.sr, a.scene)) or 0)
+    for argv in (["demo"], ["demo", "--auto"], ["demo", "--auto", "--sr", "0.25"],
+                 ["demo", "--sr", "0.5", "--scene", "steps"]):
+        assert main(argv) == 0
+    assert seen == [(0.125, "sky"), (0.375, "sky"), (0.25, "sky"), (0.5, "steps")]

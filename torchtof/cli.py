@@ -85,8 +85,25 @@ def _default_methods() -> list[str]:
 
 
 def _check_experiment(args: argparse.Namespace) -> None:
-    """``--sr`` and ``--n`` of ``demo`` together give at least one pattern (each alone is
-    checked by its type)."""
+    """``demo``'s options that do not go together, then its defaults: ``--depth`` takes its
+    own scene and methods, ``--auto`` chooses the method and runs one realisation; ``--sr``
+    and ``--n`` together give at least one pattern (each alone is checked by its type)."""
+    if args.depth is not None:
+        for flag, given in (("--scene", args.scene is not None),
+                            ("--methods", args.methods is not None), ("--auto", args.auto)):
+            if given:
+                raise ValueError(f"argument {flag}: not used with --depth (its scene is "
+                                 "--depth SCENE, its methods the depth-resolved ones)")
+    if args.auto:
+        if args.methods is not None:
+            raise ValueError("argument --methods: not used with --auto (it chooses the method)")
+        if args.realisations > 1:
+            raise ValueError("argument --realisations: --auto runs one realisation (its noise "
+                             "level comes from the DMD pair sums)")
+    from .apps.auto_demo import AUTO_MAX_SR
+
+    args.scene = args.scene or "sky"
+    args.sr = args.sr if args.sr is not None else (AUTO_MAX_SR if args.auto else 0.125)
     check_patterns(args.n, args.sr)
 
 
@@ -277,11 +294,13 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="reconstruct the paper's experiment (SR 12.5 %%) and plot it",
                        description="Simulate the paper's experiment and reconstruct it with "
                        "every method, without and with the 3 m depth gate.")
-    d.add_argument("--sr", type=sampling_rate, default=0.125,
-                   help="sampling rate M/n² of the Hadamard patterns, in (0, 1]")
-    d.add_argument("--scene", type=_scene, default="sky",
+    d.add_argument("--sr", type=sampling_rate, default=None,
+                   help="sampling rate M/n² of the Hadamard patterns, in (0, 1] (default: "
+                        "0.125; with --auto the maximum the acquisition may reach, default "
+                        "0.375)")
+    d.add_argument("--scene", type=_scene, default=None,
                    help="scene: sky, steps, motorcycle, slanted, steps_far, skimage:<image>, "
-                        "binary:<image>")
+                        "binary:<image> (default: sky)")
     d.add_argument("--n", type=scene_side, default=32,
                    help="DMD side in pixels (a power of two in [8, 256])")
     d.add_argument("--scattering", action="store_true",
