@@ -517,3 +517,30 @@ def test_demo_defaults_and_the_auto_maximum_sr(monkeypatch):
                  ["demo", "--sr", "0.5", "--scene", "steps"]):
         assert main(argv) == 0
     assert seen == [(0.125, "sky"), (0.375, "sky"), (0.25, "sky"), (0.5, "steps")]
+
+
+@pytest.mark.parametrize(("argv", "msg"), [
+    (["onnx", "--n", "64"], "argument --n: used by bench operators only, not by bench onnx"),
+    (["onnx", "--sr", "0.5"], "argument --sr: used by bench operators only"),
+    (["operators", "--quick"], "argument --quick: used by bench recon / tradeoff / adaptive"),
+    (["operators", "--plot"], "argument --plot: used by bench recon only"),
+    (["recon", "--models", "g2"], "argument --models: used by bench onnx only"),
+    (["stability", "--seeds", "0-2"], "argument --seeds: used by bench adaptive only"),
+])
+def test_bench_refuses_options_of_another_benchmark(argv, msg, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0], err
+
+
+def test_every_bench_option_is_either_common_or_assigned():
+    """BENCH_OPTIONS lists every benchmark-specific option of the parser, for benchmarks that
+    exist: a new option must say whom it serves."""
+    from torchtof.cli import BENCH_OPTIONS, BENCHES, build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "cmd").choices["bench"]
+    dests = {a.dest for a in sub._actions} - {"help", "which", "out", "json"}
+    assert dests == set(BENCH_OPTIONS)
+    assert all(set(w) <= set(BENCHES) for w in BENCH_OPTIONS.values())

@@ -444,7 +444,22 @@ def _check_export(args: argparse.Namespace) -> None:
             raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
 
 
+#: The options of ``bench`` that only some benchmarks use (the others are common to all).
+BENCH_OPTIONS: dict[str, tuple[str, ...]] = {
+    "n": ("operators",), "batch": ("operators",), "sr": ("operators",),
+    "quick": ("recon", "tradeoff", "adaptive"), "plot": ("recon",),
+    "models": ("onnx",), "no_compile": ("onnx",),
+    "seed": ("adaptive",), "seeds": ("adaptive",), "signal_e": ("adaptive",),
+    "noise": ("adaptive",), "realisations": ("adaptive",),
+}
+
+
 def _check_bench(args: argparse.Namespace) -> None:
+    for dest, which in BENCH_OPTIONS.items():  # an option the benchmark would ignore
+        if args.which not in which and getattr(args, dest) != args.parser.get_default(dest):
+            flag = "--" + dest.replace("_", "-")
+            raise ValueError(f"argument {flag}: used by bench {' / '.join(which)} only, "
+                             f"not by bench {args.which}")
     if args.which == "operators":
         for n in args.n or (32,):
             check_patterns(n, args.sr)
