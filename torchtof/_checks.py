@@ -19,6 +19,9 @@ import torch
 
 __all__ = [
     "check_tensor",
+    "check_real",
+    "check_bool",
+    "check_int",
     "check_rank",
     "check_shape",
     "check_finite",
@@ -71,6 +74,35 @@ def check_tensor(x: object, name: str, func: str) -> torch.Tensor:
             f"{func}: expected {name} to be a floating-point tensor, got dtype {x.dtype}"
         )
     return x
+
+
+def check_real(x: object, name: str, func: str) -> torch.Tensor:
+    """Raise ``TypeError`` unless ``x`` is a real floating-point tensor (not complex)."""
+    check_tensor(x, name, func)
+    if x.is_complex():
+        raise TypeError(f"{func}: expected {name} to be a real floating-point tensor, got dtype "
+                        f"{x.dtype} (reconstruct the real and imaginary parts separately)")
+    return x
+
+
+def check_bool(value: object, name: str, func: str) -> bool:
+    """Raise ``TypeError`` unless ``value`` is a bool (a flag: ``"no"`` or ``1`` is not one)."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{func}: expected {name} to be a bool, got {type(value).__name__}")
+    return value
+
+
+def check_int(value: object, name: str, func: str, lo: int | None = None,
+              hi: int | None = None) -> int:
+    """Raise ``TypeError`` unless ``value`` is an int (not a bool), ``ValueError`` unless
+    ``lo <= value <= hi`` (either bound ``None``: open)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{func}: expected {name} to be an int, got {type(value).__name__}")
+    if lo is not None and value < lo:
+        raise ValueError(f"{func}: expected {name} >= {lo}, got {value}")
+    if hi is not None and value > hi:
+        raise ValueError(f"{func}: expected {name} <= {hi}, got {value}")
+    return value
 
 
 def check_rank(x: torch.Tensor, rank: int, name: str, func: str, layout: str = "") -> None:

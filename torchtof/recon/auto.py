@@ -214,7 +214,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_positive
+from .._checks import check_bool, check_int, check_positive
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
@@ -230,6 +230,7 @@ from .tval3 import (
     check_buckets,
     default_split,
     holdout_split,
+    pow2_scale,
     tval3,
 )
 
@@ -443,7 +444,8 @@ def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tupl
 
 
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS,
-           infer_box=True, learned=True, gauss=True, tv_solver="tval3", fit_iter=None):
+           infer_box=True, learned=True, gauss=True, tv_solver="tval3", fit_iter=None, seed=0):
+    check_int(seed, "seed", fn, 0, 2**64 - 1)  # a torch.Generator seed
     if tv_solver not in TV_SOLVERS:
         raise ValueError(f"{fn}: expected tv_solver in {TV_SOLVERS}, got {tv_solver!r}")
     for name, v in (("infer_box", infer_box), ("gauss", gauss)):
@@ -503,7 +505,7 @@ def _box_alone(ys: torch.Tensor, A: LinearOperator, lo: float, hi: float, lip: f
     x0 = torch.cat([0.5 * (lo + hi) + r, 0.5 * (lo + hi) - r], dim=1).expand(ys.shape[0], -1, -1,
                                                                              -1)
     xs = _box_ls(ys.expand(-1, 2, -1), A, lo, hi, BOX_ITER, lip, x0)
-    gap = (xs[:, 0] - xs[:, 1]).pow(2).mean(dim=(-2, -1)).sqrt() / (hi - lo)
+    gap = _rms_gap(xs[:, 0] - xs[:, 1], hi - lo, (-2, -1))
     return xs.mean(dim=1, keepdim=True), gap <= BOX_UNIQUE
 
 
@@ -581,6 +583,9 @@ def auto(
 
     Args:
         y: buckets ``(B, C, M)``, ``M = A.m``, float32/float64; every sample chooses alone.
+            The choice does not depend on the scale of ``y``: the squared errors it compares
+            are those of the sample's buckets times an exact power of two (1 at ordinary
+            scales), so that they neither overflow nor underflow at any scale the dtype holds.
         A: the operator (any :class:`~torchtof.operators.LinearOperator`).
         bounds: a box ``(lo, hi)`` the caller knows (units of ``x``; e.g. ``(0, 1)`` for an
             image normalised by a calibration frame, ``(0, c/2f)`` for a depth image): added
@@ -598,7 +603,7 @@ def auto(
             Hadamard rows in a low-to-high order, where the unmeasured rows that the
             reconstruction must predict follow the measured ones).
         slack: relative CV tolerance of the choice (``≥ 0``).
-        seed: seed of the random fold assignment (deterministic by default).
+        seed: seed of the random fold assignment, an int ``≥ 0`` (deterministic by default).
         priors: the priors tried, a subset of :data:`AUTO_PRIORS` (``("tv", "tgv")``):
             ``("tv",)`` halves the cost where no piecewise-affine image is expected,
             ``("tgv",)`` for depth maps of planes.
@@ -641,14 +646,15 @@ def auto(
     """
     fn = "auto"
     check_buckets(y, A, fn)
+    check_bool(return_result, "return_result", fn)
     _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned,
-           gauss, tv_solver, fit_iter)
+           gauss, tv_solver, fit_iter, seed)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
                 seed=seed, priors=tuple(priors), tv_solver=tv_solver, fit_iter=fit_iter)
-    res = _auto(y, A, bounds, **opts)
+    res, errs = _auto(y, A, bounds, **opts)
     nonempty = y.shape[0] * y.shape[1] > 0
     if bounds is None and infer_box and nonempty:
-        res = _with_inferred_box(res, y, A, opts)
+        res = _with_inferred_box(res, errs, y, A, opts)
     pa = None
     if gauss and gauss_applies(A, split) and nonempty:
         res, pa = _with_gauss(res, y, A, bounds, opts)
@@ -665,11 +671,13 @@ def auto(
 
 
 def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv_solver,
-          fit_iter, known=None) -> AutoResult:
-    """The choice of :func:`auto` for validated inputs. ``known``: the result of an earlier
-    call on the same ``y (1, 1, M)`` without ``bounds``; its stage-1 errors and its refit are
-    reused where this call's candidates and choice coincide with it, and the box-only test is
-    not run (the inferred box, module doc)."""
+          fit_iter, known=None) -> tuple[AutoResult, tuple[torch.Tensor, torch.Tensor]]:
+    """The choice of :func:`auto` for validated inputs: the result and the held-out and fit
+    errors ``(cv (BC, F, K), fit (BC, K))`` in the units of :func:`_unit` (for a call with
+    ``known``). ``known``: ``(result, cv, fit)`` of an earlier call on the same ``y (1, 1, M)``
+    without ``bounds``; its stage-1 errors and its refit are reused where this call's
+    candidates and choice coincide with it, and the box-only test is not run (the inferred
+    box, module doc)."""
     split = default_split(A) if split is None else split
     b, c, m = y.shape
     cands = candidates(bounds, priors)
@@ -680,9 +688,10 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
                          (), (), y.new_zeros(b, c, len(cands)), cands,
                          y.new_zeros(b, c, len(cands)), y.new_zeros(b, c),
                          y.new_zeros(b, c, len(cands)), y.new_zeros(b, c, 0, len(cands)))
-        return res
+        return res, (y.new_zeros(0, 0, len(cands)), y.new_zeros(0, len(cands)))
     bc = b * c
     ys = y.reshape(bc, 1, m)
+    unit = _unit(ys)  # (BC, 1, 1): the errors below are computed on (A x - y)·unit
     index = {_key(k): i for i, k in enumerate(cands)}
     held, train = cv_folds(A, y, folds, seed, split)  # (F, M), latest fold first
     nf = held.shape[0]
@@ -690,7 +699,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
     cv_err = y.new_full((bc, nf, len(cands)), float("nan"))  # per fold
     fit_err = y.new_full((bc, len(cands)), float("nan"))
     # the discrepancy bound on a candidate's misfit of its own training rows (module doc)
-    sig = bucket_noise_sigma(y).reshape(bc, 1)
+    sig = bucket_noise_sigma(y).reshape(bc, 1) * unit[:, 0]
     fit_max = FIT_TAU2 * float(train.sum()) * sig * sig
 
     # -- stage 1: every group at the coarse weights, batched over folds × weights
@@ -701,20 +710,21 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
     yt1 = ys * mask1.to(y.dtype)  # (BC, F·W, M): rows outside the training set zeroed
     hm1, tm1 = hm.repeat_interleave(len(wts), dim=0), tm.repeat_interleave(len(wts), dim=0)
     if known is not None:  # the call without the box: its candidates and its choice
+        known, known_cv, known_fit = known
         at = {_key(k): i for i, k in enumerate(known.candidates)}
         chosen = (known.choice[0][0]["prior"], known.choice[0][0]["tv"])
     for g in _groups(bounds, priors):
         cols = [index[(*g, None if w == _INF else w)] for w in AUTO_WEIGHTS]
         if known is not None and g[3] in _boxes(None):  # fitted by the call without the box
             kc = [at[_key(cands[i])] for i in cols]
-            cv_err[:, :, cols] = known.cv_fold.reshape(bc, nf, -1)[:, :, kc]
-            fit_err[:, cols] = known.fit_error.reshape(bc, -1)[:, kc]
+            cv_err[:, :, cols] = known_cv[:, :, kc]
+            fit_err[:, cols] = known_fit[:, kc]
             continue
         if known is not None and (g[0], g[1]) != chosen:
             continue  # the inferred box refines the chosen prior and norm only
         xg = _fit(g, yt1, MaskedRows(A, mask1), mus1.repeat(nf).expand(bc, -1),
                   tvl2_1.repeat(nf).expand(bc, -1), cv_iter, tv_solver, fit_iter)[0]
-        r2 = (A(xg) - ys).square()
+        r2 = ((A(xg) - ys) * unit).square()
         cv_err[:, :, cols] = (r2 * hm1).sum(-1).reshape(bc, nf, len(wts))  # (BC, F, W)
         fit_err[:, cols] = (r2 * tm1).sum(-1).reshape(bc, nf, len(wts)).sum(1)
     lip, unique = 1.0, None
@@ -737,7 +747,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
         idx = torch.tensor(rows, device=y.device)
         xg = _fit(g, ys[idx] * mask2.to(y.dtype), MaskedRows(A, mask2), mus2.repeat(1, nf),
                   True, cv_iter, tv_solver, fit_iter)[0]
-        r2 = (A(xg) - ys[idx]).square()
+        r2 = ((A(xg) - ys[idx]) * unit[idx]).square()
         e = (r2 * hm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2)
         f = (r2 * tm.repeat_interleave(2, dim=0)).sum(-1).reshape(len(rows), nf, 2).sum(1)
         for j, i in enumerate(rows):
@@ -775,7 +785,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
     if unique is not None:  # the box alone determines the image: the box-only solution
         # replaces a refitted choice that does not agree with it (module doc)
         lo, hi = float(bounds[0]), float(bounds[1])
-        gap = (x - xb).pow(2).mean(dim=(-3, -2, -1)).sqrt() / (hi - lo)
+        gap = _rms_gap(x - xb, hi - lo, (-3, -2, -1))
         k_box = index[("box", None, None, tuple(bounds), None)]
         best_l = [k_box if u and gp > BOX_UNIQUE else k
                   for k, u, gp in zip(best_l, unique.tolist(), gap.tolist())]
@@ -788,7 +798,8 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
         codes[idx] = STOP_REASONS.index("max_iter")
     x = x.reshape(b, c, A.n, A.n)
     residual = relative_residual(x, y, A)
-    cv_sum = cv_err.sum(dim=1)  # nan where not fitted
+    back = unit[:, :, 0].reciprocal().square()  # (BC, 1): to the squared units of y
+    cv_sum = cv_err.sum(dim=1) * back  # nan where not fitted
     cv_l, sc_l = cv_sum.tolist(), score.tolist()
     choice = tuple(
         tuple(dict(cands[best_l[i * c + j]], cv=cv_l[i * c + j][best_l[i * c + j]],
@@ -798,10 +809,27 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
     codes = codes.reshape(b, c)
     reasons = tuple(tuple(STOP_REASONS[k] for k in row) for row in codes.tolist())
     res = AutoResult(x, n_iter.reshape(b, c), residual, conv.reshape(b, c), reasons, choice,
-                     cv_sum.reshape(b, c, -1), cands, fit_err.reshape(b, c, -1),
-                     fit_max.reshape(b, c), score.reshape(b, c, -1),
-                     cv_err.reshape(b, c, nf, -1))
-    return res
+                     cv_sum.reshape(b, c, -1), cands, (fit_err * back).reshape(b, c, -1),
+                     (fit_max * back).reshape(b, c), score.reshape(b, c, -1),
+                     (cv_err * back[:, :, None]).reshape(b, c, nf, -1))
+    return res, (cv_err, fit_err)
+
+
+def _unit(ys: torch.Tensor) -> torch.Tensor:
+    """``(R, 1, 1)`` exact power-of-two factors for the buckets ``ys (R, 1, M)``
+    (:func:`~torchtof.recon.tval3.pow2_scale`): squared errors of ``(A x − y)·unit`` neither
+    overflow nor underflow, so the scores, the discrepancy bound and the stacking weight are
+    scale-free (``auto(c·y) = c·auto(y)`` up to rounding) for any ``y`` the dtype holds, and
+    the factor is 1 (nothing changes) at ordinary scales."""
+    return pow2_scale(ys)
+
+
+def _rms_gap(d: torch.Tensor, width: float, dims: tuple) -> torch.Tensor:
+    """``RMS(d) / width`` over ``dims`` without over/underflow of ``d²``: ``d`` and ``width``
+    are first multiplied by the power of two of :func:`~torchtof.recon.tval3.pow2_scale` for
+    ``width`` (exact; 1 at ordinary scales)."""
+    u = float(pow2_scale(torch.tensor([width], dtype=d.dtype)))
+    return (d * u).pow(2).mean(dim=dims).sqrt() / (width * u)
 
 
 def cv_folds(A: LinearOperator, like: torch.Tensor, folds: int | None, seed: int,
@@ -846,10 +874,11 @@ def _nest(v: list, b: int, c: int) -> tuple:
     return tuple(tuple(v[k * c:(k + 1) * c]) for k in range(b))
 
 
-def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
+def _with_inferred_box(res: AutoResult, errs: tuple, y: torch.Tensor, A: LinearOperator,
                        opts: dict) -> AutoResult:
     """Stage 3 of :func:`auto` without ``bounds`` (module doc, "The inferred box"): every
-    sample whose refit is two-level chooses again with the box of its two levels."""
+    sample whose refit is two-level chooses again with the box of its two levels. ``errs``:
+    the held-out and fit errors of :func:`_auto` for ``res``."""
     b, c, m = y.shape
     bc = b * c
     lo, hi, frac = _two_level(res.x.reshape(bc, 1, A.n, A.n))
@@ -864,7 +893,8 @@ def _with_inferred_box(res: AutoResult, y: torch.Tensor, A: LinearOperator,
     ys = y.reshape(bc, 1, m)
     for i in rows:
         box = (float(lo[i]), float(hi[i]))
-        r = _auto(ys[i:i + 1], A, box, known=_sample(res, i, c), **opts)
+        known = (_sample(res, i, c), errs[0][i:i + 1], errs[1][i:i + 1])
+        r = _auto(ys[i:i + 1], A, box, known=known, **opts)[0]
         x[i], n_iter[i], residual[i], conv[i] = r.x[0], r.n_iter[0, 0], r.residual[0, 0], \
             r.converged[0, 0]
         reasons[i], choice[i] = r.stop_reason[0][0], dict(r.choice[0][0], inferred=True)
@@ -975,8 +1005,9 @@ def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dic
     pa = choice_predictions(ys, A, choice, train, opts["cv_iter"], opts["tv_solver"],
                             opts["fit_iter"])
     hm = held.to(y.dtype)
-    err_a = ((pa - ys).square() * hm).sum(-1)  # (R, F)
-    err_g = gauss_cv(ys[:, 0], A, held, train)  # (R, F, L·G)
+    unit = _unit(ys)  # exact: the errors in units free of over/underflow (1 at ordinary scales)
+    err_a = (((pa - ys) * unit).square() * hm).sum(-1)  # (R, F)
+    err_g = gauss_cv(ys[:, 0] * unit[:, 0], A, held, train)  # (R, F, L·G)
     tiny = torch.finfo(y.dtype).tiny
     best = torch.minimum(err_a, err_g.amin(-1)).clamp_min(tiny)  # (R, F)
     s_g = (err_g / best[:, :, None]).sum(1)  # (R, L·G)
@@ -992,7 +1023,8 @@ def _with_gauss(res: AutoResult, y: torch.Tensor, A: Hadamard, bounds, opts: dic
     x = res.x.reshape(bc, 1, n, n).clone()
     n_iter, conv = res.n_iter.reshape(bc).clone(), res.converged.reshape(bc).clone()
     reasons = [r for row in res.stop_reason for r in row]
-    js, cv_l, sc_l = j.tolist(), err_g.sum(1).tolist(), sg_min.tolist()
+    cv_g = err_g.sum(1) * unit[:, 0].reciprocal().square()  # in the squared units of y
+    js, cv_l, sc_l = j.tolist(), cv_g.tolist(), sg_min.tolist()
     groups: dict = {}
     for i, w in enumerate(win):
         if w:
@@ -1064,7 +1096,7 @@ def stack_weight(pred_a: torch.Tensor, pred_l: torch.Tensor, y: torch.Tensor,
     Returns:
         ``(R,)`` weights of the second estimator.
     """
-    h = held.to(y.dtype)
+    h = held.to(y.dtype) * _unit(y)  # exact power of two: no over/underflow of d², r²
     d = (pred_l - pred_a) * h
     r = (y - pred_a) * h
     num, den = (d * r).sum(dim=-1), (d * d).sum(dim=-1)  # (R, F)
@@ -1191,7 +1223,7 @@ class Auto(nn.Module):
         if not isinstance(A, LinearOperator):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
         _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box,
-               learned, gauss, tv_solver, fit_iter)
+               learned, gauss, tv_solver, fit_iter, seed)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
                             split=split, slack=slack, seed=seed, priors=tuple(priors),

@@ -66,6 +66,7 @@ import torch
 from torch import nn
 
 from .._checks import (
+    check_bool,
     check_finite,
     check_in_range,
     check_positive,
@@ -248,12 +249,13 @@ def _auto_eps(y: torch.Tensor) -> torch.Tensor:
     return sigma[..., None] * m**0.5
 
 
-def _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A=None):
-    if A is not None and not isinstance(A, LinearOperator):
+def _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A, adaptive=True):
+    if not isinstance(A, LinearOperator):
         raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
+    check_bool(adaptive, "adaptive", func)
     if basis not in BASES:
         raise ValueError(f"{func}: expected basis in {BASES}, got {basis!r}")
-    if basis == "haar" and A is not None:
+    if basis == "haar":
         check_power_of_two(A.n, "A.n (image side) for basis='haar'", func)
     if isinstance(n_iter, bool) or not isinstance(n_iter, int):
         raise TypeError(f"{func}: expected n_iter to be an int, got {type(n_iter).__name__}")
@@ -267,7 +269,7 @@ def _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A=None):
     if isinstance(eps, str):
         if eps != "auto":
             raise ValueError(f"{func}: expected eps to be None, a number or 'auto', got {eps!r}")
-        if A is not None and not A.orthonormal_rows:
+        if not A.orthonormal_rows:
             raise ValueError(
                 f"{func}: eps='auto' estimates the noise from the last measurements and needs "
                 f"an operator with orthonormal rows (Hadamard); give eps as a number"
@@ -308,7 +310,8 @@ def basis_pursuit(
         eps: ``None`` (exact constraint), a noise radius ``ε > 0`` (``‖Ax − y‖ ≤ ε``, units
             of ``y``) or ``"auto"`` (``√M·σ̂``, orthonormal rows only).
         lam: weight ``λ > 0`` of the Lagrangian form (FISTA) instead of the constraint.
-        adaptive: per-sample early stopping (``True``) or exactly ``n_iter`` iterations.
+        adaptive: per-sample early stopping (``True``) or exactly ``n_iter`` iterations; a
+            bool.
         gram: cached :func:`gram_factor` of ``A`` (computed here when ``None`` and
             ``A Aᵀ ≠ I``).
         return_result: return the :class:`BPResult` (iterations, residual, convergence and stop
@@ -320,7 +323,7 @@ def basis_pursuit(
 
     Raises:
         TypeError: ``A`` not a :class:`LinearOperator`, ``y`` not a float32/float64 tensor,
-            ``n_iter`` not an int.
+            ``n_iter`` not an int, ``adaptive`` or ``return_result`` not a bool.
         ValueError: ``y`` not ``(B, C, M)`` with ``M = A.m``; NaN/Inf in ``y``; unknown
             ``basis``; ``n_iter < 1``; ``rho``/``eps``/``lam`` not ``> 0``; ``alpha`` outside
             ``(0, 2)``; ``tol < 0``; both ``eps`` and ``lam``; ``eps="auto"`` without
@@ -339,7 +342,8 @@ def basis_pursuit(
         (torch.Size([1, 1, 8, 8]), True, True)
     """
     func = "basis_pursuit"
-    _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A)
+    _check_config(func, basis, n_iter, rho, alpha, tol, eps, lam, A, adaptive)
+    check_bool(return_result, "return_result", func)
     check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
     if y.dtype not in (torch.float32, torch.float64):
         raise TypeError(f"{func}: expected y of dtype float32 or float64, got {y.dtype}")
@@ -430,7 +434,7 @@ class BasisPursuit(nn.Module):
         adaptive: bool = True,
     ) -> None:
         super().__init__()
-        _check_config("BasisPursuit", basis, n_iter, rho, alpha, tol, eps, lam, A)
+        _check_config("BasisPursuit", basis, n_iter, rho, alpha, tol, eps, lam, A, adaptive)
         self.A = A
         self.basis, self.n_iter, self.rho, self.alpha, self.tol = basis, n_iter, rho, alpha, tol
         self.eps, self.lam, self.adaptive = eps, lam, adaptive

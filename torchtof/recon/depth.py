@@ -50,11 +50,19 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape, check_tensor, is_tracing
+from .._checks import (
+    check_bool,
+    check_finite,
+    check_positive,
+    check_real,
+    check_shape,
+    check_tensor,
+    is_tracing,
+)
 from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
-from .tv import BOUNDARIES, admm_tv, check_exact_memory, largest_eig_normal
+from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, largest_eig_normal
 from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -280,14 +288,15 @@ def joint_tv(
     Args:
         y: measurements ``(B, C, M)``, ``M = A.m``, float32/float64.
         A: the operator (orthonormal rows or any; others are scaled as TVAL3's ``ScaleA``).
-        joint: vectorial TV over the ``C`` channels (``True``) or TV per channel.
+        joint: vectorial TV over the ``C`` channels (``True``) or TV per channel; a bool.
         mu: data weight ``> 0`` (constrained model) or ``"auto"``.
         beta: splitting weight ``β > 0``.
         n_iter: iterations (``≥ 1``); the exact u-step makes each one an exact ADMM step.
         tol: ``adaptive`` stops a sample when ``‖u_k − u_{k−1}‖ ≤ tol ‖u_{k−1}‖``.
-        noise_sigma: bucket noise std ``(B,)`` tensor or float, for ``mu="auto"``.
+        noise_sigma: bucket noise std ``(B,)`` tensor (or one entry) or float, ``>= 0`` and
+            finite, for ``mu="auto"``.
         adaptive: early stop (``False``: exactly ``n_iter`` iterations, no Python branch
-            on tensor values).
+            on tensor values); a bool.
         return_result: return a :class:`JointTVResult` instead of the images.
         boundary: ``"periodic"`` or ``"neumann"`` differences (:mod:`~torchtof.recon.tv`).
         bounds: ``(lo, hi)`` box on the images, projected in every u-step (units of ``A⁺y``).
@@ -299,8 +308,12 @@ def joint_tv(
         ``(B, C, n, n)`` images in the units of ``A⁺y``.
 
     Raises:
-        TypeError: if ``y`` is not a real floating tensor or ``A`` not a LinearOperator.
-        ValueError: on a wrong shape, NaN/Inf, or invalid options.
+        TypeError: if ``y`` is not a real floating tensor, ``A`` not a LinearOperator, a flag
+            (``joint``, ``adaptive``, ``return_result``) not a bool, or an option of the
+            wrong type.
+        ValueError: on a wrong shape, NaN/Inf, or invalid options (a ``noise_sigma`` tensor
+            with a NaN/Inf or negative entry or neither one nor ``B`` entries, ``bounds`` not
+            a pair ``lo < hi`` of finite numbers or ``None``).
 
     Shape:
         ``(B, C, M) -> (B, C, n, n)``.
@@ -314,12 +327,9 @@ def joint_tv(
     """
     fn = "joint_tv"
     check_buckets(y, A, fn)
-    _check_jtv_options(fn, mu, beta, n_iter, tol)
-    if boundary not in BOUNDARIES:
-        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
-    box = (None, None) if bounds is None else tuple(bounds)
-    if len(box) != 2 or (None not in box and not float(box[0]) < float(box[1])):
-        raise ValueError(f"{fn}: expected bounds (lo, hi) with lo < hi, got {bounds!r}")
+    _check_jtv_options(fn, mu, beta, n_iter, tol, joint, adaptive, boundary, bounds)
+    check_bool(return_result, "return_result", fn)
+    box = box_bounds(False, bounds, fn)
     check_exact_memory(A, y, boundary, fn, _JTV_MEMORY_HINT)
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result
         x = y.new_zeros(*y.shape[:2], A.n, A.n)
@@ -340,7 +350,7 @@ def joint_tv(
         if noise_sigma is None:
             sigma = bucket_noise_sigma(y).amin(dim=1)
         elif isinstance(noise_sigma, torch.Tensor):
-            sigma = noise_sigma.to(dtype=y.dtype, device=y.device).reshape(-1).expand(y.shape[0])
+            sigma = _noise_tensor(noise_sigma, y, fn)
         else:
             sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", fn, False))
         mu_b, beta_b, constrained = auto_weights(sigma * gain, beta)  # TVAL3's rule
@@ -386,7 +396,30 @@ class JointTVResult(NamedTuple):
     stop_reason: tuple
 
 
-def _check_jtv_options(fn: str, mu, beta, n_iter, tol) -> None:
+def _noise_tensor(noise_sigma: torch.Tensor, y: torch.Tensor, fn: str) -> torch.Tensor:
+    """``(B,)`` noise std from a tensor ``noise_sigma`` of one or ``B`` entries, checked (a real
+    float tensor, finite and ``>= 0``: one host read, eager mode)."""
+    check_real(noise_sigma, "noise_sigma", fn)
+    b = y.shape[0]
+    if noise_sigma.numel() not in (1, b):
+        raise ValueError(f"{fn}: expected noise_sigma a float or a tensor of one or B = {b} "
+                         f"entries (one per sample), got shape {tuple(noise_sigma.shape)}")
+    s = noise_sigma.to(dtype=y.dtype, device=y.device).reshape(-1)
+    if not is_tracing() and s.device.type != "meta":
+        neg, bad = torch.stack(((s < 0).any(), ~s.isfinite().all())).tolist()  # one read
+        if bad or neg:
+            raise ValueError(f"{fn}: expected noise_sigma >= 0 and finite, got "
+                             f"{noise_sigma.tolist()}")
+    return s.expand(b)
+
+
+def _check_jtv_options(fn: str, mu, beta, n_iter, tol, joint=True, adaptive=True,
+                       boundary="periodic", bounds=None) -> None:
+    check_bool(joint, "joint", fn)
+    check_bool(adaptive, "adaptive", fn)
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"{fn}: expected boundary in {BOUNDARIES}, got {boundary!r}")
+    box_bounds(False, bounds, fn)
     if isinstance(mu, str):
         if mu != "auto":
             raise ValueError(f"{fn}: expected mu to be a positive number or 'auto', got {mu!r}")
@@ -428,15 +461,13 @@ class JointTV(nn.Module):
         super().__init__()
         if not isinstance(A, LinearOperator):
             raise TypeError(f"JointTV: expected A to be a LinearOperator, got {type(A).__name__}")
-        _check_jtv_options("JointTV", mu, beta, n_iter, tol)
+        _check_jtv_options("JointTV", mu, beta, n_iter, tol, joint, adaptive, boundary, bounds)
         check_exact_memory(A, torch.empty(0), boundary, "JointTV", _JTV_MEMORY_HINT)
         if noise_sigma is not None:
             check_positive(noise_sigma, "noise_sigma", "JointTV", strict=False)
         self.A = A
         self.noise_sigma = noise_sigma
-        if boundary not in BOUNDARIES:
-            raise ValueError(f"JointTV: expected boundary in {BOUNDARIES}, got {boundary!r}")
-        self.options = dict(joint=bool(joint), mu=mu, beta=beta, n_iter=n_iter, tol=tol,
+        self.options = dict(joint=joint, mu=mu, beta=beta, n_iter=n_iter, tol=tol,
                             adaptive=adaptive, boundary=boundary, bounds=bounds)
 
     def solve(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
@@ -550,7 +581,7 @@ def depth_resolved(
     if noise_sigma is None:
         sigma = tap_noise_sigma(y) if taps_in else y.new_zeros(y.shape[0])
     elif isinstance(noise_sigma, torch.Tensor):
-        sigma = noise_sigma.to(dtype=y.dtype, device=y.device).reshape(-1).expand(y.shape[0])
+        sigma = _noise_tensor(noise_sigma, y, func)
     else:
         sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", func, False))
     meas = iq_buckets(y) if (mode == "iq" and taps_in) else y

@@ -19,6 +19,7 @@ This is paper Eq. 12 with GIDC's measurement normalisation ``z`` and a scale-inv
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import warnings
 from typing import NamedTuple
@@ -32,6 +33,7 @@ from ..operators.base import LinearOperator
 from .base import ReconResult, relative_residual, renamed_option
 from .noise import tail_noise_sigma
 from .tv import tv_norm
+from .tval3 import pow2_scale
 from .unet import UNet
 
 __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", "fit_dip"]
@@ -82,8 +84,13 @@ def _swap_legacy(y, A, func: str):
     return y, A
 
 
-def _zscore(v: torch.Tensor) -> torch.Tensor:
-    """Standardise over the last axis (GIDC's normalisation of buckets)."""
+def _zscore(v: torch.Tensor, rescale: bool = False) -> torch.Tensor:
+    """Standardise over the last axis (GIDC's normalisation of buckets). ``rescale``: first
+    multiply each slice by the power of two of :func:`~torchtof.recon.tval3.pow2_scale`
+    (exact, and 1 at ordinary scales; the result is scale-free anyway), so that the variance
+    of data at any scale the dtype holds neither overflows nor underflows."""
+    if rescale:
+        v = v * pow2_scale(v)
     mean = v.mean(dim=-1, keepdim=True)
     std = v.std(dim=-1, keepdim=True, unbiased=False)
     return (v - mean) / std.clamp_min(torch.finfo(v.dtype).tiny)
@@ -140,7 +147,7 @@ def dip_input(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
     y, A = _swap_legacy(y, A, "dip_input")
     _check_a_y(A, y, "dip_input")
     img = A.pinv(y)
-    flat = _zscore(img.flatten(-2))
+    flat = _zscore(img.flatten(-2), rescale=True)
     return flat.reshape(img.shape)
 
 
@@ -189,6 +196,46 @@ def _check_int(v: object, name: str, func: str, lo: int) -> int:
     if v < lo:
         raise ValueError(f"{func}: expected {name} >= {lo}, got {v}")
     return v
+
+
+def _check_options(func, max_iter, lr, betas, zeta, early_stop, window, patience, noise_sigma,
+                   seed, unet, lr_step, lr_gamma) -> tuple:
+    """The checks of :func:`fit_dip`'s options, shared by :func:`dip` and :class:`DIP` (which
+    run them once, before any fit): ``(max_iter, lr, zeta, window, patience, noise_sigma,
+    seed, lr_step, lr_gamma)`` as numbers (``zeta`` and ``noise_sigma`` may stay ``"auto"``,
+    which needs ``y``)."""
+    max_iter = _check_int(max_iter, "max_iter", func, 1)
+    window = _check_int(window, "window", func, 2)
+    patience = _check_int(patience, "patience", func, 1)
+    lr_step = _check_int(lr_step, "lr_step", func, 1)
+    seed = _check_int(seed, "seed", func, 0)
+    lr = check_positive(lr, "lr", func)
+    if zeta != "auto":
+        if isinstance(zeta, str):
+            raise ValueError(f"{func}: expected zeta >= 0 or 'auto', got {zeta!r}")
+        zeta = check_positive(zeta, "zeta", func, strict=False)
+    lr_gamma = check_positive(lr_gamma, "lr_gamma", func)
+    if lr_gamma > 1:
+        raise ValueError(f"{func}: expected lr_gamma in (0, 1], got {lr_gamma}")
+    try:
+        ok = len(betas) == 2 and all(0 <= float(b) < 1 for b in betas)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{func}: expected betas as two numbers in [0, 1), got {betas!r}")
+    if early_stop not in _EARLY_STOP:
+        raise ValueError(f"{func}: expected early_stop in {_EARLY_STOP}, got {early_stop!r}")
+    if isinstance(noise_sigma, str):
+        if noise_sigma != "auto":
+            raise ValueError(f"{func}: expected noise_sigma > 0, None or 'auto', got "
+                             f"{noise_sigma!r}")
+    elif noise_sigma is not None:
+        noise_sigma = check_positive(noise_sigma, "noise_sigma", func)
+    if early_stop == "discrepancy" and noise_sigma is None:
+        raise ValueError(f"{func}: early_stop='discrepancy' needs noise_sigma")
+    if unet is not None and not isinstance(unet, UNet):
+        raise TypeError(f"{func}: expected unet to be a UNet, got {type(unet).__name__}")
+    return max_iter, lr, zeta, window, patience, noise_sigma, seed, lr_step, lr_gamma
 
 
 class _WindowedVariance:
@@ -250,7 +297,9 @@ def auto_zeta(y: torch.Tensor, noise_sigma: float | None = None) -> float:
     """
     y = y.detach()
     sigma = float(tail_noise_sigma(y)) if noise_sigma is None else float(noise_sigma)
-    ratio = sigma / max(float(y.std(unbiased=False)), torch.finfo(y.dtype).tiny)
+    u = float(pow2_scale(y.reshape(1, -1)))  # exact power of two (1 at ordinary scales): the
+    # variance of y at any scale neither overflows nor underflows, the ratio is unchanged
+    ratio = sigma * u / max(float((y * u).std(unbiased=False)), torch.finfo(y.dtype).tiny)
     return min(max(ZETA_KAPPA * ratio, ZETA_MIN), ZETA_MAX)
 
 
@@ -392,35 +441,14 @@ def fit_dip(
         )
     if bool(y.amax() == y.amin()):
         raise ValueError(f"{func}: y is constant (zero spread), nothing to fit")
-    max_iter = _check_int(max_iter, "max_iter", func, 1)
-    window = _check_int(window, "window", func, 2)
-    patience = _check_int(patience, "patience", func, 1)
-    lr_step = _check_int(lr_step, "lr_step", func, 1)
-    seed = _check_int(seed, "seed", func, 0)
-    lr = check_positive(lr, "lr", func)
-    if zeta != "auto":
-        if isinstance(zeta, str):
-            raise ValueError(f"{func}: expected zeta >= 0 or 'auto', got {zeta!r}")
-        zeta = check_positive(zeta, "zeta", func, strict=False)
-    lr_gamma = check_positive(lr_gamma, "lr_gamma", func)
-    if lr_gamma > 1:
-        raise ValueError(f"{func}: expected lr_gamma in (0, 1], got {lr_gamma}")
-    if len(betas) != 2 or not all(0 <= float(b) < 1 for b in betas):
-        raise ValueError(f"{func}: expected betas as two numbers in [0, 1), got {betas}")
-    if early_stop not in _EARLY_STOP:
-        raise ValueError(f"{func}: expected early_stop in {_EARLY_STOP}, got {early_stop!r}")
-    if isinstance(noise_sigma, str):
-        if noise_sigma != "auto":
-            raise ValueError(f"{func}: expected noise_sigma > 0, None or 'auto', got "
-                             f"{noise_sigma!r}")
+    max_iter, lr, zeta, window, patience, noise_sigma, seed, lr_step, lr_gamma = _check_options(
+        func, max_iter, lr, betas, zeta, early_stop, window, patience, noise_sigma, seed, unet,
+        lr_step, lr_gamma)
+    if noise_sigma == "auto":
         noise_sigma = float(tail_noise_sigma(y.detach())[0, 0])
         if noise_sigma <= 0:
             raise ValueError(f"{func}: noise_sigma='auto' estimated 0 (noise-free tail); "
                              "pass a noise level")
-    if early_stop == "discrepancy" and noise_sigma is None:
-        raise ValueError(f"{func}: early_stop='discrepancy' needs noise_sigma")
-    if noise_sigma is not None:
-        noise_sigma = check_positive(noise_sigma, "noise_sigma", func)
     if zeta == "auto":
         zeta = auto_zeta(y, noise_sigma)
 
@@ -437,10 +465,8 @@ def fit_dip(
     if unet is None:  # own generator: the global RNG is not touched (thread-safe)
         net = default_unet(n, in_ch=x0.shape[1],
                            generator=torch.Generator().manual_seed(seed))
-    elif isinstance(unet, UNet):
-        net = copy.deepcopy(unet)
     else:
-        raise TypeError(f"{func}: expected unet to be a UNet, got {type(unet).__name__}")
+        net = copy.deepcopy(unet)
     f = 2**net.depth
     if n % f or n // f < 2 or x0.shape[1] != net.in_ch or net.out_ch != 1:
         raise ValueError(
@@ -451,16 +477,20 @@ def fit_dip(
         )
     net = net.to(dtype=y.dtype, device=y.device).train()
 
-    zy = _zscore(y)
+    zy = _zscore(y, rescale=True)
     a1 = A(torch.ones_like(x0[:, :1])).flatten()
     yf = y.flatten()
+    # the discrepancy test on (A x - y)·unit: an exact power of two, 1 at ordinary scales, so
+    # that its squares neither overflow nor underflow at any scale of y
+    unit = float(pow2_scale(yf))
     fused = y.device.type in ("cpu", "cuda")  # one kernel per step: ~15 % faster on CPU
     opt = torch.optim.Adam(
         net.parameters(), lr=lr, betas=(float(betas[0]), float(betas[1])), fused=fused
     )
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=lr_step, gamma=lr_gamma)
     wmv = _WindowedVariance(window, patience) if early_stop == "wmv" else None
-    bound = DISCREPANCY_TAU * A.m * noise_sigma**2 if early_stop == "discrepancy" else None
+    bound = (DISCREPANCY_TAU * A.m * (noise_sigma * unit)**2 if early_stop == "discrepancy"
+             else None)
     best_state, best_iter = None, 0
     losses = []
     steps = range(max_iter)
@@ -493,7 +523,7 @@ def fit_dip(
             if bound is not None:
                 with torch.no_grad():
                     ab = _affine_coeffs(ax.flatten(), a1, yf)
-                    res = (ab[0] * ax.flatten() + ab[1] * a1 - yf).pow(2).sum()
+                    res = ((ab[0] * ax.flatten() + ab[1] * a1 - yf) * unit).pow(2).sum()
                 if float(res) <= bound:  # one host sync per convergence check
                     reason = "discrepancy"
                     break
@@ -526,12 +556,35 @@ def fit_dip(
     )
 
 
+#: The options of :func:`fit_dip` that :func:`dip` and :class:`DIP` pass on, with defaults.
+_FIT_DEFAULTS = {k: p.default for k, p in inspect.signature(fit_dip).parameters.items()
+                 if k not in ("y", "A", "x0")}
+
+
+def _check_fit_kwargs(func: str, fit_kwargs: dict) -> None:
+    """``TypeError`` for a name that is no option of :func:`fit_dip`, and the option checks of
+    :func:`fit_dip` (:func:`_check_options`), once, before any fit."""
+    unknown = sorted(set(fit_kwargs) - set(_FIT_DEFAULTS))
+    if unknown:
+        raise TypeError(f"{func}: unexpected options {unknown} (the options of fit_dip: "
+                        f"{sorted(_FIT_DEFAULTS)})")
+    o = {**_FIT_DEFAULTS, **fit_kwargs}
+    if o["n_iter"] is not None and "max_iter" not in fit_kwargs:  # the old name
+        o["max_iter"] = o["n_iter"]
+    _check_options(func, o["max_iter"], o["lr"], o["betas"], o["zeta"], o["early_stop"],
+                   o["window"], o["patience"], o["noise_sigma"], o["seed"], o["unet"],
+                   o["lr_step"], o["lr_gamma"])
+
+
 def _dip_batch(y, A, x0, output, func, fit_kwargs):
-    """Fit every ``(b, c)`` sample: ``(x, n_iter (B, C), stop reasons [b][c])``."""
+    """Fit every ``(b, c)`` sample: ``(x, n_iter (B, C), stop reasons [b][c])``. A sample with
+    constant buckets is not fitted (:func:`dip`): its image is the constant of the affine
+    calibration, 0 for zero buckets (``n_iter`` 0, ``"direct"``)."""
     y, A = _swap_legacy(y, A, func)
     _check_a_y(A, y, func)
     if output not in _OUTPUTS:
         raise ValueError(f"{func}: expected output in {_OUTPUTS}, got {output!r}")
+    _check_fit_kwargs(func, fit_kwargs)
     b, c, _ = y.shape
     if x0 is not None:
         check_tensor(x0, "x0", func)
@@ -540,9 +593,16 @@ def _dip_batch(y, A, x0, output, func, fit_kwargs):
     x = y.new_zeros(b, c, A.n, A.n)
     iters = torch.zeros(b, c, dtype=torch.int64)
     reasons = []
+    yd = y.detach()
+    const = (yd.amax(-1) == yd.amin(-1)).tolist()  # one host read: the samples with no contrast
+    # (constant buckets, zero spread: the z-scored fit has nothing to fit)
     for i in range(b):
         row = []
         for j in range(c):
+            if const[i][j]:
+                x[i, j] = _constant_image(yd[i, j], A) if key == "x_cal" else 0.0
+                row.append("direct")
+                continue
             x0_ij = None if x0 is None else x0[i : i + 1, j : j + 1]
             res = fit_dip(y[i : i + 1, j : j + 1], A, x0=x0_ij, **fit_kwargs)
             x[i, j] = getattr(res, key)[0, 0].detach()
@@ -550,6 +610,17 @@ def _dip_batch(y, A, x0, output, func, fit_kwargs):
             row.append(res.stop_reason)
         reasons.append(tuple(row))
     return x, iters.to(y.device), tuple(reasons)
+
+
+def _constant_image(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
+    """``(n, n)`` the constant image ``b·1`` with ``b = argmin ‖b·A1 − y‖²`` for the buckets
+    ``y (M,)`` of one sample: :func:`fit_dip`'s calibration ``a·x̂ + b`` of a fit that saw no
+    contrast (``a = 0``). 0 for zero buckets; the determined image where one measurement of a
+    constant image is all there is."""
+    with torch.no_grad():
+        a1 = A(y.new_ones(1, 1, A.n, A.n)).flatten()
+        ab = _affine_coeffs(torch.zeros_like(a1), a1, y)
+    return ab[1].expand(A.n, A.n)
 
 
 def dip(
@@ -563,7 +634,12 @@ def dip(
 
     Every sample is fitted independently with the same options and seed (a Python loop over
     samples: a DIP fits one network per image), so a batch equals the stacked single fits;
-    an empty batch (``B = 0``) gives an empty result.
+    an empty batch (``B = 0``) gives an empty result. A sample whose buckets are constant
+    (zero spread, e.g. all zero, or a single measurement) gives the z-scored fit nothing to
+    fit: it is not fitted, and its image is the constant ``b`` minimising ``‖b·A1 − y‖²``
+    (the calibration of ``x_cal`` without a fitted image; 0 for zero buckets, the exact
+    image for one measurement of a constant scene; ``"unit"``: 0), without affecting the
+    other samples.
 
     Args:
         y: buckets ``(B, C, M)``.
@@ -574,14 +650,15 @@ def dip(
             (comparable with :func:`~torchtof.recon.pinv.pseudo_inverse` and TVAL3);
             ``"unit"``: ``x``, min-max normalised to ``[0, 1]``.
         **fit_kwargs: options of :func:`fit_dip` (``max_iter``, ``lr``, ``zeta``,
-            ``early_stop``, ``seed`` …).
+            ``early_stop``, ``seed`` …), checked once before any fit.
 
     Returns:
         ``(B, C, n, n)`` images, dtype and device of ``y`` (detached: no gradient to ``y``).
 
     Raises:
-        TypeError, ValueError: as :func:`fit_dip`; ``ValueError`` for an unknown ``output``
-            or ``x0`` of the wrong shape.
+        TypeError, ValueError: as :func:`fit_dip` (but constant buckets are no error);
+            ``TypeError`` for a name that is no option of :func:`fit_dip`; ``ValueError`` for
+            an unknown ``output`` or ``x0`` of the wrong shape.
 
     Shape:
         - y: :math:`(B, C, M)`.
@@ -601,12 +678,15 @@ class DIP(nn.Module):
 
     The fit runs inside ``forward`` of this wrapper (it is not meant for export: export the
     fitted :class:`UNet` of :func:`fit_dip` instead). :meth:`solve` also returns the
-    iterations and stop reason of every sample.
+    iterations and stop reason of every sample (``"direct"`` for a sample with constant
+    buckets, see :func:`dip`).
 
     Args:
         A: measurement operator (a submodule).
         output: ``"calibrated"`` (default, units of ``y``) or ``"unit"`` (``[0, 1]``).
-        **fit_kwargs: options of :func:`fit_dip` (``max_iter``, ``seed``, ``zeta`` …).
+        **fit_kwargs: options of :func:`fit_dip` (``max_iter``, ``seed``, ``zeta`` …),
+            checked here (``TypeError`` for a name that is no option of :func:`fit_dip`,
+            ``TypeError``/``ValueError`` for a bad value, as :func:`fit_dip`).
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -625,6 +705,7 @@ class DIP(nn.Module):
             fit_kwargs["max_iter"] = renamed_option(
                 "DIP", "n_iter", "max_iter", fit_kwargs.pop("n_iter"),
                 fit_kwargs.get("max_iter", 300), 300)
+        _check_fit_kwargs("DIP", fit_kwargs)
         self.A = A
         self.output = output
         self.fit_kwargs = dict(fit_kwargs)
@@ -632,7 +713,8 @@ class DIP(nn.Module):
     def solve(self, y: torch.Tensor) -> ReconResult:
         """:class:`~torchtof.recon.base.ReconResult`: ``n_iter`` per sample, ``converged``
         where the early stop ended the fit before ``max_iter``, ``stop_reason[b][c]`` in
-        ``"wmv"``, ``"discrepancy"``, ``"max_iter"``."""
+        ``"wmv"``, ``"discrepancy"``, ``"max_iter"`` (``"direct"``: constant buckets, not
+        fitted, :func:`dip`)."""
         x, iters, reasons = _dip_batch(y, self.A, None, self.output, "DIP", self.fit_kwargs)
         with torch.no_grad():
             res = relative_residual(x, y.detach(), self.A)

@@ -79,7 +79,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .._checks import check_finite, check_shape, check_tensor, is_tracing
+from .._checks import check_finite, check_real, check_shape, check_tensor, is_tracing
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
@@ -377,8 +377,13 @@ def _check_noise_tensor(noise_sigma, y: torch.Tensor, func: str) -> None:
                 f"{func}: expected noise_sigma of shape (), (B,) or (B, C) = "
                 f"{tuple(y.shape[:2])}, got {tuple(s.shape)}"
             )
-        if s.numel() and bool((s < 0).any()):
-            raise ValueError(f"{func}: expected noise_sigma >= 0, got a negative entry")
+        check_real(s, "noise_sigma", func)
+        if s.numel() and s.device.type != "meta":
+            neg, bad = torch.stack(((s < 0).any(), ~s.isfinite().all())).tolist()  # one read
+            if bad:
+                raise ValueError(f"{func}: expected noise_sigma finite, got a NaN or Inf entry")
+            if neg:
+                raise ValueError(f"{func}: expected noise_sigma >= 0, got a negative entry")
 
 
 def _unrolled(
@@ -542,6 +547,9 @@ class Learned(nn.Module):
         check_prior_sizes(func, width, shuffle, scales, optional=True)
         if not isinstance(noise_sigma, torch.Tensor):
             _sigma_of(noise_sigma, torch.zeros(1, 1, 1), func)  # validate once here
+        if not isinstance(pretrained, (bool, str, os.PathLike)):
+            raise TypeError(f"{func}: expected pretrained to be a bool or a weights file path, "
+                            f"got {type(pretrained).__name__}")
         path = None
         if pretrained is True:
             if not WEIGHTS_FILE.is_file():
@@ -632,7 +640,7 @@ class Learned(nn.Module):
         return 2 * torch.sigmoid(self.step_raw)
 
     def _check_y(self, y: torch.Tensor, func: str) -> None:
-        check_tensor(y, "y", func)
+        check_real(y, "y", func)
         check_shape(y, (None, None, self.A.m), "y", func, "(B, C, M)")
         check_finite(y, "y", func)
         _check_noise_tensor(self.noise_sigma, y, func)

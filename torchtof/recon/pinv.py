@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from .._checks import check_real, unchecked
 from ..operators.base import LinearOperator
 from .base import ReconResult, direct_result
 
@@ -19,17 +20,25 @@ def pseudo_inverse(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
     """Minimum-norm least-squares image ``A⁺ y``.
 
     Args:
-        y: measurements ``(B, C, M)``.
+        y: measurements ``(B, C, M)``, a real floating-point tensor.
         A: the operator.
 
     Returns:
         ``(B, C, n, n)``. With the full Hadamard set and no noise it is exact.
+
+    Raises:
+        TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or ``y`` not
+            a real floating-point tensor (complex buckets: reconstruct the real and imaginary
+            parts separately).
+        ValueError: if ``y`` is not ``(B, C, A.m)`` or holds NaN/Inf (eager mode).
     """
+    func = "pseudo_inverse"
     if not isinstance(A, LinearOperator):
-        raise TypeError(
-            f"pseudo_inverse: expected A to be a LinearOperator, got {type(A).__name__}"
-        )
-    return A.pinv(y)
+        raise TypeError(f"{func}: expected A to be a LinearOperator, got {type(A).__name__}")
+    check_real(y, "y", func)
+    A._check_y(y, func)  # shape and NaN/Inf, named here
+    with unchecked():  # checked above: the operator does not read y back again
+        return A.pinv(y)
 
 
 class PseudoInverse(torch.nn.Module):

@@ -226,8 +226,10 @@ def _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bou
     if isinstance(mu, torch.Tensor):
         if mu.is_complex() or not mu.is_floating_point():
             raise TypeError(f"{fn}: expected mu a float tensor, got {mu.dtype}")
-        if mu.device.type != "meta" and not is_tracing() and not bool((mu > 0).all()):
-            raise ValueError(f"{fn}: expected mu > 0 everywhere")
+        if mu.device.type != "meta" and not is_tracing() and not bool(
+                ((mu > 0) & mu.isfinite()).all()):  # one host read, at entry
+            raise ValueError(f"{fn}: expected every entry of mu > 0 and finite (the "
+                             "constrained model is tvl2=False, not mu=inf)")
     elif isinstance(mu, bool) or not isinstance(mu, (int, float)):
         raise TypeError(f"{fn}: expected mu a positive number or a (B, C) tensor, "
                         f"got {type(mu).__name__}")
@@ -290,7 +292,8 @@ def tgv(
         mu: data weight of the TV-L2 model on the scaled buckets (as TVAL3's ``μ``; ignored
             by the constrained model), or a per-sample ``(B, C)`` tensor: with ``tvl2`` a
             ``(B, C)`` bool tensor one batched call tries several weights and models, as
-            :func:`~torchtof.recon.auto` does with TVAL3.
+            :func:`~torchtof.recon.auto` does with TVAL3. ``> 0`` and finite (every entry of a
+            tensor, too: the constrained model is ``tvl2=False``).
         alpha: ``"auto"`` (``α₀/α₁ = n/√M``, module doc), the ratio ``α₀/α₁`` (``α₁ = 1``; a
             length in pixels: a kink of slope change ``s`` costs as much as a jump of height
             ``s·α₀/α₁``), or the pair ``(α₁, α₀)``.

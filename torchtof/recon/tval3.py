@@ -31,8 +31,10 @@ import torch
 from torch import nn
 
 from .._checks import (
+    check_bool,
     check_finite,
     check_positive,
+    check_real,
     check_shape,
     check_tensor,
     is_tracing,
@@ -170,6 +172,38 @@ def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.
     :func:`~torchtof.recon.noise.abs_quantile_sigma`."""
     k = min(m, max(8, int(math.ceil(tail * m))))
     return abs_quantile_sigma(y[..., m - k :], quantile)
+
+
+#: IEEE layout of the dtypes :func:`pow2_scale` builds powers of two in: (bits as an int dtype,
+#: mantissa bits, exponent bias).
+_IEEE = {torch.float32: (torch.int32, 23, 127), torch.float64: (torch.int64, 52, 1023)}
+
+
+def pow2_scale(v: torch.Tensor, dim: int = -1, band: int | None = None) -> torch.Tensor:
+    """A power of two ``2^-k`` per slice of ``v`` along ``dim`` (kept as a size-1 dim) that
+    brings the slice's ``max |v|`` to about 1, or exactly ``1`` where ``max |v|`` already lies
+    within ``2^±band`` (default: a quarter of the exponent range, ``2^±32`` in float32,
+    ``2^±256`` in float64; 1 for an all-zero slice).
+
+    Multiplying by a power of two is exact, so a sum of squares of ``v · 2^-k`` neither
+    overflows nor underflows, ratios of such sums equal the unscaled ones bit for bit wherever
+    those do neither, and at ordinary scales (the factor is 1) nothing changes at all. The
+    factor is built from its IEEE bits (no ``exp2`` rounding on any device); float32 and
+    float64 (other dtypes: 1).
+
+    Example:
+        >>> pow2_scale(torch.tensor([[2.0**40, -3.0], [2.0, 0.5]])).flatten().tolist() == [
+        ...     2.0**-41, 1.0]
+        True
+    """
+    peak = v.abs().amax(dim=dim, keepdim=True)
+    if v.dtype not in _IEEE:  # other dtypes: no rescaling
+        return torch.ones_like(peak)
+    ibits, nmant, bias = _IEEE[v.dtype]
+    band = (bias + 1) // 4 if band is None else band
+    e = torch.frexp(peak).exponent.to(ibits)  # peak ∈ [2^(e−1), 2^e)
+    k = torch.where(e.abs() > band, e, torch.zeros_like(e)).clamp(1 - bias, bias - 1)
+    return ((bias - k) << nmant).view(v.dtype)  # 2^-k, a normal number
 
 
 # -- the solver --------------------------------------------------------------------------------
@@ -414,9 +448,11 @@ def tval3(
             image lies in the camera's range ``[0, c/2f)`` (Eq. 1; 5 m at 30 MHz); an image
             normalised by a calibration (all-on) frame, e.g. ``x / (y⁺ + y⁻)`` of complementary
             DMD pairs, lies in ``[0, 1]``; pass the bound the experiment knows.
-        tvl2: with a numeric ``mu``, solve the TV-L2 model instead of the constrained one.
-        noise_sigma: noise std of ``y`` for ``mu="auto"`` (float or ``(B, C)`` tensor);
-            ``None`` estimates it with :func:`bucket_noise_sigma`.
+        tvl2: with a numeric ``mu``, solve the TV-L2 model instead of the constrained one (a
+            bool; a ``(B, C)`` bool tensor with a tensor ``mu``).
+        noise_sigma: noise std of ``y`` for ``mu="auto"`` (float or tensor broadcastable to
+            ``(B, C)``, ``>= 0`` and finite); ``None`` estimates it with
+            :func:`bucket_noise_sigma`.
         max_outer: TVAL3 ``maxcnt``: the solve ends at the ``max_outer``-th inner convergence
             (at most ``max_outer − 1`` multiplier updates).
         ctn_steps: continuation: start at ``μ/2^k``, ``β/2^k`` (TVAL3 ``mu0``, ``beta0``) and
@@ -451,9 +487,11 @@ def tval3(
         ``(x, n_iter, residual, converged, stop_reason, stop_code)``.
 
     Raises:
-        TypeError: ``y`` not a floating tensor, ``A`` not a ``LinearOperator``, bad option types.
+        TypeError: ``y`` not a floating tensor, ``A`` not a ``LinearOperator``, bad option types
+            (a flag ``nonneg``, ``tvl2``, ``adaptive``, ``return_result`` not a bool).
         ValueError: wrong shape of ``y``, NaN/Inf in ``y``, ``mu``/``beta``/tolerances not
-            positive, ``max_iter < 1``, unknown ``tv``/``u_step``, ``tvl2`` with ``mu="auto"``.
+            positive, ``max_iter < 1``, unknown ``tv``/``u_step``, ``tvl2`` with ``mu="auto"``,
+            ``noise_sigma``/``discrepancy`` negative, NaN/Inf or not broadcastable to ``(B, C)``.
 
     Shape:
         ``y (B, C, M) -> x (B, C, n, n)``; ``n_iter``, ``residual``, ``converged``: ``(B, C)``.
@@ -471,6 +509,8 @@ def tval3(
     opts = _check_options(
         fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn_steps, rate_ctn, u_step
     )
+    check_bool(adaptive, "adaptive", fn)
+    check_bool(return_result, "return_result", fn)
 
     _check_boundary(boundary, fn)
     if opts["u_step"] == "exact":
@@ -506,7 +546,7 @@ def tval3(
         if noise_sigma is None or isinstance(noise_sigma, str):
             sigma = _estimate_sigma(y, A, noise_sigma, fn)
         else:
-            sigma = _sigma_tensor(noise_sigma, y)
+            sigma = _sigma_tensor(noise_sigma, y, "noise_sigma", fn)
         mu_f, beta_f, constrained = auto_weights(sigma * gain, beta)
         if (noise_sigma is None or isinstance(noise_sigma, str)) and adaptive and A.m >= 8 \
                 and not is_tracing() and y.device.type != "meta" and bool((~constrained).any()):
@@ -530,7 +570,7 @@ def tval3(
                                  f"'auto', got {discrepancy!r}")
             sd = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
         else:
-            sd = _sigma_tensor(discrepancy, y)
+            sd = _sigma_tensor(discrepancy, y, "discrepancy", fn)
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
     with unchecked():  # y was validated above: operator calls in the loop skip check_finite
         u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
@@ -608,18 +648,32 @@ def _estimate_sigma(y: torch.Tensor, A: LinearOperator, name: str | None, fn: st
     return _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
 
 
-def _sigma_tensor(noise_sigma: float | torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    if isinstance(noise_sigma, torch.Tensor):
-        s = noise_sigma.to(dtype=y.dtype, device=y.device)
-        bad = not is_tracing() and (bool((s < 0).any()) or not bool(torch.isfinite(s).all()))
-        if s.ndim > 2 or bad:
-            raise ValueError(
-                f"tval3: expected noise_sigma >= 0 and finite, broadcastable to (B, C), "
-                f"got shape {tuple(s.shape)}"
-            )
-        return torch.broadcast_to(s, y.shape[:-1])
-    check_positive(noise_sigma, "noise_sigma", "tval3", strict=False)
-    return y.new_full(y.shape[:-1], float(noise_sigma))
+def _sigma_tensor(value: float | torch.Tensor, y: torch.Tensor, name: str, fn: str
+                  ) -> torch.Tensor:
+    """A noise std ``value`` (the option ``name`` of ``fn``: a number or a tensor
+    broadcastable to ``(B, C)``, ``>= 0`` and finite) as a ``(B, C)`` tensor."""
+    hint = "" if name == "noise_sigma" else " (the noise std of y, as noise_sigma)"
+    if isinstance(value, torch.Tensor):
+        check_real(value, name, fn)
+        s = value.to(dtype=y.dtype, device=y.device)
+        try:
+            out = torch.broadcast_to(s, y.shape[:-1])
+        except RuntimeError:
+            out = None
+        if s.ndim > 2 or out is None:
+            raise ValueError(f"{fn}: expected {name} broadcastable to (B, C) = "
+                             f"{tuple(y.shape[:-1])}, got shape {tuple(s.shape)}")
+        if not is_tracing() and s.numel() and s.device.type != "meta":
+            neg, bad = torch.stack(((s < 0).any(), ~s.isfinite().all())).tolist()  # one read
+            if neg or bad:
+                raise ValueError(f"{fn}: expected {name} >= 0 and finite{hint}, got a "
+                                 f"{'NaN or Inf' if bad else 'negative'} entry")
+        return out
+    try:
+        check_positive(value, name, fn, strict=False)
+    except ValueError as e:
+        raise ValueError(f"{e}{hint}") from None
+    return y.new_full(y.shape[:-1], float(value))
 
 
 def _check_options(fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, ctn, rate, u_step):
@@ -634,6 +688,11 @@ def _check_options(fn, mu, beta, tol, tol_inner, max_iter, tv, tvl2, max_outer, 
                              f"(B, C), got shape {tuple(mu.shape)}")
     else:
         check_positive(mu, "mu", fn)
+    if isinstance(tvl2, torch.Tensor):
+        if tvl2.dtype != torch.bool:
+            raise TypeError(f"{fn}: expected tvl2 a bool or a bool tensor, got {tvl2.dtype}")
+    else:
+        check_bool(tvl2, "tvl2", fn)
     check_positive(beta, "beta", fn)
     check_positive(tol, "tol", fn)
     check_positive(tol_inner, "tol_inner", fn)
@@ -1001,6 +1060,7 @@ class TVAL3(nn.Module):
             opts["u_step"],
         )
         _check_boundary(opts["boundary"], "TVAL3")
+        check_bool(opts["adaptive"], "adaptive", "TVAL3")
         if opts["u_step"] == "exact":
             check_exact_memory(A, torch.empty(0), opts["boundary"], "TVAL3", _EXACT_MEMORY_HINT)
         box_bounds(nonneg, opts["bounds"], "TVAL3")

@@ -65,7 +65,14 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_shape, check_tensor, is_tracing, unchecked
+from .._checks import (
+    check_bool,
+    check_finite,
+    check_real,
+    check_shape,
+    is_tracing,
+    unchecked,
+)
 from ..operators.base import LinearOperator
 from .base import ReconResult, direct_result, renamed_option
 from .tv import grad2, grad2_adjoint, shrink
@@ -120,18 +127,21 @@ def unrolled_tval3(
         beta: TV splitting penalties ``β_k > 0`` (TVAL3: ``2⁵``).
         step: step factors ``α_k > 0`` on the exact line-search step (TVAL3: 1).
         thresh: shrinkage thresholds ``t_k > 0`` (TVAL3: ``1/β_k``).
-        precond: preconditioner weights ``c_k > 0`` (``∞``: TVAL3's steepest descent).
-        isotropic: isotropic TV (TVAL3 ``TVnorm=2``) or anisotropic.
+        precond: preconditioner weights ``c_k > 0`` (``c_k → ∞``: TVAL3's steepest descent).
+            Every entry of the five, in the dtype of ``y``, must be finite and ``> 0``
+            (checked once here, eager mode).
+        isotropic: isotropic TV (TVAL3 ``TVnorm=2``) or anisotropic; a bool.
 
     Returns:
         The reconstruction ``x`` in the units of the scene (``A x ≈ y``).
 
     Raises:
-        TypeError: if ``y`` or a scalar vector is not a real floating tensor, or ``A`` is
-            not a :class:`~torchtof.operators.LinearOperator`.
+        TypeError: if ``y`` or a scalar vector is not a real floating tensor, ``A`` is
+            not a :class:`~torchtof.operators.LinearOperator` or ``isotropic`` not a bool.
         ValueError: if ``A`` has no orthonormal rows, ``y`` is not ``(B, C, M)`` with
             ``M = A.m`` or holds NaN/Inf (eager mode), or the five scalar vectors are not
-            all of shape ``(K,)``, ``K >= 1``, or some of them are given and others not.
+            all of shape ``(K,)``, ``K >= 1``, or some of them are given and others not, or
+            an entry of them is not finite and ``> 0`` (eager mode).
 
     Shape:
         - y: :math:`(B, C, M)`; mu, beta, step, thresh, precond: :math:`(K,)`.
@@ -144,30 +154,46 @@ def unrolled_tval3(
         >>> unrolled_tval3(A(torch.rand(2, 1, 16, 16)), A, 256 * k, 32 * k, k, k / 32, 4 * k).shape
         torch.Size([2, 1, 16, 16])
     """
+    return _unrolled_tval3(y, A, (mu, beta, step, thresh, precond), isotropic, check_values=True)
+
+
+#: The per-layer scalar arguments of :func:`unrolled_tval3`, in order.
+_SCALAR_NAMES = ("mu", "beta", "step", "thresh", "precond")
+
+
+def _unrolled_tval3(y: torch.Tensor, A: LinearOperator, per_iter: tuple, isotropic: bool,
+                    check_values: bool) -> torch.Tensor:
+    """:func:`unrolled_tval3`; ``check_values=False`` (the module's positive-by-construction
+    scalars) skips the host read of the scalars' values."""
     func = "unrolled_tval3"
     _check_operator(A, func)
-    check_tensor(y, "y", func)
-    if y.is_complex():
-        raise TypeError(f"{func}: expected y to be a real floating-point tensor, got dtype "
-                        f"{y.dtype} (reconstruct the real and imaginary parts separately)")
+    check_bool(isotropic, "isotropic", func)
+    check_real(y, "y", func)
     check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
     check_finite(y, "y", func)
-    per_iter = (mu, beta, step, thresh, precond)
-    names = ("mu", "beta", "step", "thresh", "precond")
+    names = _SCALAR_NAMES
     if all(v is None for v in per_iter):  # the shipped scalars: the module's forward
         return UnrolledTVAL3(A, isotropic=isotropic).to(device=y.device)(y)
     missing = [k for k, v in zip(names, per_iter, strict=True) if v is None]
     if missing:
         raise ValueError(f"{func}: expected mu, beta, step, thresh and precond all given or "
                          f"all None (the shipped scalars), got None for {', '.join(missing)}")
+    mu = per_iter[0]
     for name, v in zip(names, per_iter, strict=True):
-        check_tensor(v, name, func)
+        check_real(v, name, func)
         if not is_tracing() and (v.ndim != 1 or v.shape[0] < 1 or v.shape != mu.shape):
             raise ValueError(
                 f"{func}: expected {name} of shape (K,) with K >= 1, the same for mu, beta, "
                 f"step, thresh and precond, got {tuple(v.shape)} (mu {tuple(mu.shape)})"
             )
     mu, beta, step, thresh, precond = (v.to(dtype=y.dtype, device=y.device) for v in per_iter)
+    if check_values and not is_tracing() and y.device.type != "meta":
+        vals = torch.stack((mu, beta, step, thresh, precond)).detach()
+        ok = ((vals > 0) & vals.isfinite()).all(dim=1).tolist()  # one host read, at entry
+        for name, good, v in zip(names, ok, vals, strict=True):
+            if not good:
+                raise ValueError(f"{func}: expected every entry of {name} > 0 and finite (in "
+                                 f"{y.dtype}), got {v.tolist()}")
     fwd, adj = A.loop_pair(y)
     tiny = torch.finfo(y.dtype).tiny
 
@@ -268,7 +294,7 @@ class UnrolledTVAL3(nn.Module):
             one and otherwise falls back to the untrained initialisation (TVAL3's defaults)
             with a ``UserWarning``; ``False`` starts from the initialisation silently; a path
             loads that file (its metadata must match ``A``, ``n_layers`` and ``isotropic``).
-        isotropic: isotropic TV (TVAL3's default) or anisotropic.
+        isotropic: isotropic TV (TVAL3's default) or anisotropic; a bool.
         n_iter: old name of ``n_layers`` (``DeprecationWarning``; removed in the next release).
 
     The operator's patterns and the scalars are in the ``state_dict``; :meth:`solve` returns a
@@ -279,8 +305,8 @@ class UnrolledTVAL3(nn.Module):
         weights_file: the file the weights came from, or ``None``.
 
     Raises:
-        TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator` or
-            ``n_layers`` not an int.
+        TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator`,
+            ``n_layers`` not an int or ``isotropic`` not a bool.
         ValueError: if ``A`` has no orthonormal rows, ``n_layers < 1``, or a given weight file
             does not match.
 
@@ -310,7 +336,7 @@ class UnrolledTVAL3(nn.Module):
         check_n_layers(n_layers, func)
         self.A = A
         self.n_layers = n_layers
-        self.isotropic = bool(isotropic)
+        self.isotropic = check_bool(isotropic, "isotropic", func)
         for name, v in _raw_init(n_layers).items():
             setattr(self, name, nn.Parameter(v))
         self.weights_file: str | None = None
@@ -386,7 +412,8 @@ class UnrolledTVAL3(nn.Module):
         return tuple(getattr(self, k).exp() for k in PARAM_NAMES)
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
-        return unrolled_tval3(y, self.A, *self.scalars(), isotropic=self.isotropic)
+        # the scalars are exp() of the parameters: positive by construction, no value check
+        return _unrolled_tval3(y, self.A, self.scalars(), self.isotropic, check_values=False)
 
     def solve(self, y: torch.Tensor) -> ReconResult:
         """``forward`` with its :class:`~torchtof.recon.base.ReconResult` (``K`` iterations
