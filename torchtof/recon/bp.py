@@ -76,6 +76,7 @@ from .._checks import (
     unchecked,
 )
 from ..operators.base import LinearOperator
+from .base import relative_residual
 from .dct import dct2, dct_matrix, haar2, idct2, ihaar2
 from .noise import abs_quantile_sigma
 
@@ -94,7 +95,8 @@ class BPResult(NamedTuple):
     Attributes:
         x: reconstruction ``(B, C, n, n)``.
         n_iter: iterations used per sample ``(B, C)`` (int64).
-        residual: ``‖Ax − y‖₂`` per sample ``(B, C)``, in the units of ``y``.
+        residual: ``‖Ax − y‖₂ / ‖y‖₂`` per sample ``(B, C)`` (0 for ``y = 0``), as every
+            reconstructor's result (with ``eps``, the active constraint gives ``ε / ‖y‖``).
         converged: ``(B, C)`` bool, stopping test met (at the last iteration when
             ``adaptive=False``).
         stop_reason: per sample ``"tol"`` (converged) or ``"max_iter"``, ``[b][c]``.
@@ -376,7 +378,7 @@ def basis_pursuit(
             thresh = lam / (s[..., None] * big_l)
             x, iters, done = _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
     x = x * s[..., None]
-    residual = torch.linalg.vector_norm(A(x) - y, dim=-1)
+    residual = relative_residual(x, y, A)
     names = _stop_names(done)
     if eps is None and lam is None and adaptive and any(
             r == "max_iter" for row in names for r in row):  # one check per call, after the loop
