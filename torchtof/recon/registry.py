@@ -69,7 +69,11 @@ class ReconSpec:
         return self.module(A, **{**self.defaults, **options})
 
     def budget_options(self, budget: int | None) -> dict:
-        """Options that run exactly ``budget`` iterations (``None``: the solver's own rule)."""
+        """Options that give the method a budget of ``budget`` iterations (``None``: the
+        solver's own rule): exactly that many where ``fixed_budget`` switches the adaptive stop
+        off (BP, TVAL3, TGV², JointTV) and for the unrolled depth; a cap for the DIP (its
+        early stop still applies); for ``auto`` the iterations of each cross-validation fit
+        (``cv_iter``; its final refit runs ``max_iter``, so its ``n_iter`` can exceed it)."""
         if budget is None:
             return {}
         if self.budget is None:
