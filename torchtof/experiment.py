@@ -366,15 +366,24 @@ class ExperimentData:
         return DMDSplit(self.operator(sr))
 
     def split_buckets(self, sr: float, kind: str = "depth", gate: bool = False) -> torch.Tensor:
-        """Interleaved DMD buckets ``(R, C, 2M)`` at ``sr`` (``gate`` selects the gated depth)."""
+        """Interleaved DMD buckets ``(R, C, 2M)`` at ``sr`` (``gate`` selects the gated depth).
+
+        Raises:
+            ValueError: an unknown ``kind``, or ``gate=True`` with a kind other than
+                ``"depth"`` (the depth gate applies to the depth buckets only).
+        """
         key = "depth_gated" if (kind == "depth" and gate) else kind
         if key not in self.buckets:
             raise ValueError(f"ExperimentData: expected kind in ('depth', 'intensity', 'taps'), "
                              f"got {kind!r}")
+        if gate and kind != "depth":
+            raise ValueError(f"ExperimentData: gate=True applies to the depth buckets only (the "
+                             f"{self.config.gate_m:g} m depth gate), got kind={kind!r}")
         return self.buckets[key][..., : 2 * self.m(sr)]
 
     def measurements(self, sr: float, kind: str = "depth", gate: bool = False):
-        """``(A, y)``: the ±1 operator and ``y = (y⁺ − y⁻)/n`` ``(R, C, M)`` at ``sr``."""
+        """``(A, y)``: the ±1 operator and ``y = (y⁺ − y⁻)/n`` ``(R, C, M)`` at ``sr``
+        (``gate=True``: the gated depth buckets; a ValueError with any other ``kind``)."""
         s = self.split_operator(sr)
         return s.hadamard, s.combine(self.split_buckets(sr, kind, gate))
 

@@ -60,8 +60,13 @@ def test_acquire_then_reconstruct_equals_pure_simulation(uninterrupted, tmp_path
 
 
 def test_acquire_refuses_existing_store_and_unknown_method(uninterrupted, capsys):
-    assert main([*ARGS, "-o", str(uninterrupted)]) == 1
-    assert "exists; pass resume=True (--resume)" in capsys.readouterr().err
+    # an existing store without --resume: a one-line usage error before any device is opened
+    with pytest.raises(SystemExit) as exc:
+        main([*ARGS, "-o", str(uninterrupted)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument -o/--output:" in err[0] and \
+        "exists; pass --resume" in err[0], err
     with pytest.raises(SystemExit) as exc:
         main(["reconstruct", str(uninterrupted), "--method", "nope"])
     assert exc.value.code == 2
@@ -104,7 +109,9 @@ def test_killed_acquisition_resumes_to_the_same_data(ids, hang, kept, uninterrup
                                       g[name][..., :kept], ref[name][:kept] if
                                       name.startswith("frames") else ref[name][..., :kept],
                                       err_msg=name)
-    assert main(args) == 1  # exists: needs --resume
+    with pytest.raises(SystemExit) as exc:  # exists: needs --resume (a usage error)
+        main(args)
+    assert exc.value.code == 2
     assert main([*args, "--resume"]) == 0
     a, b = zarr.open_group(str(path), mode="r"), zarr.open_group(str(uninterrupted), mode="r")
     for name in ARRAYS:

@@ -4,7 +4,8 @@ hardware").
 
 ``import torchtof`` does not import this package; importing it does not import pyusb
 either — the submodules load on first use (``torchtof.hardware.acquire`` …), and pyusb
-only when a device is opened or a USB error is translated. (The acquisition code lives in
+only when a device is opened or a USB error is translated; the simulated devices run without
+pyusb (:func:`~torchtof.hardware.errors.usb_exceptions`). (The acquisition code lives in
 ``acquisition.py`` so that ``torchtof.hardware.acquire`` is the function, not a module.)
 """
 

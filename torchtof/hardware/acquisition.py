@@ -304,6 +304,10 @@ def _open_store(path, patterns: np.ndarray, attrs: dict, shape_hw: tuple[int, in
             raise ValueError(f"acquire: cannot resume {path}: frames of {old_hw} px, this "
                              f"ROI has {(h, w)}")
         return group, ok
+    if path.exists() and not (path.is_dir() and not any(path.iterdir())):
+        # zarr's mode "w" would delete what the folder holds
+        raise FileExistsError(f"acquire: {path} exists and is not a torchtof acquisition (a "
+                              "file, or a folder holding other files); choose a new path")
     zarr = require_zarr3()
     group = zarr.open_group(str(path), mode="w")
     codecs = _codecs()
@@ -410,7 +414,8 @@ def acquire(
         :class:`AcquisitionResult`.
 
     Raises:
-        FileExistsError: the store exists and ``resume`` is false.
+        FileExistsError: the store exists and ``resume`` is false, or ``path`` is a file or
+            a folder with other files (never overwritten).
         ValueError: bad arguments or a store that does not match this run (names the field).
         StoreDamagedError: ``resume`` of a store that fails its integrity check.
         FrameTimeoutError, FrameError, FrameSequenceError, ProtocolError: a transient fault

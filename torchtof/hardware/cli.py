@@ -113,10 +113,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
         print(f"torchtof acquire: {exc}", file=sys.stderr)
         return 2
     except (HardwareError, FileExistsError, ImportError) as exc:
-        print(f"torchtof acquire: {exc}", file=sys.stderr)
+        print(f"torchtof acquire: {_bare(exc, 'acquire: ')}", file=sys.stderr)
         return 1
-    except ValueError as exc:  # a store recorded with other settings, bad timing
-        print(f"torchtof acquire: {exc}", file=sys.stderr)
+    except ValueError as exc:  # a store recorded with other settings
+        print(f"torchtof acquire: {_bare(exc, 'acquire: ')}", file=sys.stderr)
         return 2
     finally:  # every exit path: streaming stopped, USB released, window closed
         for dev in (cam, lcr, video):
@@ -177,8 +177,14 @@ def _method(text: str) -> str:
         return registry.get(text).label
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"unknown method {text!r}; choose from "
-            f"{', '.join(s.label for s in registry.specs())}") from None
+            f"unknown method {text!r}; choose from {', '.join(_method_labels())}") from None
+
+
+def _method_labels() -> list[str]:
+    """Every method of :mod:`torchtof.recon.registry`, by label (``--help`` and the error)."""
+    from ..recon import registry
+
+    return [s.label for s in registry.specs()]
 
 
 def _check_reconstruct(args: argparse.Namespace) -> None:
@@ -186,6 +192,9 @@ def _check_reconstruct(args: argparse.Namespace) -> None:
     types (a wrong ``--method`` is named first) and before the store is opened."""
     from ..methods import WEIGHTS_OPTION
 
+    if args.gate and args.kind != "depth":
+        raise ValueError(f"argument --gate: the depth gate applies to the depth buckets only, "
+                         f"got --kind {args.kind}")
     if args.weights is not None:
         if args.method not in WEIGHTS_OPTION:
             raise ValueError(f"argument --weights: only {' and '.join(WEIGHTS_OPTION)} load a "
@@ -224,6 +233,74 @@ def _check_acquire(args: argparse.Namespace) -> None:
     from ..apps.args import check_patterns
 
     check_patterns(args.n, args.sr)
+    _check_timing(args)
+    if args.sim_faults is not None:
+        if not args.simulated:
+            raise ValueError("argument --sim-faults: a fault plan for the simulator needs "
+                             "--simulated")
+        from .simulated import Faults
+
+        try:
+            Faults.from_dict(args.sim_faults)
+        except ValueError as exc:
+            raise ValueError(f"argument --sim-faults: {_bare(exc, 'Faults: ')}") from None
+    _check_output(args)
+
+
+def _check_timing(args: argparse.Namespace) -> None:
+    """``--exposure-us``, ``--period-us``, ``--trigger`` and ``--video-hz`` against the DLPC350's
+    rules (:func:`~torchtof.hardware.dlpc350.payload_exposure_period`: PAT_EXPO_PRD takes
+    ``exposure == period`` or ``exposure <= period - 230 µs``, 32-bit values;
+    :func:`~torchtof.hardware.dlpc350.patterns_per_vsync`: on the VSYNC trigger a pattern
+    fits one video frame), each message naming the options."""
+    from . import dlpc350 as dlp
+
+    exposure = args.exposure_us
+    period = exposure if args.period_us is None else args.period_us
+    for flag, v in (("--exposure-us", exposure), ("--period-us", period)):
+        if v >= 2**32:  # PAT_EXPO_PRD's u32 fields
+            raise ValueError(f"argument {flag}: expected at most {2**32 - 1} (a 32-bit value "
+                             f"of the DLPC350), got {v}")
+    try:
+        dlp.payload_exposure_period(exposure, period)
+    except ValueError:
+        raise ValueError(f"argument --period-us: the DLPC350 needs --period-us equal to "
+                         f"--exposure-us or at least {dlp.MIN_DARK_US} us longer (PAT_EXPO_PRD), "
+                         f"got --period-us {period} with --exposure-us {exposure}") from None
+    if args.trigger == "vsync":
+        try:
+            dlp.patterns_per_vsync(exposure, period, args.video_hz)
+        except ValueError:
+            flag = "--exposure-us" if args.period_us is None else "--period-us"
+            raise ValueError(f"argument {flag}: on the VSYNC trigger a pattern must fit one "
+                             f"video frame ({1e6 / args.video_hz:.0f} us at --video-hz "
+                             f"{args.video_hz:g}), got --exposure-us {exposure}, --period-us "
+                             f"{period} (lower them, raise --video-hz or use --trigger "
+                             f"internal)") from None
+
+
+def _check_output(args: argparse.Namespace) -> None:
+    """``-o``: a new path, an empty folder, or with ``--resume`` a store (the settings are
+    compared once the devices are open). Never a file or a folder of other files: the store is
+    created with zarr's mode ``"w"``, which would delete them."""
+    out = Path(args.output)
+    if not out.exists():
+        return
+    if (out / "zarr.json").is_file():
+        if not args.resume:
+            raise ValueError(f"argument -o/--output: {args.output} exists; pass --resume to "
+                             "continue it or choose a new path")
+    elif not out.is_dir():
+        raise ValueError(f"argument -o/--output: {args.output} exists and is not a folder; "
+                         "choose a new path")
+    elif any(out.iterdir()):
+        raise ValueError(f"argument -o/--output: {args.output} is a folder holding other files, "
+                         "not a torchtof store; choose a new path or an empty folder")
+
+
+def _bare(exc: BaseException, prefix: str) -> str:
+    """The message of ``exc`` without the library's ``prefix`` (the CLI names the command)."""
+    return str(exc).removeprefix(prefix)
 
 
 def add_parsers(sub) -> None:
@@ -299,7 +376,8 @@ def add_parsers(sub) -> None:
                    "its checks pass, so a kill loses at most the sequence in flight")
     a.add_argument("--no-progress", action="store_true", help="no progress bar")
     a.add_argument("--sim-faults", default=None, type=json_object,
-                   help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults)")
+                   help="JSON fault plan for the simulator (torchtof.hardware.simulated.Faults; "
+                   "the fields and their values: docs/hardware.md)")
     a.add_argument("-o", "--output", required=True, help="zarr store (directory) to write")
     a.set_defaults(func=cmd_acquire, check=_check_acquire, parser=a)
 
@@ -308,11 +386,12 @@ def add_parsers(sub) -> None:
                        "acquire`; writes METHOD_KIND[_gate].pt (the tensor) and .png to OUT.")
     r.add_argument("store", metavar="STORE", help="zarr store written by `torchtof acquire`")
     r.add_argument("--method", type=_method, default="tval3",
-                   help="reconstruction method (case-insensitive): CGI, TGI, DGI, PINV, BP, "
-                   "TVAL3, Auto, Unrolled, Learned, DIP, JointTV")
+                   help="reconstruction method (case-insensitive): "
+                   f"{', '.join(_method_labels())}")
     r.add_argument("--kind", default="depth", choices=["depth", "intensity"],
                    help="buckets to reconstruct from")
-    r.add_argument("--gate", action="store_true", help="use the depth-gated buckets")
+    r.add_argument("--gate", action="store_true",
+                   help="use the depth-gated buckets (--kind depth only)")
     r.add_argument("--out", default="reconstruct_out", help="folder of the .pt and .png")
     r.add_argument("--weights", default=None, metavar="FILE",
                    help="Learned and Auto only: a learned network's weights file (e.g. a "

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._optional import require
 from .errors import (
     DeviceBusyError,
     DeviceLostError,
@@ -38,6 +39,7 @@ from .errors import (
     NackError,
     ProtocolError,
     TransientError,
+    usb_exceptions,
 )
 
 __all__ = [
@@ -468,9 +470,7 @@ def _usb_errno(exc: BaseException) -> int | None:
 
 def translate_usb_error(exc: BaseException, what: str, command: str) -> HardwareError:
     """Map a pyusb exception to the hardware errors (timeout → transient, ENODEV → lost)."""
-    import usb.core
-
-    if isinstance(exc, usb.core.USBTimeoutError):
+    if isinstance(exc, usb_exceptions()[1]):  # pyusb's, or the simulator's without pyusb
         return _Timeout(command, str(exc))
     code = _usb_errno(exc)
     if code in (19, -4):  # ENODEV / LIBUSB_ERROR_NO_DEVICE
@@ -871,7 +871,9 @@ def find_device(vid: int, pid: int, what: str):
 
     Raises:
         DeviceNotFoundError: no such device, or pyusb has no libusb backend.
+        ImportError: pyusb is not installed (naming the extra ``torchtof[hardware]``).
     """
+    require("usb", f"opening the {what} over USB")
     import usb.core
 
     try:

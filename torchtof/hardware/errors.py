@@ -22,6 +22,7 @@ __all__ = [
     "FrameSequenceError",
     "FrameIdError",
     "FrameTimingError",
+    "usb_exceptions",
 ]
 
 #: How to give a non-root user access to the two USB devices (Linux).
@@ -147,3 +148,30 @@ class FrameTimingError(TransientError):
         super().__init__(f"frame for pattern {pattern_index} arrived {got_s * 1e3:.1f} ms after "
                          f"the sequence's first, expected {expected_s * 1e3:.1f} ms (a spurious "
                          "or lost frame)")
+
+
+class _USBError(OSError):
+    """Stand-in for pyusb's ``usb.core.USBError`` (same constructor and attributes) when pyusb
+    is not installed: the simulator raises it, the drivers translate it."""
+
+    def __init__(self, strerror: str, error_code: int | None = None,
+                 errno: int | None = None) -> None:
+        super().__init__(errno, strerror)
+        self.backend_error_code = error_code
+
+
+class _USBTimeoutError(_USBError):
+    """Stand-in for pyusb's ``usb.core.USBTimeoutError``."""
+
+
+def usb_exceptions() -> tuple[type[OSError], type[OSError]]:
+    """``(USBError, USBTimeoutError)``: pyusb's ``usb.core`` classes when pyusb is installed,
+    else stand-ins with the same constructor. The simulated devices raise these and the
+    drivers catch them, so ``torchtof acquire --simulated`` (no USB) runs without pyusb; the
+    real devices need pyusb (:func:`~torchtof.hardware.dlpc350.find_device` names the extra).
+    """
+    try:
+        import usb.core
+    except ImportError:
+        return _USBError, _USBTimeoutError
+    return usb.core.USBError, usb.core.USBTimeoutError

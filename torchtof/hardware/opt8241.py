@@ -127,7 +127,13 @@ import torch
 
 from ..sensor import camera_rules, phase_to_depth, tap_amplitude, tap_phase
 from .dlpc350 import ensure_configuration, find_device, translate_usb_error
-from .errors import FrameError, FrameTimeoutError, HardwareError, ProtocolError
+from .errors import (
+    FrameError,
+    FrameTimeoutError,
+    HardwareError,
+    ProtocolError,
+    usb_exceptions,
+)
 from .frames import Frame
 
 __all__ = [
@@ -1119,12 +1125,12 @@ class OPT8241:
         self._reader.start()
 
     def _read_loop(self) -> None:
-        import usb.core
+        usb_timeout = usb_exceptions()[1]  # pyusb's, or the simulator's without pyusb
 
         while not self._halt.is_set():
             try:
                 item = (bytes(self._read(0.2)), float(self.clock()))
-            except usb.core.USBTimeoutError:
+            except usb_timeout:
                 continue
             except Exception as exc:  # noqa: BLE001 - handed to grab() to translate
                 item = (exc, None)
@@ -1179,8 +1185,6 @@ class OPT8241:
                 dropped frames (``host_dropped`` in :attr:`stats`).
             DeviceLostError: the camera disappeared.
         """
-        import usb.core
-
         timeout = self.timeout_s if timeout_s is None else float(timeout_s)
         raw, stamp = self._next_raw(timeout)
         if isinstance(raw, _Dropped):
@@ -1193,7 +1197,7 @@ class OPT8241:
             self._stop_reader()
             if isinstance(raw, HardwareError):
                 raise raw
-            if isinstance(raw, usb.core.USBTimeoutError):
+            if isinstance(raw, usb_exceptions()[1]):
                 raise FrameTimeoutError(self.pattern_index, timeout) from raw
             raise translate_usb_error(raw, self.what, "bulk read") from raw
         freq = getattr(self, "_freq", None) or self.freq_hz

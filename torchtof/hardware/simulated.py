@@ -46,21 +46,19 @@ from ..sensor import dust_map
 from . import dlpc350 as dlp
 from . import opt8241 as opt
 from .dlpc350 import LightCrafter4500, VideoPort
+from .errors import usb_exceptions
 from .opt8241 import OPT8241, CameraRules
 
 __all__ = ["Faults", "FakeLightCrafter", "FakeOPT8241", "SimulatedBench", "rules_from_config"]
 
 
 def _usb_error(msg: str, errno: int):
-    import usb.core
-
-    return usb.core.USBError(msg, errno=errno)
+    """pyusb's ``USBError``, or its stand-in without pyusb (the simulator needs no USB)."""
+    return usb_exceptions()[0](msg, errno=errno)
 
 
 def _usb_timeout(msg: str = "Operation timed out"):
-    import usb.core
-
-    return usb.core.USBTimeoutError(msg, errno=110)
+    return usb_exceptions()[1](msg, errno=110)
 
 
 @dataclass
@@ -116,21 +114,88 @@ class Faults:
     hang_s: float = 60.0
     no_seq_echo: bool = False
 
+    #: fields holding frame or control-transfer ordinals (lists of non-negative ints)
+    _ORDINALS = ("frame_timeout", "drop", "duplicate", "extra", "corrupt", "split", "stall",
+                 "ctrl_fail")
+    #: fields ``{command: [occurrence, ...]}``, commands of :data:`~.dlpc350.COMMANDS`
+    _COMMANDS = ("nack", "reply_timeout", "late_reply")
+    #: fields holding one ordinal or ``None``
+    _ORDINAL = ("vanish_after_frames", "hang_at_frame", "hang_at_read")
+
     @classmethod
     def from_dict(cls, d: dict) -> Faults:
+        """A fault plan from a JSON object (``torchtof acquire --sim-faults``): ordinal sets as
+        lists of non-negative ints, ``{command: [occurrence, ...]}`` for ``nack``,
+        ``reply_timeout`` and ``late_reply`` (commands of :data:`~.dlpc350.COMMANDS`),
+        ``set_failed`` a list of the two OPT9221 failure flags, ``vanish_after_frames``,
+        ``hang_at_frame`` and ``hang_at_read`` a non-negative int or null, ``hang_file`` a
+        path or null, ``hang_s`` a non-negative number of seconds, ``no_seq_echo`` a bool.
+
+        Raises:
+            ValueError: not a dict, an unknown field, or a field's value of the wrong type or
+                out of range (the message names the field).
+        """
+        if not isinstance(d, dict):
+            raise ValueError(f"Faults: expected a JSON object of faults, got {d!r}")
         kw = {}
         for k, v in d.items():
-            if k in ("frame_timeout", "drop", "duplicate", "extra", "corrupt", "split", "stall",
-                     "ctrl_fail", "set_failed"):
+            if k in cls._ORDINALS:
+                kw[k] = _ordinals(repr(k), v, "frame" if k != "ctrl_fail" else "control-transfer")
+            elif k in cls._COMMANDS:
+                if not isinstance(v, dict):
+                    raise ValueError(f"Faults: expected {k!r} an object {{command: [occurrence, "
+                                     f"...]}}, got {v!r}")
+                for c in v:
+                    if c not in dlp.COMMANDS:
+                        raise ValueError(f"Faults: unknown command {c!r} in {k!r}; expected one "
+                                         f"of {sorted(dlp.COMMANDS)}")
+                kw[k] = {c: _ordinals(f"{k!r} (command {c!r})", o, "occurrence")
+                         for c, o in v.items()}
+            elif k == "set_failed":
+                flags = FakeOPT8241._READ_ONLY
+                if not isinstance(v, (list, tuple, set, frozenset)) or any(
+                        f not in flags for f in v):
+                    raise ValueError(f"Faults: expected 'set_failed' a list of {flags}, "
+                                     f"got {v!r}")
                 kw[k] = set(v)
-            elif k in ("nack", "reply_timeout", "late_reply"):
-                kw[k] = {c: set(o) for c, o in v.items()}
-            elif k in cls.__dataclass_fields__:
+            elif k in cls._ORDINAL:
+                if v is not None and not _is_ordinal(v):
+                    raise ValueError(f"Faults: expected {k!r} a non-negative int (a frame "
+                                     f"count) or null, got {v!r}")
+                kw[k] = None if v is None else int(v)
+            elif k == "hang_file":
+                if v is not None and not isinstance(v, str):
+                    raise ValueError(f"Faults: expected 'hang_file' a path (a string) or null, "
+                                     f"got {v!r}")
+                kw[k] = v
+            elif k == "hang_s":
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or \
+                        not (math.isfinite(v) and v >= 0):
+                    raise ValueError(f"Faults: expected 'hang_s' a non-negative number of "
+                                     f"seconds, got {v!r}")
+                kw[k] = float(v)
+            elif k == "no_seq_echo":
+                if not isinstance(v, bool):
+                    raise ValueError(f"Faults: expected 'no_seq_echo' true or false, got {v!r}")
                 kw[k] = v
             else:
                 raise ValueError(f"Faults: unknown fault {k!r}; expected one of "
                                  f"{sorted(cls.__dataclass_fields__)}")
         return cls(**kw)
+
+
+def _is_ordinal(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0
+
+
+def _ordinals(name: str, v, what: str) -> set[int]:
+    """``v`` (a list of non-negative ints) as a set; a ValueError naming ``name`` (quoted)
+    otherwise."""
+    items = None if isinstance(v, (str, bytes, dict)) or not hasattr(v, "__iter__") else list(v)
+    if items is None or not all(_is_ordinal(o) for o in items):
+        raise ValueError(f"Faults: expected {name} a list of {what} ordinals (non-negative "
+                         f"ints), got {v!r}")
+    return {int(o) for o in items}
 
 
 def rules_from_config(cfg: ExperimentConfig) -> CameraRules:
