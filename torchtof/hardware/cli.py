@@ -157,7 +157,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     torch.save(img, pt)
     polarity = data.polarity(args.gate, args.kind)
     s = score_image(img, data, polarity) if data.x.abs().sum() > 0 else None  # simulated run
-    kind = f"{args.kind} buckets" + (", 3 m gate" if args.gate else "")
+    kind = f"{args.kind} buckets" + (f", {data.config.gate_m:g} m gate" if args.gate else "")
     png = save_image(out / f"{tag}.png", img,
                      f"{name}, {kind}, SR {sr:.2%} ({data.hadamard.m} pattern pairs) from "
                      f"{Path(args.store).name}", polarity=polarity, score=s)
