@@ -119,6 +119,8 @@ BAD = [
      "argument --families: train: expected families' probabilities >= 0 summing to 1"),
     (["demo", "--sr", "0.5", "--nosuch"], "unrecognized arguments: --nosuch"),
     (["nosuch"], "argument COMMAND"),
+    (["--thr", "2", "demo"], "unrecognized arguments: --thr"),  # not "invalid choice: '2'"
+    (["--threads", "2", "--nosuch", "demo"], "unrecognized arguments: --nosuch"),
 ]
 
 

@@ -477,10 +477,26 @@ def _one_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
+def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """Name an unknown option given before the command (``torchtof --thr 2 demo``) instead of
+    argparse's reading of its value as the command."""
+    takes_value = {"--threads"}
+    known = takes_value | {"--debug", "-h", "--help"}
+    i = 0
+    while i < len(argv) and argv[i].startswith("-"):
+        name = argv[i].split("=", 1)[0]
+        if name not in known:
+            parser.error(f"unrecognized arguments: {argv[i]} (the options before the command: "
+                         "--threads, --debug)")
+        i += 2 if name in takes_value and "=" not in argv[i] else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``torchtof ARGV``; returns the exit status (2 for a usage mistake)."""
     parser = build_parser()
-    OneLineParser.debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    given = list(sys.argv[1:] if argv is None else argv)
+    OneLineParser.debug = "--debug" in given
+    _check_global_options(parser, given)
     args = parser.parse_args(argv)
     out = getattr(args, "out", None)  # every command's --out is a folder it writes into
     if isinstance(out, str) and Path(out).exists() and not Path(out).is_dir():
