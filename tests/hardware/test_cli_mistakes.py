@@ -217,3 +217,17 @@ def test_experiment_data_refuses_the_gate_without_depth_buckets():
         assert data.measurements(0.25, kind=kind)[1].shape[-1] == 16
     gated = data.split_buckets(0.25, "depth", gate=True)
     assert gated.equal(data.buckets["depth_gated"][..., :32])
+
+
+@pytest.mark.parametrize(("argv", "flag"), [
+    (["--scene", "steps"], "--scene"), (["--roi-px", "64"], "--roi-px"),
+    (["--scattering"], "--scattering"), (["--noise-free"], "--noise-free"),
+    (["--seed", "3"], "--seed"),
+])
+def test_simulated_only_options_on_the_real_bench_are_usage_errors(argv, flag, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["acquire", *argv, "-o", str(tmp_path / "r.zarr")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {flag}: used with --simulated only" in err[0], err
+    assert not (tmp_path / "r.zarr").exists()

@@ -14,6 +14,8 @@ import torch
 
 __all__ = ["add_parsers", "cmd_acquire", "cmd_reconstruct"]
 
+#: ``acquire`` options that only the simulated bench uses.
+SIMULATED_ONLY = ("scene", "roi_px", "scattering", "noise_free", "seed")
 #: ``acquire --auto``: patterns per block of the stopping rule (torchtof.adaptive's default).
 AUTO_BLOCK = 32
 
@@ -211,6 +213,12 @@ def _check_reconstruct(args: argparse.Namespace) -> None:
 
 def _check_acquire(args: argparse.Namespace) -> None:
     """Cross-option checks of ``acquire`` (each option alone is checked by its type)."""
+    if not args.simulated:  # the real bench records what is in front of it
+        for dest in SIMULATED_ONLY:
+            if getattr(args, dest) != args.parser.get_default(dest):
+                flag = "--" + dest.replace("_", "-")
+                raise ValueError(f"argument {flag}: used with --simulated only (the real bench "
+                                 "records the scene in front of it, with its own noise)")
     if args.simulated and args.n < 8:
         raise ValueError(f"argument --n: the simulated scenes need n >= 8, got {args.n}")
     if args.roi_px is not None and args.roi_px < args.n:
