@@ -20,7 +20,12 @@ PSNR of the output clipped to [0, 1] (``benchmarks/eval_learned.py``'s conventio
         --weights shipped ft_moto/learned.pt --out user_domain.json
 
 ``--auto`` also scores ``auto(y, A, learned=W)`` for each file (its stacking with that
-network; about 5–10 s per cell at n = 32–64).
+network; about 5–10 s per cell at n = 32–64). ``--eval-images PATH ...`` scores your own
+held-out scenes instead of the motorcycle's right half (anything
+:func:`torchtof.data.load_images` reads; each centre-cropped to a square, resized to n and
+min–max normalised), e.g. after ``torchtof train --images`` on the rest of your recordings:
+
+    python benchmarks/learned_user_domain.py --eval-images held_out/ --weights shipped mine/learned.pt
 """
 
 from __future__ import annotations
@@ -63,21 +68,31 @@ def halves() -> tuple[np.ndarray, np.ndarray]:
     return z[:, :w], z[:, w:]
 
 
-def eval_scenes(n: int) -> torch.Tensor:
-    """The right half's crops at side ``n``, each min–max normalised to [0, 1]: ``(3, 1, n, n)``."""
+def _square(img: torch.Tensor, n: int) -> torch.Tensor:
+    """``img (H, W)``: its centred square resized to ``n × n`` (anti-aliased), min–max
+    normalised, ``(1, 1, n, n)`` float64."""
+    h, w = img.shape
+    s = min(h, w)
+    crop = img[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s][None, None]
+    x = F.interpolate(crop.double(), size=(n, n), mode="bilinear", antialias=True)
+    return (x - x.amin()) / (x.amax() - x.amin())
+
+
+def eval_scenes(n: int, images: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
+    """The evaluation scenes at side ``n``, each min–max normalised to [0, 1]: the right
+    half's crops (:data:`CROPS`), or ``images`` (the caller's, ``(H, W)`` each) centre-cropped
+    to a square; ``(K, 1, n, n)`` float32."""
+    if images is not None:
+        return torch.cat([_square(img, n) for img in images]).float()
     right = torch.from_numpy(halves()[1])
-    xs = []
-    for r, c, s in CROPS:
-        crop = right[r : r + s, c : c + s][None, None]
-        x = F.interpolate(crop, size=(n, n), mode="bilinear", antialias=True)
-        xs.append((x - x.amin()) / (x.amax() - x.amin()))
-    return torch.cat(xs).float()
+    return torch.cat([_square(right[r : r + s, c : c + s], n) for r, c, s in CROPS]).float()
 
 
-def run(sizes, srs, levels, weights: list[str], with_auto: bool = False) -> list[dict]:
+def run(sizes, srs, levels, weights: list[str], with_auto: bool = False,
+        images: tuple[torch.Tensor, ...] | None = None) -> list[dict]:
     rows = []
     for n in sizes:
-        x = eval_scenes(n)
+        x = eval_scenes(n, images)
         for sr in srs:
             A = Hadamard(n, sr=sr, order="cake_cutting")
             nets = {w: Learned(A, pretrained=WEIGHTS_FILE if w == "shipped" else w).eval()
@@ -126,6 +141,8 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     p.add_argument("--srs", type=float, nargs="+", default=[0.0625, 0.125, 0.25])
     p.add_argument("--levels", type=float, nargs="+", default=[0.0, 0.01, 0.05])
+    p.add_argument("--eval-images", nargs="+", default=None, metavar="PATH",
+                   help="score these held-out scenes instead of the motorcycle's right half")
     p.add_argument("--auto", action="store_true",
                    help="also score auto(y, A, learned=W) for each weights file (slow)")
     p.add_argument("--out", type=Path, default=None)
@@ -145,11 +162,20 @@ def main(argv=None) -> int:
     for w in a.weights:
         if w != "shipped" and not Path(w).is_file():
             p.error(f"argument --weights: no such file: {w!r}")
+    images = None
+    if a.eval_images is not None:
+        from torchtof.data import load_images
+
+        try:
+            images = load_images(a.eval_images)
+        except (OSError, ValueError, TypeError) as exc:
+            p.error(f"argument --eval-images: {exc}")
     torch.set_num_threads(1)
-    rows = run(a.sizes, a.srs, a.levels, a.weights, a.auto)
+    rows = run(a.sizes, a.srs, a.levels, a.weights, a.auto, images)
     print(table(rows, [k for k in rows[0] if k not in ("n", "sr", "level", "tval3")]))
     if a.out is not None:
-        a.out.write_text(json.dumps({"weights": a.weights, "crops": CROPS, "rows": rows},
+        a.out.write_text(json.dumps({"weights": a.weights, "rows": rows,
+                                     "scenes": a.eval_images or {"motorcycle_right": CROPS}},
                                     indent=1))
     return 0
 

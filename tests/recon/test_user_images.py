@@ -163,3 +163,27 @@ def test_cli_images_reach_the_run_and_calibration(tmp_path, capsys, monkeypatch)
         err = capsys.readouterr().err
         assert f"argument {flag}:" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def test_user_domain_benchmark_scores_given_held_out_images(tmp_path, capsys):
+    """``benchmarks/learned_user_domain.py --eval-images``: the caller's scenes, centre-cropped
+    and resized, scored against TVAL3 on the same buckets; the motorcycle split's halves do
+    not overlap."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "learned_user_domain.py"
+    spec = importlib.util.spec_from_file_location("learned_user_domain", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    left, right = mod.halves()
+    assert left.shape[0] == right.shape[0] and left.shape[1] + right.shape[1] == 741
+    np.save(tmp_path / "held.npy", np.stack([_ramp(40, 56), _ramp(40, 56)[::-1]]))
+    x = mod.eval_scenes(16, load_images(tmp_path / "held.npy"))
+    assert x.shape == (2, 1, 16, 16) and float(x.min()) == 0.0 and float(x.max()) == 1.0
+    out = tmp_path / "r.json"
+    assert mod.main(["--sizes", "16", "--srs", "0.25", "--levels", "0.01", "--eval-images",
+                     str(tmp_path / "held.npy"), "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert len(rows) == 1 and {"tval3", "shipped"} <= set(rows[0])
+    assert "| shipped |" in capsys.readouterr().out
