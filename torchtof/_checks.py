@@ -27,6 +27,10 @@ __all__ = [
     "check_finite",
     "check_positive",
     "check_in_range",
+    "check_number",
+    "check_broadcast",
+    "check_nonnegative",
+    "check_float_dtype",
     "check_power_of_two",
     "check_device",
     "is_tracing",
@@ -178,6 +182,50 @@ def check_in_range(
         rb = ")" if hi_open else "]"
         raise ValueError(f"{func}: expected {name} in {lb}{lo}, {hi}{rb}, got {value}")
     return v
+
+
+def check_number(value: object, name: str, func: str) -> float:
+    """Raise ``TypeError`` unless ``value`` is a real number (not a bool), ``ValueError``
+    unless it is finite; returns it as a float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{func}: expected {name} to be a number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{func}: expected a finite {name}, got {value}")
+    return v
+
+
+def check_broadcast(x: torch.Tensor, shape: Sequence[int], name: str, func: str,
+                    layout: str = "") -> None:
+    """Raise ``ValueError`` unless ``x`` broadcasts to ``shape`` without growing it (a
+    ``(3, 1, 1, 1)`` tensor against a batch of one would silently triple the batch)."""
+    target = tuple(shape)
+    try:
+        ok = tuple(torch.broadcast_shapes(x.shape, target)) == target
+    except RuntimeError:
+        ok = False
+    if not ok:
+        lay = f" {layout}" if layout else ""
+        raise ValueError(f"{func}: expected {name} broadcastable to {target}{lay}, got shape "
+                         f"{tuple(x.shape)}")
+
+
+def check_nonnegative(x: torch.Tensor, name: str, func: str) -> None:
+    """Raise ``ValueError`` if the real tensor ``x`` holds a negative value (eager mode only,
+    as :func:`check_finite`: skipped under tracing, for meta tensors and in :func:`unchecked`)."""
+    if getattr(_STATE, "depth", 0) or x.numel() == 0 or x.is_meta or is_tracing():
+        return
+    lo = x.detach().min().item()
+    if lo < 0:
+        raise ValueError(f"{func}: expected {name} >= 0, got a minimum of {lo}")
+
+
+def check_float_dtype(dtype: object, name: str, func: str) -> torch.dtype:
+    """Raise ``TypeError`` unless ``dtype`` is a floating ``torch.dtype`` (an integer or bool
+    dtype would truncate a scene in ``[0, 1]`` to zeros)."""
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"{func}: expected {name} to be a floating torch.dtype, got {dtype!r}")
+    return dtype
 
 
 def check_power_of_two(n: int, name: str, func: str, lo: int = 1, hi: int | None = None) -> int:

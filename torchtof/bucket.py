@@ -20,6 +20,11 @@ on a frame axis: depth and amplitude frames are ``(B, M, H, W)``, tap frames are
 ROI (:func:`roi_mask`): ``None`` (whole frame), a box ``(top, left, height, width)``
 in pixels that must lie inside the frame, or a bool mask ``(H, W)``.
 
+Half precision: torch accumulates float16/bfloat16 sums in float32 and rounds once, so a
+bucket is exact up to that rounding; one beyond float16's range (65504: a 256×256-pixel ROI
+at 5 m sums to 327680) comes out ``inf``, the IEEE outcome for a value float16 cannot hold.
+Use float32 or bfloat16 frames for large ROIs.
+
 Example:
     >>> depth = torch.full((1, 3, 4, 4), 5.0)
     >>> depth_bucket(depth, roi=(0, 0, 2, 2)).tolist()

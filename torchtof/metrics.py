@@ -44,7 +44,7 @@ import math
 import torch
 from torch import nn
 
-from torchtof._checks import check_finite, check_positive, check_rank
+from torchtof._checks import check_bool, check_finite, check_positive, check_rank
 
 __all__ = [
     "POLARITIES",
@@ -71,6 +71,46 @@ def _check_image(x: object, name: str, func: str) -> None:
     check_rank(x, 4, name, func, "(B, C, H, W)")
     if x.is_complex():
         raise TypeError(f"{func}: expected {name} to be a real tensor, got dtype {x.dtype}")
+
+
+def _check_nonempty(x: torch.Tensor, name: str, func: str) -> None:
+    """At least one pixel per image: a metric of an empty ``(C, H, W)`` has no value (PSNR
+    scored it 100 dB, the RMSE NaN)."""
+    if math.prod(x.shape[1:]) == 0:
+        raise ValueError(f"{func}: expected {name} with at least one pixel per image "
+                         f"(C, H, W > 0), got shape {tuple(x.shape)}")
+
+
+def _check_reduction(reduction: object, func: str) -> str:
+    if reduction not in ("mean", "none"):
+        raise ValueError(f"{func}: expected reduction in ('mean', 'none'), got {reduction!r}")
+    return reduction
+
+
+def _check_psnr_args(bits: object, quantize: object, max_db: object, func: str
+                     ) -> tuple[float, float]:
+    """The scalar arguments of :func:`psnr` (also checked by :class:`PSNR` at construction);
+    returns ``(MAX, max_db)`` with ``MAX = 2^bits − 1`` (1 for ``bits=None``)."""
+    check_bool(quantize, "quantize", func)
+    max_db = check_positive(max_db, "max_db", func)
+    if bits is None:
+        if quantize:
+            raise ValueError(f"{func}: quantize=True needs bits, got bits=None")
+        return 1.0, max_db
+    if isinstance(bits, bool) or not isinstance(bits, int):
+        raise TypeError(f"{func}: expected bits to be an int or None, got {type(bits).__name__}")
+    if not 1 <= bits <= 64:
+        raise ValueError(f"{func}: expected bits in [1, 64], got {bits}")
+    return float(2**bits - 1), max_db
+
+
+def _check_window(window_size: object, func: str) -> int:
+    """An odd int ``>= 3`` (the image-size bound is checked by :func:`ssim` on the images)."""
+    if isinstance(window_size, bool) or not isinstance(window_size, int):
+        raise TypeError(f"{func}: expected window_size to be an int, got {type(window_size)}")
+    if window_size < 3 or window_size % 2 == 0:
+        raise ValueError(f"{func}: expected an odd window_size >= 3, got {window_size}")
+    return window_size
 
 
 def _check_pair(
@@ -132,9 +172,11 @@ def psnr(
         PSNR in dB.
 
     Raises:
-        TypeError: if an input is not a floating tensor or ``bits`` is not an int.
-        ValueError: on rank/shape mismatch, ``bits < 1``, ``quantize`` without ``bits``,
-            a non-positive ``max_db``, non-finite inputs, or an unknown reduction.
+        TypeError: if an input is not a floating tensor, ``bits`` is not an int or
+            ``quantize`` is not a bool.
+        ValueError: on rank/shape mismatch, images without pixels, ``bits < 1``, ``quantize``
+            without ``bits``, a non-positive ``max_db``, non-finite inputs, or an unknown
+            reduction.
 
     Shape:
         - x_hat, x: :math:`(B, C, H, W)`.
@@ -147,21 +189,10 @@ def psnr(
     """
     func = "psnr"
     _check_pair(x_hat, x, func)
+    _check_nonempty(x, "x", func)
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
-    max_db = check_positive(max_db, "max_db", func)
-    if bits is None:
-        if quantize:
-            raise ValueError(f"{func}: quantize=True needs bits, got bits=None")
-        peak = 1.0
-    else:
-        if isinstance(bits, bool) or not isinstance(bits, int):
-            raise TypeError(
-                f"{func}: expected bits to be an int or None, got {type(bits).__name__}"
-            )
-        if not 1 <= bits <= 64:
-            raise ValueError(f"{func}: expected bits in [1, 64], got {bits}")
-        peak = float(2**bits - 1)
+    peak, max_db = _check_psnr_args(bits, quantize, max_db, func)
     # MAX² cancels in MAX²/MSE_k, so the ratio is formed on the [0, 1] scale and in the log
     # domain: PSNR = −10 log10(4 s² · mean((h/s)²)) with h = (x̂ − x)/2, s = max|h|. No
     # square or product can overflow (bits = 64 squares 2^64 − 1 past float32, data far
@@ -196,6 +227,8 @@ class PSNR(nn.Module):
         reduction: str = "none",
     ) -> None:
         super().__init__()
+        _check_psnr_args(bits, quantize, max_db, "PSNR")
+        _check_reduction(reduction, "PSNR")
         self.bits, self.quantize, self.max_db, self.reduction = bits, quantize, max_db, reduction
 
     def forward(self, x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -219,6 +252,12 @@ def ssim(
     with local statistics under a Gaussian window (σ = 1.5, ``window_size`` taps;
     7 suits 32×32 images), reflect padding, averaged over ``(C, H, W)``. Computed by
     ``kornia.metrics.ssim`` with ``eps=0`` (identical images score exactly 1).
+
+    This is not scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5,
+    use_sample_covariance=False, data_range=L)``, which truncates the Gaussian at 3.5σ
+    (11 taps, not 7) and averages only the map cropped by 5 pixels on every side: on a
+    32×32 float64 image of a 16×16 unit square plus N(0, 0.2²) noise (``torch.randn`` with
+    seed 0) against the clean square, this function gives 0.261 and scikit-image 0.592.
 
     Args:
         x_hat: reconstruction.
@@ -272,6 +311,9 @@ class SSIM(nn.Module):
 
     def __init__(self, data_range: float = 1.0, window_size: int = 7, reduction: str = "none"):
         super().__init__()
+        check_positive(data_range, "data_range", "SSIM")
+        _check_window(window_size, "SSIM")
+        _check_reduction(reduction, "SSIM")
         self.data_range, self.window_size, self.reduction = data_range, window_size, reduction
 
     def forward(self, x_hat: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -289,6 +331,8 @@ def depth_rmse(
     .. math::
         \mathrm{RMSE} = \sqrt{\frac{\sum_p m(p)\,(\hat z(p) - z(p))^2}{\sum_p m(p)}}
 
+    A zero error has a zero gradient (not the NaN of ``sqrt`` at 0).
+
     Args:
         depth_hat: estimated depth in metres.
         depth: true depth in metres.
@@ -302,8 +346,8 @@ def depth_rmse(
 
     Raises:
         TypeError: if an input is not a floating tensor or ``mask`` is not bool.
-        ValueError: on rank/shape mismatch, a mask that does not broadcast or leaves an
-            image empty, non-finite inputs, or an unknown reduction.
+        ValueError: on rank/shape mismatch, images without pixels, a mask that does not
+            broadcast or leaves an image empty, non-finite inputs, or an unknown reduction.
 
     Shape:
         - depth_hat, depth: :math:`(B, C, H, W)`.
@@ -322,30 +366,47 @@ def depth_rmse(
             f"{func}: expected depth_hat and depth of the same shape, got "
             f"{tuple(depth_hat.shape)} and {tuple(depth.shape)}"
         )
+    _check_nonempty(depth, "depth", func)
+    _check_reduction(reduction, func)
     check_finite(depth_hat, "depth_hat", func)
     check_finite(depth, "depth", func)
+    if mask is not None:
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+            got = mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__
+            raise TypeError(f"{func}: expected mask to be a bool tensor or None, got {got}")
+        try:
+            m = torch.broadcast_to(mask.to(device=depth.device), depth.shape)
+        except RuntimeError:
+            raise ValueError(f"{func}: expected mask broadcastable to {tuple(depth.shape)}, "
+                             f"got {tuple(mask.shape)}") from None
+        count = m.flatten(1).sum(1)
+        if not bool((count > 0).all()):
+            raise ValueError(f"{func}: mask selects no pixel in some image")
     # RMSE = 2·s·sqrt(mean((h/s)²)) with h = (ẑ − z)/2, s = max|h| per image: no square or
     # difference overflows (a 1e30 m error is 1e30, not inf, in float32)
     h = depth_hat / 2 - depth / 2
-    s = h.abs().flatten(1).amax(1) if math.prod(h.shape[1:]) else h.new_zeros(h.shape[0])
+    s = h.abs().flatten(1).amax(1)
+    if mask is not None:
+        # s is the largest error over all pixels; where the masked pixels' largest error is
+        # below s·tiny^(1/4), their (h/s)² would underflow (1e-3 m next to a masked-out 1e25 m
+        # gave 0 in float32): scale by the masked pixels there. Elsewhere s stays, so the
+        # value is the one of the unmasked formula, bit for bit.
+        s_in = torch.where(m, h.abs(), torch.zeros_like(h)).flatten(1).amax(1)
+        far = (s_in > 0) & (s_in < s * torch.finfo(h.dtype).tiny ** 0.25)
+        s = torch.where(far, s_in, s)
     s = torch.where(s > 0, s, torch.ones_like(s))
+    if mask is not None:  # masked-out errors may exceed s a lot now: keep them out of h/s
+        h = torch.where(m, h, torch.zeros_like(h))
     err = (h / s.view(-1, *([1] * (h.ndim - 1)))).pow(2)
     if mask is None:
-        return _reduce(2 * s * err.flatten(1).mean(1).sqrt(), reduction, func)
-    if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
-        got = mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__
-        raise TypeError(f"{func}: expected mask to be a bool tensor or None, got {got}")
-    try:
-        m = torch.broadcast_to(mask.to(device=depth.device), depth.shape)
-    except RuntimeError:
-        raise ValueError(
-            f"{func}: expected mask broadcastable to {tuple(depth.shape)}, got {tuple(mask.shape)}"
-        ) from None
-    count = m.flatten(1).sum(1)
-    if not bool((count > 0).all()):
-        raise ValueError(f"{func}: mask selects no pixel in some image")
-    sq = torch.where(m, err, torch.zeros_like(err)).flatten(1).sum(1)
-    return _reduce(2 * s * (sq / count.to(err.dtype)).sqrt(), reduction, func)
+        ms = err.flatten(1).mean(1)
+    else:
+        ms = torch.where(m, err, torch.zeros_like(err)).flatten(1).sum(1) / count.to(err.dtype)
+    # sqrt with a zero (not NaN) gradient at a zero error: sqrt'(0) = inf times 0
+    some = ms > 0
+    root = torch.where(some, torch.where(some, ms, torch.ones_like(ms)).sqrt(),
+                       torch.zeros_like(ms))
+    return _reduce(2 * s * root, reduction, func)
 
 
 class DepthRMSE(nn.Module):
@@ -353,7 +414,7 @@ class DepthRMSE(nn.Module):
 
     def __init__(self, reduction: str = "none") -> None:
         super().__init__()
-        self.reduction = reduction
+        self.reduction = _check_reduction(reduction, "DepthRMSE")
 
     def forward(
         self, depth_hat: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor | None = None
@@ -392,6 +453,7 @@ def normalize_image(x: torch.Tensor, mode: str = "minmax") -> torch.Tensor:
     """
     func = "normalize_image"
     _check_image(x, "x", func)
+    _check_nonempty(x, "x", func)
     check_finite(x, "x", func)
     if mode == "clip":
         return x.clamp(0.0, 1.0)
@@ -470,6 +532,7 @@ def resolve_sign(
     if polarity not in POLARITIES:
         raise ValueError(f"{func}: expected polarity in {POLARITIES}, got {polarity!r}")
     _check_image(x_hat, "x_hat", func)
+    _check_nonempty(x_hat, "x_hat", func)
     check_finite(x_hat, "x_hat", func)
     pos = normalize_image(x_hat)
     if polarity == "positive":
@@ -584,6 +647,7 @@ def compare(
     """
     func = "compare"
     _check_pair(x_hat, x, func)
+    _check_nonempty(x, "x", func)
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
     if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int)):

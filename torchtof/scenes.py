@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from torchtof._checks import check_positive, check_rank
+from torchtof._checks import check_float_dtype, check_positive, check_rank
 from torchtof._memory import check_memory
 
 __all__ = [
@@ -108,6 +108,13 @@ def _check_n(n: object, func: str, lo: int = 8) -> int:
     return n
 
 
+def _check_dtype(dtype: object, func: str) -> None:
+    """``None`` (float32) or a floating ``torch.dtype``: an integer or bool dtype would
+    truncate the ``[0, 1]`` images and fractional depths."""
+    if dtype is not None:
+        check_float_dtype(dtype, "dtype", func)
+
+
 def _check_depth_range(near_m, far_m, func: str) -> tuple[float, float]:
     """Positive ``near_m < far_m`` (metres), as floats; else a ``ValueError`` naming ``func``."""
     lo = check_positive(near_m, "near_m", func)
@@ -159,7 +166,7 @@ def sky_character(
         Binary image, 1 on the strokes and 0 elsewhere.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``n < 8``.
 
     Shape:
@@ -171,6 +178,7 @@ def sky_character(
         (torch.Size([1, 1, 32, 32]), [0.0, 1.0])
     """
     _check_n(n, "sky_character")
+    _check_dtype(dtype, "sky_character")
     w = max(1, round(n / 16))
     # Axis-aligned bars are snapped so that they cover exactly w rows: to a pixel
     # boundary for even w, to a pixel centre for odd w.
@@ -274,7 +282,7 @@ def depth_steps(
         :class:`Scene` with reflectance 1 and depth values taken from ``levels``.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``n < 8``, fewer than two levels, or a level is not positive.
 
     Shape:
@@ -287,6 +295,7 @@ def depth_steps(
     """
     func = "depth_steps"
     _check_n(n, func)
+    _check_dtype(dtype, func)
     if len(levels) < 2:
         raise ValueError(f"{func}: expected at least two levels, got {tuple(levels)}")
     lv = sorted((check_positive(v, "levels", func) for v in levels), reverse=True)
@@ -342,7 +351,7 @@ def slanted_plane(
         :class:`Scene`.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``n < 8`` or the range is invalid.
 
     Shape:
@@ -355,6 +364,7 @@ def slanted_plane(
     """
     func = "slanted_plane"
     _check_n(n, func)
+    _check_dtype(dtype, func)
     lo, hi = _check_depth_range(near_m, far_m, func)
     if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)):
         raise TypeError(f"{func}: expected angle_deg to be a number, got {angle_deg!r}")
@@ -427,7 +437,7 @@ def skimage_scene(
         Grey image in ``[0, 1]``.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``name`` is unknown or ``n < 8``.
 
     Shape:
@@ -439,6 +449,7 @@ def skimage_scene(
     """
     func = "skimage_scene"
     _check_n(n, func)
+    _check_dtype(dtype, func)
     img = np.clip(_square_resize(_load_grey(name, func), n), 0.0, 1.0)
     return _to_tensor(img, dtype, device)
 
@@ -466,7 +477,7 @@ def binary_scene(
         Binary image, 1 on the object.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``name`` is unknown, ``n < 8``, or the image is constant.
 
     Shape:
@@ -481,6 +492,7 @@ def binary_scene(
 
     func = "binary_scene"
     _check_n(n, func)
+    _check_dtype(dtype, func)
     img = _square_resize(_load_grey(name, func), n)
     if np.ptp(img) == 0:
         raise ValueError(f"{func}: image {name!r} is constant at n={n}, nothing to threshold")
@@ -518,7 +530,7 @@ def motorcycle_depth(
         Depth map in metres, within ``[near_m, far_m]``, no NaN.
 
     Raises:
-        TypeError: if ``n`` is not an int.
+        TypeError: if ``n`` is not an int or ``dtype`` is not a floating dtype.
         ValueError: if ``n < 8`` or the range is invalid.
 
     Shape:
@@ -534,6 +546,7 @@ def motorcycle_depth(
 
     func = "motorcycle_depth"
     _check_n(n, func)
+    _check_dtype(dtype, func)
     lo, hi = _check_depth_range(near_m, far_m, func)
     disp = np.asarray(skimage.data.stereo_motorcycle()[2], dtype=np.float64)
     invalid = ~np.isfinite(disp) | (disp <= 0)
@@ -572,6 +585,7 @@ def get_scene(
         :class:`Scene`.
 
     Raises:
+        TypeError: if ``dtype`` is not a floating dtype.
         ValueError: for an unknown name or invalid ``n``.
 
     Shape:
@@ -582,6 +596,7 @@ def get_scene(
         torch.Size([1, 1, 16, 16])
     """
     check_positive(object_m, "object_m", "get_scene")
+    _check_dtype(dtype, "get_scene")
     kw = {"dtype": dtype, "device": device}
     if name == "sky":
         return depth_scene(sky_character(n, **kw), object_m=object_m)

@@ -187,3 +187,16 @@ def test_user_domain_benchmark_scores_given_held_out_images(tmp_path, capsys):
     rows = json.loads(out.read_text())["rows"]
     assert len(rows) == 1 and {"tval3", "shipped"} <= set(rows[0])
     assert "| shipped |" in capsys.readouterr().out
+
+
+def test_user_images_are_scanned_once_unless_modified():
+    """A run draws from the same images every step: each is scanned for NaN/Inf once, and
+    again after an in-place change (which a NaN written into it is)."""
+    from torchtof.data import scenes
+
+    u = torch.rand(40, 40, generator=torch.Generator().manual_seed(0))
+    draw_scenes(16, 0, 0, range(2), family="user", user_images=[u])
+    assert scenes._FINITE[id(u)][0]() is u
+    u[3, 3] = float("nan")
+    with pytest.raises(ValueError, match=r"finite values in user_images\[0\]"):
+        draw_scenes(16, 0, 1, range(2), family="user", user_images=[u])

@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import torch
 
+from .._checks import check_positive, check_rank
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
 
@@ -51,6 +52,17 @@ class NoiseRecipe(NamedTuple):
     stray: float = 0.0
 
 
+def _check_recipe(r: object, name: str, func: str) -> None:
+    """``r`` a :class:`NoiseRecipe` with finite ``level >= 0``, ``stray >= 0`` and ``photons``
+    ``None`` or finite ``> 0`` (a NaN level gave clean buckets, an inf one inf buckets)."""
+    if not isinstance(r, NoiseRecipe):
+        raise TypeError(f"{func}: expected {name} to be a NoiseRecipe, got {type(r).__name__}")
+    check_positive(r.level, f"{name}.level", func, strict=False)
+    check_positive(r.stray, f"{name}.stray", func, strict=False)
+    if r.photons is not None:
+        check_positive(r.photons, f"{name}.photons", func)
+
+
 def noisy_buckets(
     A: Hadamard, x: torch.Tensor, recipes: list[NoiseRecipe], generators: list[torch.Generator]
 ) -> torch.Tensor:
@@ -66,7 +78,10 @@ def noisy_buckets(
         ``(B, C, M)`` noisy orthonormal measurements.
 
     Raises:
-        ValueError: if the list lengths differ from ``B`` or a recipe is invalid.
+        TypeError: if ``A`` is not a :class:`Hadamard`, ``x`` not a floating tensor, a
+            recipe not a :class:`NoiseRecipe` or a generator not a ``torch.Generator``.
+        ValueError: if the list lengths differ from ``B`` or a recipe is invalid (a NaN or
+            infinite field, ``level``/``stray`` < 0, ``photons`` <= 0).
 
     Example:
         >>> A = Hadamard(8, sr=0.5)
@@ -78,15 +93,22 @@ def noisy_buckets(
     func = "noisy_buckets"
     if not isinstance(A, Hadamard):
         raise TypeError(f"{func}: expected A to be a Hadamard operator, got {type(A).__name__}")
+    check_rank(x, 4, "x", func, "(B, C, n, n)")
     if len(recipes) != x.shape[0] or len(generators) != x.shape[0]:
         raise ValueError(
             f"{func}: expected {x.shape[0]} recipes and generators, "
             f"got {len(recipes)} and {len(generators)}"
         )
+    for i, r in enumerate(recipes):
+        _check_recipe(r, f"recipes[{i}]", func)
+    for i, g in enumerate(generators):
+        if not isinstance(g, torch.Generator):
+            raise TypeError(f"{func}: expected generators[{i}] to be a torch.Generator, "
+                            f"got {type(g).__name__}")
+    if x.shape[0] == 0:  # an empty batch: the empty measurements (split(1) gives one chunk)
+        return A(x)
     out = []
     for xi, r, g in zip(x.split(1), recipes, generators, strict=True):
-        if r.level < 0 or r.stray < 0 or (r.photons is not None and r.photons <= 0):
-            raise ValueError(f"{func}: expected level, stray >= 0 and photons > 0, got {r}")
         if r.photons is None:
             y = A(xi)
         else:

@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 import os
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -41,6 +43,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .._checks import check_float_dtype
 from ..recon.synthetic import scene_seed
 
 __all__ = [
@@ -230,13 +233,46 @@ def _check_user_images(user_images, func: str) -> tuple[torch.Tensor, ...]:
     if isinstance(user_images, torch.Tensor) or not isinstance(user_images, Sequence):
         raise TypeError(f"{func}: expected user_images to be a sequence of (H, W) tensors, "
                         f"got {type(user_images).__name__}")
-    for t in user_images:
+    for i, t in enumerate(user_images):
         if (not isinstance(t, torch.Tensor) or t.ndim != 2 or not t.is_floating_point()
                 or min(t.shape) < 8):
             raise ValueError(f"{func}: expected user_images of floating (H, W) tensors with "
                              f"H, W >= 8 (torchtof.data.load_images), got "
                              f"{getattr(t, 'shape', type(t).__name__)}")
+        if not _finite_once(t):
+            raise ValueError(f"{func}: expected finite values in user_images[{i}] (fill "
+                             "invalid pixels first), got NaN or inf")
     return tuple(user_images)
+
+
+#: ``id(tensor) -> (weak reference, its _version)`` of user images found finite: a training
+#: run draws from the same tensors every step, so each is scanned once (again only if it was
+#: modified in place since, which bumps ``_version``).
+_FINITE: dict[int, tuple] = {}
+
+
+def _finite_once(t: torch.Tensor) -> bool:
+    seen = _FINITE.get(id(t))
+    if seen is not None and seen[0]() is t and seen[1] == t._version:
+        return True
+    if not bool(torch.isfinite(t).all()):
+        return False
+    key = id(t)
+    _FINITE[key] = (weakref.ref(t, lambda _: _FINITE.pop(key, None)), t._version)
+    return True
+
+
+def _check_seed(seed: object, name: str, func: str, lo: int = -(2**63),
+                hi: int | None = 2**64 - 1) -> int:
+    """An int (``numpy`` integers too; not a bool, nor a float: 1.5 was truncated to 1) in
+    ``[lo, hi]`` (by default what ``torch.Generator.manual_seed`` accepts)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"{func}: expected {name} to be an int, got {type(seed).__name__}")
+    if int(seed) < lo or (hi is not None and int(seed) > hi):
+        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ValueError(f"{func}: expected {name} {'in ' if hi is not None else ''}{rng}, "
+                         f"got {seed}")
+    return int(seed)
 
 
 class _Draw:
@@ -450,23 +486,28 @@ def draw_scene(
         The scene, shape ``(1, 1, n, n)``.
 
     Raises:
-        ValueError: if ``n < 8``, ``family`` is unknown, ``images`` is empty, or the
-            ``"user"`` family can be drawn without ``user_images``.
+        TypeError: if ``seed`` is not an int or ``dtype`` not a floating dtype.
+        ValueError: if ``n < 8``, ``family`` is unknown, ``images`` is empty, the
+            ``"user"`` family can be drawn without ``user_images``, or a user image holds
+            NaN/Inf.
 
     Example:
         >>> draw_scene(32, seed=1, family="planar").shape
         torch.Size([1, 1, 32, 32])
     """
-    probs, user = _check_scene_args(n, family, images, families, user_images, "draw_scene")
+    _check_seed(seed, "seed", "draw_scene")
+    probs, user = _check_scene_args(n, family, images, families, user_images, dtype,
+                                    "draw_scene")
     return _draw_scene(n, seed, family, images, dtype, probs, user)
 
 
-def _check_scene_args(n, family, images, families, user_images,
+def _check_scene_args(n, family, images, families, user_images, dtype,
                       func: str) -> tuple[dict[str, float], tuple[torch.Tensor, ...]]:
     """The checks of :func:`draw_scene` and :func:`draw_scenes` (once per call); returns the
     family probabilities and the user images."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 8:
         raise ValueError(f"{func}: expected n to be an int >= 8, got {n!r}")
+    check_float_dtype(dtype, "dtype", func)
     if family is not None and family not in FAMILIES:
         raise ValueError(f"{func}: expected family in {tuple(FAMILIES)} or None, got {family!r}")
     if len(images) == 0:
@@ -529,18 +570,31 @@ def draw_scenes(
         ``(len(indices), 1, n, n)``.
 
     Raises:
-        ValueError: if ``indices`` is empty (or as :func:`draw_scene`).
+        TypeError: if ``seed``, ``step`` or an index is not an int (or as :func:`draw_scene`).
+        ValueError: if ``indices`` is empty, ``seed``, ``step`` or an index is negative (or
+            as :func:`draw_scene`).
 
     Example:
         >>> draw_scenes(32, seed=0, step=0, indices=range(4)).shape
         torch.Size([4, 1, 32, 32])
     """
+    func = "draw_scenes"
     if len(indices) == 0:
-        raise ValueError("draw_scenes: expected a non-empty indices, got 0 indices")
-    probs, user = _check_scene_args(n, family, images, families, user_images, "draw_scenes")
+        raise ValueError(f"{func}: expected a non-empty indices, got 0 indices")
+    seed = _check_seed(seed, "seed", func, lo=0, hi=None)
+    step = _check_seed(step, "step", func, lo=0, hi=None)
+    idx = []
+    for i in indices:
+        try:
+            idx.append(operator.index(i))
+        except TypeError:
+            raise TypeError(f"{func}: expected indices of ints, got {i!r}") from None
+        if idx[-1] < 0:
+            raise ValueError(f"{func}: expected indices >= 0, got {i!r}")
+    probs, user = _check_scene_args(n, family, images, families, user_images, dtype, func)
     return torch.cat(
-        [_draw_scene(n, scene_seed(seed, step, int(i)), family, images, dtype, probs, user)
-         for i in indices]
+        [_draw_scene(n, scene_seed(seed, step, i), family, images, dtype, probs, user)
+         for i in idx]
     )
 
 

@@ -67,7 +67,36 @@ def _fwht(x: torch.Tensor) -> torch.Tensor:
 
 
 def fwht2(x: torch.Tensor) -> torch.Tensor:
-    """Separable 2-D transform ``H_n X H_nᵀ`` of the last two axes by butterflies."""
+    """Separable 2-D transform ``H_{n1} X H_{n2}ᵀ`` of the last two axes by butterflies.
+
+    Args:
+        x: floating tensor ``(..., n1, n2)``, ``n1`` and ``n2`` powers of two.
+
+    Returns:
+        The transform, same shape (unnormalised: ``fwht2(fwht2(x)) = n1·n2·x``).
+
+    Raises:
+        TypeError: if ``x`` is not a floating tensor.
+        ValueError: if ``x`` has fewer than two axes, a side that is not a power of two, or
+            NaN/Inf values.
+
+    Example:
+        >>> fwht2(torch.ones(2, 2))
+        tensor([[4., 0.],
+                [0., 0.]])
+    """
+    check_tensor(x, "x", "fwht2")
+    if x.ndim < 2:
+        raise ValueError(f"fwht2: expected x with at least two axes, got shape {tuple(x.shape)}")
+    check_power_of_two(x.shape[-2], "x.shape[-2]", "fwht2")
+    check_power_of_two(x.shape[-1], "x.shape[-1]", "fwht2")
+    check_finite(x, "x", "fwht2")
+    return fwht2_unchecked(x)
+
+
+def fwht2_unchecked(x: torch.Tensor) -> torch.Tensor:
+    """:func:`fwht2` without the checks, for callers that validated ``x`` (the Hadamard
+    operator, whose solver loops run it on every step)."""
     # H_{n1 n2} = H_{n1} ⊗ H_{n2}: one 1-D transform of the row-major flattened image.
     n1, n2 = x.shape[-2], x.shape[-1]
     return _fwht(x.reshape(*x.shape[:-2], n1 * n2)).reshape(x.shape)

@@ -21,7 +21,7 @@ import torch
 
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
-from .fwht import fwht2, fwht2_matmul, fwht_kron, kron_factors, sylvester
+from .fwht import fwht2_matmul, fwht2_unchecked, fwht_kron, kron_factors, sylvester
 from .patterns import check_n_order, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
@@ -40,7 +40,7 @@ Transform = torch.Tensor | tuple[torch.Tensor, ...] | None
 def _transform(x: torch.Tensor, h: Transform) -> torch.Tensor:
     """Unnormalised ``H_n X H_n`` on the last two axes (``h``: see :data:`Transform`)."""
     if h is None:
-        return fwht2(x)
+        return fwht2_unchecked(x)
     if isinstance(h, tuple):
         n1, n2 = x.shape[-2], x.shape[-1]
         return fwht_kron(x.reshape(*x.shape[:-2], n1 * n2), h).reshape(x.shape)

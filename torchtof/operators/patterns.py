@@ -169,17 +169,45 @@ def gaussian_speckle_patterns(
 ) -> torch.Tensor:
     """Gaussian speckle patterns ``(m, n, n)``: i.i.d. N(0, 1), optionally correlated.
 
-    ``grain > 0`` blurs each pattern with a Gaussian of that σ (pixels, kornia) and
-    re-standardises it, giving speckle grains of about ``grain`` pixels
-    (pseudo-thermal light, Shapiro 2008 computational GI).
+    ``grain > 0`` blurs each pattern with a Gaussian of that σ (pixels; ``2·⌊3σ⌋ + 1`` taps,
+    circular boundary, kornia) and re-standardises it, giving speckle grains of about
+    ``grain`` pixels (pseudo-thermal light, Shapiro 2008 computational GI). ``grain`` may
+    reach ``n``: a window wider than the pattern wraps around it (the taps are summed per
+    pixel of the period, the same circular convolution).
+
+    Raises:
+        TypeError: if ``m``/``n`` are not ints or ``dtype`` is not a floating dtype.
+        ValueError: if ``m``/``n`` < 1, ``grain`` is outside ``[0, n]``, or ``grain > 0``
+            with ``n = 1`` (a single pixel has no spatial correlation to give and no
+            spread to re-standardise).
     """
-    _check_sizes(m, n, dtype, "gaussian_speckle_patterns")
-    check_in_range(grain, 0.0, float(n), "grain", "gaussian_speckle_patterns")
+    func = "gaussian_speckle_patterns"
+    _check_sizes(m, n, dtype, func)
+    check_in_range(grain, 0.0, float(n), "grain", func)
+    if grain > 0 and n == 1:
+        raise ValueError(f"{func}: expected grain = 0 for n = 1 (one pixel cannot be blurred "
+                         f"and re-standardised), got grain={grain}")
     z = torch.randn(m, 1, n, n, generator=generator, dtype=torch.float64)
     if grain > 0:
         import kornia
 
         k = 2 * int(3 * grain) + 1
-        z = kornia.filters.gaussian_blur2d(z, (k, k), (grain, grain), border_type="circular")
+        if k // 2 <= n:  # kornia's circular padding wraps at most once
+            z = kornia.filters.gaussian_blur2d(z, (k, k), (grain, grain), border_type="circular")
+        else:
+            z = _circular_blur(z, kornia.filters.get_gaussian_kernel1d(
+                k, float(grain), dtype=torch.float64)[0])
         z = (z - z.mean(dim=(-2, -1), keepdim=True)) / z.std(dim=(-2, -1), keepdim=True)
     return z[:, 0].to(dtype)
+
+
+def _circular_blur(z: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+    """Separable circular convolution of ``z (..., n, n)`` with a symmetric 1-D ``kernel``
+    of any length: its taps are folded onto the period (tap ``t`` of offset ``t − k//2``
+    adds to offset ``(t − k//2) mod n``), then applied as an ``n × n`` circulant matrix."""
+    n, k = z.shape[-1], kernel.shape[0]
+    offsets = (torch.arange(k) - k // 2) % n
+    w = torch.zeros(n, dtype=kernel.dtype).index_add_(0, offsets, kernel)
+    idx = torch.arange(n)
+    c = w[(idx[None, :] - idx[:, None]) % n]  # c[i, l] = w[(l − i) mod n]
+    return c @ z @ c.T

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import check_finite, check_rank, check_shape
+from .._checks import check_finite, check_int, check_rank, check_shape
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .hadamard import Hadamard
@@ -39,8 +39,10 @@ def split_patterns(patterns: torch.Tensor) -> torch.Tensor:
 
 def combine_split(y_split: torch.Tensor, n: int) -> torch.Tensor:
     """Interleaved DMD buckets ``(B, C, 2M)`` → orthonormal Hadamard measurements
-    ``(B, C, M)``: ``y = (y⁺ − y⁻) / n`` (``n = √N``), so ``combine_split(S x) = A x``."""
+    ``(B, C, M)``: ``y = (y⁺ − y⁻) / n`` (``n = √N``, a positive int: the DMD side), so
+    ``combine_split(S x) = A x``."""
     check_shape(y_split, (None, None, None), "y_split", "combine_split", "(B, C, 2M)")
+    check_int(n, "n", "combine_split", lo=1)
     if y_split.shape[-1] % 2:
         raise ValueError(
             f"combine_split: expected y_split with an even number of measurements, "
@@ -72,12 +74,24 @@ class DMDSplit(LinearOperator):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")
+        if x.dtype in (torch.float16, torch.bfloat16):
+            # as Hadamard: computed in float32, rounded once (in float16 ⟨1, x⟩/2 and
+            # n/2·⟨h, x⟩ each overflowed to inf where their difference y⁻ is small: NaN)
+            return self._forward(x.float()).to(x.dtype)
+        return self._forward(x)
+
+    def _forward(self, x: torch.Tensor) -> torch.Tensor:
         half_total = (x / 2).sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩/2, halved first
         half_h = self.hadamard(x) * (self.n / 2)  # ⟨h, x⟩/2 with ±1 rows
         return torch.stack((half_total + half_h, half_total - half_h), dim=-1).flatten(-2)
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         self._check_y(y, "DMDSplit.adjoint")
+        if y.dtype in (torch.float16, torch.bfloat16):  # see forward
+            return self._adjoint(y.float()).to(y.dtype)
+        return self._adjoint(y)
+
+    def _adjoint(self, y: torch.Tensor) -> torch.Tensor:
         y2 = y.reshape(*y.shape[:-1], self.m // 2, 2)  # no -1: B = 0 has no size to infer
         s, d = y2[..., 0] + y2[..., 1], y2[..., 0] - y2[..., 1]
         ones = s.sum(dim=-1)[..., None, None] / 2

@@ -27,7 +27,14 @@ import math
 
 import torch
 
-from .._checks import check_finite, check_positive, check_shape, check_tensor
+from .._checks import (
+    check_broadcast,
+    check_finite,
+    check_number,
+    check_positive,
+    check_shape,
+    check_tensor,
+)
 
 __all__ = [
     "SPEED_OF_LIGHT",
@@ -66,6 +73,23 @@ def check_real(x: object, name: str, func: str) -> torch.Tensor:
     if x.is_complex():
         raise TypeError(f"{func}: expected {name} to be a real tensor, got dtype {x.dtype}")
     return x
+
+
+def check_rules_config(
+    func: str, min_m: object, max_m: object, amp_threshold: object, no_photon_m: object,
+    step_m: object,
+) -> float | None:
+    """The camera-rule parameters of :func:`camera_rules` (also checked by the sensor and
+    readout modules at construction): ``0 <= min_m < max_m``, ``no_photon_m >= 0``, all
+    finite numbers; ``amp_threshold`` a finite number (NaN would turn the "no photon" rule
+    off: no amplitude compares ``<=`` to it); ``step_m`` ``None`` or ``> 0``. Returns the
+    step as a float (or ``None``)."""
+    for name, v in (("min_m", min_m), ("max_m", max_m), ("no_photon_m", no_photon_m)):
+        check_positive(v, name, func, strict=False)
+    if not max_m > min_m:
+        raise ValueError(f"{func}: expected max_m > min_m, got min_m={min_m}, max_m={max_m}")
+    check_number(amp_threshold, "amp_threshold", func)
+    return None if step_m is None else check_positive(step_m, "step_m", func)
 
 
 def check_order(order: str, func: str) -> tuple[tuple[int, int], ...]:
@@ -172,8 +196,10 @@ def correlation_taps(
         in the order given.
 
     Raises:
-        TypeError: if ``phasor`` is not complex or ``offset`` is complex.
-        ValueError: on a wrong shape or an unknown ``order``.
+        TypeError: if ``phasor`` is not complex, or ``offset`` is neither a number nor a real
+            floating tensor.
+        ValueError: on a wrong shape, an ``offset`` that holds NaN/Inf or does not broadcast
+            to ``(B, 1, H, W)`` (it may not grow the batch), or an unknown ``order``.
 
     Shape:
         - phasor: :math:`(B, 1, H, W)` complex
@@ -187,9 +213,14 @@ def correlation_taps(
     func = "correlation_taps"
     check_phasor(phasor, func)
     table = check_order(order, func)
+    re, im = phasor.real, phasor.imag
     if isinstance(offset, torch.Tensor):
         check_real(offset, "offset", func)
-    re, im = phasor.real, phasor.imag
+        check_broadcast(offset, phasor.shape, "offset", func, "(B, 1, H, W)")
+        check_finite(offset, "offset", func)
+        offset = offset.to(re.dtype)  # the taps follow the phasor's real dtype
+    else:
+        check_number(offset, "offset", func)
     # Re(P e^{jτ}) = Re P cos τ − Im P sin τ, with cos τ, sin τ ∈ {0, ±1} (loop over 4 taps)
     return offset + 0.5 * torch.cat([c * re - s * im for c, s in table], dim=1)
 
@@ -341,9 +372,11 @@ def camera_rules(
         clip range (straight through the rounding), 0 where clipped or dark.
 
     Raises:
-        TypeError: if ``depth``/``amplitude`` are not real floating tensors.
-        ValueError: on mismatched shapes, ``max_m ≤ min_m``, a non-positive ``step_m`` or
-            non-finite parameters.
+        TypeError: if ``depth``/``amplitude`` are not real floating tensors or a parameter
+            is not a number.
+        ValueError: on mismatched shapes, ``max_m ≤ min_m``, a negative ``min_m`` or
+            ``no_photon_m``, a non-positive ``step_m`` or non-finite parameters (a NaN
+            ``amp_threshold`` would switch the "no photon" rule off).
 
     Shape:
         - depth, amplitude: :math:`(B, 1, H, W)`
@@ -366,15 +399,9 @@ def camera_rules(
         )
     check_finite(depth, "depth", func)
     check_finite(amplitude, "amplitude", func)
-    for name, v in (("min_m", min_m), ("max_m", max_m), ("no_photon_m", no_photon_m)):
-        check_positive(v, name, func, strict=False)
-    if not max_m > min_m:
-        raise ValueError(f"{func}: expected max_m > min_m, got min_m={min_m}, max_m={max_m}")
-    if isinstance(amp_threshold, bool) or not isinstance(amp_threshold, (int, float)):
-        raise TypeError(f"{func}: expected amp_threshold to be a number, got {amp_threshold!r}")
+    step = check_rules_config(func, min_m, max_m, amp_threshold, no_photon_m, step_m)
     d = depth.clamp(min_m, max_m)
-    if step_m is not None:
-        step = check_positive(step_m, "step_m", func)
+    if step is not None:
         k = (d - min_m) / step
         d = min_m + step * (k + (torch.round(k) - k).detach())
         d = d.clamp(min_m, max_m)  # a step that does not divide the range rounds past max_m

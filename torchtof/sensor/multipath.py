@@ -21,16 +21,24 @@ import math
 import torch
 from torch import nn
 
-from .._checks import check_positive
+from .._checks import check_broadcast, check_finite, check_nonnegative, check_positive
 from .functional import SPEED_OF_LIGHT, check_phasor, check_real
 from .mixing import blur_phasor
 
 __all__ = ["add_multipath", "Multipath"]
 
 
-def _check_scalar_or_real(value: object, name: str, func: str) -> torch.Tensor | float:
+def _check_scalar_or_real(
+    value: object, name: str, func: str, phasor: torch.Tensor
+) -> torch.Tensor | float:
+    """A number ``>= 0``, or a real tensor ``>= 0``, finite, broadcastable to the phasor
+    without growing its batch (the same rules for both forms)."""
     if isinstance(value, torch.Tensor):
-        return check_real(value, name, func)
+        check_real(value, name, func)
+        check_broadcast(value, phasor.shape, name, func, "(B, 1, H, W)")
+        check_finite(value, name, func)
+        check_nonnegative(value, name, func)
+        return value
     return check_positive(value, name, func, strict=False)
 
 
@@ -53,7 +61,8 @@ def add_multipath(
         phasor: complex ``(B, 1, H, W)`` direct phasor.
         strength: relative amplitude ``s ≥ 0`` of the indirect return (number or real
             tensor broadcastable to the phasor, e.g. a per-pixel map). ``0`` is the identity.
-        extra_path_m: apparent extra distance ``Δ`` in metres (number ``≥ 0`` or real tensor).
+        extra_path_m: apparent extra distance ``Δ`` in metres (number ``≥ 0`` or real tensor
+            ``≥ 0`` broadcastable to the phasor).
         freq_hz: modulation frequency in Hz, ``> 0``.
         blur_sigma: Gaussian spread of the indirect light in pixels (``None``: no spread).
 
@@ -62,8 +71,9 @@ def add_multipath(
 
     Raises:
         TypeError: if ``phasor`` is not complex or a tensor argument is not real.
-        ValueError: on a wrong shape, non-finite phasor, negative numbers or a
-            non-positive ``freq_hz``/``blur_sigma``.
+        ValueError: on a wrong shape, a ``strength``/``extra_path_m`` tensor that does not
+            broadcast to the phasor (or would grow its batch), NaN/Inf or negative values
+            (numbers or tensors), or a non-positive ``freq_hz``/``blur_sigma``.
 
     Shape:
         - phasor: :math:`(B, 1, H, W)`; output: :math:`(B, 1, H, W)`
@@ -75,8 +85,8 @@ def add_multipath(
     """
     func = "add_multipath"
     check_phasor(phasor, func)
-    strength = _check_scalar_or_real(strength, "strength", func)
-    extra_path_m = _check_scalar_or_real(extra_path_m, "extra_path_m", func)
+    strength = _check_scalar_or_real(strength, "strength", func, phasor)
+    extra_path_m = _check_scalar_or_real(extra_path_m, "extra_path_m", func, phasor)
     f = check_positive(freq_hz, "freq_hz", func)
     indirect = phasor if blur_sigma is None else blur_phasor(phasor, blur_sigma)
     theta = extra_path_m * (4.0 * math.pi * f / SPEED_OF_LIGHT)

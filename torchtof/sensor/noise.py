@@ -17,6 +17,8 @@ with no shot noise, zero read noise, no full well and no ADC the chain is the id
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -158,6 +160,33 @@ def read_noise(
     return taps + sigma * _randn_like(taps, generator)
 
 
+def _digits(dtype: torch.dtype) -> int:
+    """Significand bits of a floating dtype (11, 8, 24, 53): it holds every integer up to
+    ``2^digits`` exactly."""
+    return round(-math.log2(torch.finfo(dtype).eps)) + 1
+
+
+def _check_bits_dtype(bits: int, dtype: torch.dtype, name: str, func: str) -> None:
+    """float16/bfloat16 taps cannot hold the codes of an ADC wider than their significand
+    (4095 rounds to 4096 in both, 65535 overflows float16): a ``ValueError`` naming ``name``.
+    float32 keeps every depth up to 32 bits (above 24 the top code saturates one step of the
+    float32 grid below ``2^b``, :func:`_full_scale`)."""
+    if dtype in (torch.float16, torch.bfloat16) and bits > _digits(dtype):
+        raise ValueError(
+            f"{func}: expected {name} <= {_digits(dtype)} for {dtype} taps (larger codes are "
+            f"not all representable: 2^{bits} − 1 = {2**bits - 1}), got {bits}; pass float32 "
+            "taps")
+
+
+def _full_scale(bits: int, dtype: torch.dtype) -> float:
+    """The largest value of ``dtype`` that is ``<= 2^bits − 1``: ``2^bits − 1`` itself where
+    the dtype holds it (float64; float32 up to 24 bits), else the value below ``2^bits`` on
+    the dtype's grid (``2^32 − 1`` rounds up to ``2^32`` in float32)."""
+    digits = _digits(dtype)
+    top = 2**bits - 1 if bits <= digits else 2**bits - 2 ** (bits - digits)
+    return float(min(top, torch.finfo(dtype).max))
+
+
 def adc_quantize(taps: torch.Tensor, bits: int = 12, gain_e_per_dn: float = 1.0) -> torch.Tensor:
     """Analogue-to-digital conversion: gain, saturation and rounding.
 
@@ -167,6 +196,9 @@ def adc_quantize(taps: torch.Tensor, bits: int = 12, gain_e_per_dn: float = 1.0)
 
     The rounding passes its gradient straight through (Bengio et al., 2013), so the
     output has gradient ``1/g`` where the ADC is not saturated and 0 where it clips.
+    float16 and bfloat16 taps take at most 11 and 8 bits (the integers they hold exactly);
+    in float32 above 24 bits the output saturates at the largest float32 below ``2^b``
+    (``2^32 − 1`` itself rounds up to ``2^32``), never above ``2^b − 1``.
 
     Args:
         taps: real ``(B, 4, H, W)`` taps in photo-electrons.
@@ -178,8 +210,8 @@ def adc_quantize(taps: torch.Tensor, bits: int = 12, gain_e_per_dn: float = 1.0)
 
     Raises:
         TypeError: if ``taps`` is not a real floating tensor or ``bits`` not an int.
-        ValueError: on a wrong shape, non-finite taps, ``bits`` outside ``[1, 32]`` or a
-            non-positive gain.
+        ValueError: on a wrong shape, non-finite taps, ``bits`` outside ``[1, 32]`` (or
+            above 11 for float16, 8 for bfloat16 taps) or a non-positive gain.
 
     Example:
         >>> adc_quantize(torch.tensor([-3.0, 2.4, 2.6, 9e9]).view(1, 4, 1, 1)).flatten().tolist()
@@ -188,8 +220,9 @@ def adc_quantize(taps: torch.Tensor, bits: int = 12, gain_e_per_dn: float = 1.0)
     func = "adc_quantize"
     _check_taps(taps, func)
     _check_bits(bits, "bits", func)
+    _check_bits_dtype(bits, taps.dtype, "bits", func)
     gain = check_positive(gain_e_per_dn, "gain_e_per_dn", func)
-    dn = (taps / gain).clamp(0.0, float(2**bits - 1))
+    dn = (taps / gain).clamp(0.0, _full_scale(bits, taps.dtype))
     return dn + (torch.round(dn) - dn).detach()
 
 
@@ -233,6 +266,8 @@ def tof_noise(
     func = "tof_noise"
     _check_taps(taps, func)
     check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
+    if adc_bits is not None:  # before drawing any noise
+        _check_bits_dtype(adc_bits, taps.dtype, "adc_bits", func)
     if shot is not None:
         taps = shot_noise(taps, shot, generator)
     taps = read_noise(taps, read_noise_e, generator)

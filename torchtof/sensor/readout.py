@@ -12,7 +12,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .functional import camera_rules, phase_to_depth, tap_amplitude, tap_phase
+from .._checks import check_positive
+from .functional import (
+    camera_rules,
+    check_rules_config,
+    phase_to_depth,
+    tap_amplitude,
+    tap_phase,
+)
 
 __all__ = ["camera_readout", "CameraReadout"]
 
@@ -85,10 +92,9 @@ class CameraReadout(nn.Module):
         super().__init__()
         self.config = dict(freq_hz=freq_hz, min_m=min_m, max_m=max_m,
                            amp_threshold=amp_threshold, no_photon_m=no_photon_m, step_m=step_m)
-        one = torch.ones(1, 1, 1, 1)
-        # validates the configuration with the functions forward calls
-        phase_to_depth(one, freq_hz)
-        camera_rules(one, one, min_m, max_m, amp_threshold, no_photon_m, step_m)
+        # the checks of the functions forward calls, named after this class
+        check_positive(freq_hz, "freq_hz", "CameraReadout")
+        check_rules_config("CameraReadout", min_m, max_m, amp_threshold, no_photon_m, step_m)
 
     def forward(self, taps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return camera_readout(taps, **self.config)

@@ -23,6 +23,7 @@ from .functional import (
     check_order,
     check_phasor,
     check_real,
+    check_rules_config,
     correlation_taps,
 )
 from .noise import check_noise_config, tof_noise
@@ -65,14 +66,12 @@ class ToFFrame(NamedTuple):
 
 
 def _check_camera_config(
-    func: str, freq_hz: float, ambient_e: float, min_m: float, max_m: float, step_m: float | None
+    func: str, freq_hz: float, ambient_e: float, min_m: float, max_m: float,
+    amp_threshold: float, no_photon_m: float, step_m: float | None,
 ) -> None:
     check_positive(freq_hz, "freq_hz", func)
     check_positive(ambient_e, "ambient_e", func, strict=False)
-    if not max_m > min_m:
-        raise ValueError(f"{func}: expected max_m > min_m, got min_m={min_m}, max_m={max_m}")
-    if step_m is not None:
-        check_positive(step_m, "step_m", func)
+    check_rules_config(func, min_m, max_m, amp_threshold, no_photon_m, step_m)
 
 
 def cw_tof_sensor(
@@ -158,7 +157,8 @@ def cw_tof_sensor(
     func = "cw_tof_sensor"
     check_phasor(phasor, func)
     check_order(order, func)
-    _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, step_m)
+    _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, amp_threshold, no_photon_m,
+                         step_m)
     check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
     if intensity is None:
         intensity = 0.5 * phasor.abs()
@@ -213,7 +213,8 @@ class CWToFSensor(nn.Module):
         super().__init__()
         func = "CWToFSensor"
         check_order(order, func)
-        _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, step_m)
+        _check_camera_config(func, freq_hz, ambient_e, min_m, max_m, amp_threshold, no_photon_m,
+                             step_m)
         check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
         config = dict(
             freq_hz=float(freq_hz),
