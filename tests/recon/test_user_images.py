@@ -200,3 +200,19 @@ def test_user_images_are_scanned_once_unless_modified():
     u[3, 3] = float("nan")
     with pytest.raises(ValueError, match=r"finite values in user_images\[0\]"):
         draw_scenes(16, 0, 1, range(2), family="user", user_images=[u])
+
+
+def test_a_changed_image_file_is_read_again(tmp_path):
+    """The per-process cache of a run's images is keyed by the files' modification times: an
+    image rewritten between two runs in one process is drawn as it is now."""
+    import os
+
+    from torchtof.recon.learned_train import _user_images
+
+    f = tmp_path / "img.npy"
+    np.save(f, _ramp(20, 20))
+    (a,) = _user_images((str(f),))
+    np.save(f, _ramp(20, 20)[::-1])
+    os.utime(f, ns=(f.stat().st_atime_ns, f.stat().st_mtime_ns + 10**9))
+    (b,) = _user_images((str(f),))
+    torch.testing.assert_close(b, a.flip(0))

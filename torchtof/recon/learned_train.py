@@ -110,10 +110,18 @@ class LearnedTrainResult(NamedTuple):
 P_USER = 0.5
 
 
-@functools.lru_cache(maxsize=4)
 def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
-    """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process."""
-    return load_images(list(paths), "train_learned") if paths else ()
+    """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process and
+    again only if a file changed (its modification time is part of the cache key)."""
+    if not paths:
+        return ()
+    stamps = tuple(f.stat().st_mtime_ns for p in paths for f in image_files(p, "train_learned"))
+    return _load_user_images(paths, stamps)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_user_images(paths: tuple[str, ...], stamps: tuple[int, ...]) -> tuple[torch.Tensor, ...]:
+    return load_images(list(paths), "train_learned")
 
 
 def user_image_record(paths: tuple[str, ...]) -> list[dict]:
