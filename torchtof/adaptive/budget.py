@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from .._checks import check_int, check_number, check_positive
+
 __all__ = ["DEFAULT_TABLE", "MethodChoice", "load_table", "choose_method", "save_table"]
 
 #: the shipped table (``torchtof bench tradeoff --quick`` on this project's 2-core machine).
@@ -88,19 +90,23 @@ def choose_method(n: int, sr: float, time_budget_s: float | None = None,
     """Pick the cheapest reconstructor and iteration count that meets a budget (module doc).
 
     Args:
-        n: image side.
+        n: image side (an int ``>= 1``; the table row of the nearest ``n`` is read).
         sr: sampling rate in ``(0, 1]``.
-        time_budget_s: seconds per image.
-        target_psnr: PSNR (dB, the table's 8-bit protocol) to reach.
-        target_depth_rmse_m: depth RMSE (m) to stay under.
+        time_budget_s: seconds per image, ``> 0`` (``inf``: no limit).
+        target_psnr: PSNR (dB, the table's 8-bit protocol) to reach (finite).
+        target_depth_rmse_m: depth RMSE (m) to stay under (``> 0``, finite).
         table: rows, a path, or ``None`` for the shipped default.
-        methods: restrict to these method names.
+        methods: restrict to these method names, each one of the table's methods (a
+            sequence of names; a single string is one name, not a set of letters).
 
     Returns:
         :class:`MethodChoice`.
 
     Raises:
-        ValueError: no budget or target given, bad values, no rows for the methods.
+        TypeError: ``n`` not an int, a budget, target or ``sr`` not a number, ``methods``
+            not a string or a sequence of strings.
+        ValueError: no budget or target given, bad values, a method name the table does not
+            hold, no rows for the methods.
 
     Example:
         >>> choose_method(32, 0.125, time_budget_s=1e-3).method
@@ -109,11 +115,33 @@ def choose_method(n: int, sr: float, time_budget_s: float | None = None,
     fn = "choose_method"
     if time_budget_s is None and target_psnr is None and target_depth_rmse_m is None:
         raise ValueError(f"{fn}: give time_budget_s, target_psnr or target_depth_rmse_m")
-    if time_budget_s is not None and not time_budget_s > 0:
-        raise ValueError(f"{fn}: expected time_budget_s > 0, got {time_budget_s}")
-    if not 0 < sr <= 1:
+    check_int(n, "n", fn, lo=1)
+    if time_budget_s is not None:
+        if isinstance(time_budget_s, bool) or not isinstance(time_budget_s, (int, float)):
+            raise TypeError(f"{fn}: expected time_budget_s to be a number, got "
+                            f"{type(time_budget_s).__name__}")
+        if not time_budget_s > 0:  # NaN too; inf: no limit
+            raise ValueError(f"{fn}: expected time_budget_s > 0, got {time_budget_s}")
+    if target_psnr is not None:
+        check_number(target_psnr, "target_psnr", fn)
+    if target_depth_rmse_m is not None:
+        check_positive(target_depth_rmse_m, "target_depth_rmse_m", fn)
+    if not 0 < check_number(sr, "sr", fn) <= 1:
         raise ValueError(f"{fn}: expected sr in (0, 1], got {sr}")
+    if methods is not None:
+        if isinstance(methods, str):
+            methods = (methods,)  # one name (not its letters: "BPX" is no "BP")
+        elif not isinstance(methods, (list, tuple, set, frozenset)) or not all(
+                isinstance(m, str) for m in methods):
+            raise TypeError(f"{fn}: expected methods to be a method name or a sequence of "
+                            f"names, got {methods!r}")
     rows = table if isinstance(table, list) else load_table(table)
+    if methods is not None:
+        known = sorted({r["method"] for r in rows})
+        unknown = [m for m in methods if m not in known]
+        if unknown:
+            raise ValueError(f"{fn}: expected methods among the table's {tuple(known)}, got "
+                             f"{unknown[0]!r}")
     rows = [r for r in rows if methods is None or r["method"] in methods]
     if not rows:
         raise ValueError(f"{fn}: no table rows for methods {methods}")

@@ -37,11 +37,13 @@ near light. A far background behind a large near object is not flagged (``R`` st
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import torch
 
-from .._checks import check_finite, check_tensor
+from .._checks import check_finite, check_int, check_number, check_positive, check_tensor
 
 __all__ = ["DarkReference", "VeilEstimate", "FarEstimate", "GateTest", "dark_reference",
            "detect_veil", "detect_far_background", "gate_changes_image"]
@@ -52,11 +54,26 @@ RAW_KINDS = ("depth", "depth_gated", "intensity")
 @dataclass(frozen=True)
 class DarkReference:
     """Per-pixel means of the clear set-up's dark frame (mirrors off, no sheet): depth ``m``,
-    gated depth ``m`` and intensity (amplitude units of the buckets)."""
+    gated depth ``m`` and intensity (amplitude units of the buckets).
+
+    Fields are stored as Python floats (a NumPy scalar or a one-element tensor is converted).
+
+    Raises:
+        TypeError, ValueError: a field that is not a finite real number.
+    """
 
     depth_m: float
     gated_m: float
     intensity: float
+
+    def __post_init__(self) -> None:
+        for name in ("depth_m", "gated_m", "intensity"):
+            v = getattr(self, name)
+            if isinstance(v, torch.Tensor) and v.numel() == 1 and not v.is_complex():
+                v = v.item()
+            elif isinstance(v, numbers.Real) and not isinstance(v, bool):
+                v = float(v)
+            object.__setattr__(self, name, check_number(v, name, "DarkReference"))
 
 
 @dataclass(frozen=True)
@@ -73,7 +90,9 @@ class VeilEstimate:
 @dataclass(frozen=True)
 class FarEstimate:
     """:func:`detect_far_background`: ``present``, ``ratio`` (``R = ΔG/(−ΔD)``),
-    ``significance`` (``|ΔS|/σ_S``)."""
+    ``significance`` (``|ΔS|/σ_S``; NaN where no noise level was known and the test was not
+    made, ``intensity_sigma=None``, e.g. in :func:`~torchtof.adaptive.run_adaptive` with
+    ``noise="repeat"`` and no repeat: ``present`` is then ``False``)."""
 
     present: bool
     ratio: float
@@ -105,15 +124,25 @@ def dark_reference(config, frames: int = 8, seed: int = 0) -> DarkReference:
 
     Args:
         config: :class:`~torchtof.experiment.ExperimentConfig` of the set-up.
-        frames: frames averaged.
-        seed: noise seed.
+        frames: frames averaged (an int ``>= 1``).
+        seed: noise seed (an int).
+
+    Raises:
+        TypeError: ``config`` not an ``ExperimentConfig``, ``frames`` or ``seed`` not an int.
+        ValueError: ``frames < 1``.
     """
     from dataclasses import replace
 
     from ..bucket import depth_bucket, intensity_bucket
-    from ..experiment import simulate_frames, stray_light
+    from ..experiment import ExperimentConfig, simulate_frames, stray_light
     from ..scenes import Scene
 
+    fn = "dark_reference"
+    if not isinstance(config, ExperimentConfig):
+        raise TypeError(f"{fn}: expected config to be an ExperimentConfig, got "
+                        f"{type(config).__name__}")
+    check_int(frames, "frames", fn, lo=1)
+    check_int(seed, "seed", fn)
     cfg = replace(config, scattering=False)
     n, p2 = cfg.n, cfg.roi_px**2
     zero = torch.zeros(1, 1, n, n, dtype=torch.float64)
@@ -137,17 +166,27 @@ def detect_veil(raw: dict[str, torch.Tensor], reference: DarkReference, roi_pixe
         raw: raw interleaved buckets ``{"depth", "depth_gated", "intensity"}`` ``(B, 1, F ≥ 2)``
             whose frames 0 and 1 are the all-on and the dark frame (realisations averaged).
         reference: the clear set-up's dark frame.
-        roi_pixels: ``P``, the number of ROI pixels summed into a bucket.
-        shift_m: depth shift of the dark frame that counts as a veil (m).
-        alpha_max: ``α̂`` below this counts as a veil.
+        roi_pixels: ``P``, the number of ROI pixels summed into a bucket (an int ``>= 1``).
+        shift_m: depth shift of the dark frame that counts as a veil (m, ``>= 0``, finite).
+        alpha_max: ``α̂`` below this counts as a veil (in ``[0, 1]``).
 
     Returns:
         :class:`VeilEstimate`.
 
     Raises:
-        TypeError, ValueError: bad buckets (missing keys, shape, NaN).
+        TypeError, ValueError: bad buckets (missing keys, shape, NaN), ``reference`` not a
+            :class:`DarkReference`, ``roi_pixels`` not an int ``>= 1``, ``shift_m`` or
+            ``alpha_max`` out of range or NaN.
     """
-    b = _pair(raw, "detect_veil")
+    fn = "detect_veil"
+    if not isinstance(reference, DarkReference):
+        raise TypeError(f"{fn}: expected reference to be a DarkReference, got "
+                        f"{type(reference).__name__}")
+    check_int(roi_pixels, "roi_pixels", fn, lo=1)
+    check_positive(shift_m, "shift_m", fn, strict=False)
+    if not 0.0 <= check_number(alpha_max, "alpha_max", fn) <= 1.0:
+        raise ValueError(f"{fn}: expected alpha_max in [0, 1], got {alpha_max}")
+    b = _pair(raw, fn)
     d_dark = float(b["depth"][..., 1].mean()) / roi_pixels
     s_dark = float(b["intensity"][..., 1].mean()) / roi_pixels
     alpha = min(1.0, s_dark / max(reference.intensity, 1e-12))
@@ -157,33 +196,55 @@ def detect_veil(raw: dict[str, torch.Tensor], reference: DarkReference, roi_pixe
                         ds_m=ds, shift_m=shift)
 
 
-def detect_far_background(raw: dict[str, torch.Tensor], intensity_sigma: float,
+def detect_far_background(raw: dict[str, torch.Tensor], intensity_sigma: float | None,
                           k_sigma: float = 5.0, r_min: float = 0.25) -> FarEstimate:
     """Detect pattern-dependent light beyond the depth gate from the all-on/dark pair.
 
     Args:
         raw: raw interleaved buckets ``{"depth", "depth_gated", "intensity"}`` ``(B, 1, F ≥ 2)``.
         intensity_sigma: noise std of one difference ``S_on − S_off`` (``n·σ`` of the signed
-            intensity buckets ``(y⁺ − y⁻)/n``).
-        k_sigma: significance of the pattern-dependent light.
-        r_min: ``R`` below this means the light is mostly beyond the gate (module docstring).
+            intensity buckets ``(y⁺ − y⁻)/n``): a number ``> 0`` and finite. ``None``: no
+            noise level is known, so the significance cannot be judged and the test is not
+            made: ``present=False``, ``significance`` NaN (``ratio`` is still reported).
+        k_sigma: significance of the pattern-dependent light (``>= 0``, finite).
+        r_min: ``R`` below this means the light is mostly beyond the gate (module docstring;
+            finite).
 
     Returns:
         :class:`FarEstimate`.
 
     Raises:
-        TypeError, ValueError: bad buckets.
+        TypeError, ValueError: bad buckets; ``intensity_sigma`` not a number ``> 0`` (``0``,
+            negative, NaN or Inf), ``k_sigma`` negative or not finite, ``r_min`` not finite.
     """
-    b = _pair(raw, "detect_far_background")
+    fn = "detect_far_background"
+    k_sigma = check_positive(k_sigma, "k_sigma", fn, strict=False)
+    r_min = check_number(r_min, "r_min", fn)
+    if intensity_sigma is None:  # no noise level: no test, R only
+        ratio, _ = _far_ratio(_pair(raw, fn))
+        return FarEstimate(present=False, ratio=ratio, significance=math.nan)
+    if isinstance(intensity_sigma, torch.Tensor):
+        if intensity_sigma.numel() != 1 or intensity_sigma.is_complex():
+            raise ValueError(f"{fn}: expected intensity_sigma to be one real number, got a "
+                             f"tensor of shape {tuple(intensity_sigma.shape)}")
+        intensity_sigma = float(intensity_sigma)
+    sigma = check_positive(intensity_sigma, "intensity_sigma", fn)
+    ratio, ds = _far_ratio(_pair(raw, fn))
+    sig = abs(ds) / max(sigma, 1e-12)
+    return FarEstimate(present=bool(sig > k_sigma and ratio < r_min), ratio=ratio,
+                       significance=sig)
+
+
+def _far_ratio(b: dict[str, torch.Tensor]) -> tuple[float, float]:
+    """``R = ΔG/(−ΔD)`` and ``ΔS`` of the all-on/dark pair of checked raw buckets."""
 
     def diff(k):
         return float((b[k][..., 0] - b[k][..., 1]).mean())
 
     dd, dg, ds = diff("depth"), diff("depth_gated"), diff("intensity")
-    sig = abs(ds) / max(float(intensity_sigma), 1e-12)
     ratio = dg / (-dd) if dd < 0 else (0.0 if dg <= 0 else float("inf"))
-    return FarEstimate(present=bool(sig > k_sigma and ratio < r_min), ratio=ratio,
-                       significance=sig)
+    return ratio, ds
+
 
 
 @dataclass(frozen=True)
@@ -220,31 +281,44 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
     (:func:`~torchtof.adaptive.noise.pair_noise_dof` with ``robust=False``), else the F
     quantile is too small and the gate is kept on noise.
 
+    One test, on one sample: a batch of buckets is refused (test each sample on its own).
+
     Args:
-        y_depth, y_gated: signed ungated and gated buckets ``(1, 1, m)`` (same patterns).
-        d_depth, d_gated: differences of two measurements of the same ``B`` patterns.
-        level: confidence level of the F test.
+        y_depth, y_gated: signed ungated and gated buckets ``(1, 1, m)``, ``m >= 8`` (same
+            patterns).
+        d_depth, d_gated: differences of two measurements of the same ``B`` patterns,
+            ``(1, 1, B)`` with ``B >= 1``.
+        level: confidence level of the F test, in ``(0, 1)``.
         dof: degrees of freedom of ``σ_r²`` (default: the number of differences ``B``).
 
     Returns:
         :class:`GateTest`.
 
     Raises:
-        ValueError: fewer than 8 coefficients, mismatched shapes, ``dof < 1``.
+        TypeError: an input not a floating-point tensor.
+        ValueError: not one sample ``(1, 1, ·)``, fewer than 8 coefficients, no differences,
+            mismatched shapes, NaN/Inf, ``level`` outside ``(0, 1)``, ``dof < 1``.
     """
     fn = "gate_changes_image"
     if dof is not None and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
         raise ValueError(f"{fn}: expected dof to be an int >= 1 or None, got {dof!r}")
+    if not 0.0 < check_number(level, "level", fn) < 1.0:
+        raise ValueError(f"{fn}: expected level in (0, 1), got {level}")
     for name, v in (("y_depth", y_depth), ("y_gated", y_gated), ("d_depth", d_depth),
                     ("d_gated", d_gated)):
         check_tensor(v, name, fn)
-        check_finite(v, name, fn)
+        if v.ndim != 3 or v.shape[:2] != (1, 1):
+            raise ValueError(f"{fn}: expected {name} of one sample, shape (1, 1, *), got "
+                             f"{tuple(v.shape)} (test each sample on its own)")
     if y_depth.shape != y_gated.shape or y_depth.shape[-1] < 8:
         raise ValueError(f"{fn}: expected y_depth and y_gated of one shape with >= 8 buckets, "
                          f"got {tuple(y_depth.shape)} and {tuple(y_gated.shape)}")
-    if d_depth.shape != d_gated.shape:
-        raise ValueError(f"{fn}: expected d_depth and d_gated of one shape, got "
-                         f"{tuple(d_depth.shape)} and {tuple(d_gated.shape)}")
+    if d_depth.shape != d_gated.shape or d_depth.shape[-1] < 1:
+        raise ValueError(f"{fn}: expected d_depth and d_gated of one shape with >= 1 "
+                         f"difference, got {tuple(d_depth.shape)} and {tuple(d_gated.shape)}")
+    for name, v in (("y_depth", y_depth), ("y_gated", y_gated), ("d_depth", d_depth),
+                    ("d_gated", d_gated)):
+        check_finite(v, name, fn)
     yu, yg = y_depth.flatten()[1:].double(), y_gated.flatten()[1:].double()
     a = float((yu @ yg) / (yg @ yg).clamp_min(1e-300))
     du, dg = d_depth.flatten().double(), d_gated.flatten().double()

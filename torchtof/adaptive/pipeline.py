@@ -13,7 +13,8 @@ and the reconstructor run to its own convergence.
    (:func:`~torchtof.adaptive.noise.noise_from_pair_sums`; biased up 1.0–1.25× on the depth
    buckets, README), re-estimated after every block, ``τ`` from its effective degrees of
    freedom. ``noise="repeat"``: the second block is measured twice (``repeat=True``,
-   ``block`` extra patterns, counted in ``patterns_used``) and
+   ``B = block`` extra patterns — fewer when the record ends inside the second block —
+   counted in ``patterns_used``) and
    ``σ̂² = ‖y_b − y'_b‖²/(2B)`` per bucket kind (not the first block: its all-on/dark pair
    is noisier or quieter than the rest). The pair sums are the default since the
    per-seed benchmark (README): with repeats the 32 extra patterns alone put the paper's
@@ -48,11 +49,13 @@ second (the paper's camera: 30–150 fps); compute is measured wall time.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 
 import torch
 
+from .._checks import check_bool, check_int, check_number, check_positive
 from .budget import MethodChoice, choose_method
 from .detect import (
     DarkReference,
@@ -71,11 +74,13 @@ from .noise import (
     variance_lower_factor,
 )
 from .progressive import ProgressiveResult, ProgressiveStop, run_progressive
-from .solvers import solve_at_noise
+from .solvers import SOLVERS, solve_at_noise
 
 __all__ = ["AdaptiveResult", "run_adaptive", "run_fixed", "signed_buckets"]
 
 DEFAULT_FPS = 30.0
+#: fewest repeated differences ``noise="repeat"`` estimates ``σ̂`` from (the smallest block).
+MIN_REPEATS = 4
 
 
 @dataclass
@@ -90,7 +95,8 @@ class AdaptiveResult:
             ``repeat_patterns`` of them spent on the noise estimate.
         acquisition_stop: why acquisition stopped.
         skipped: stages skipped, each with the reason; ``stages``: stages that ran.
-        veil, far: the detector outputs; ``noise_sigma``: ``σ̂`` of the buckets used.
+        veil, far: the detector outputs (``far.significance`` NaN: no noise level, the
+            far-background test not made); ``noise_sigma``: ``σ̂`` of the buckets used.
         acquisition_s, compute_s: frame time at ``fps`` and measured compute time.
         fixed: the fixed pipeline's result to compare with (``time_saved_s``).
     """
@@ -148,10 +154,41 @@ class AdaptiveResult:
         return "\n".join(lines)
 
 
+def _check_data(data, fn: str) -> int:
+    """``data`` an :class:`~torchtof.experiment.ExperimentData` (or a run with its fields);
+    returns its number of realisations."""
+    if not all(hasattr(data, a) for a in ("config", "buckets", "measurements", "operator",
+                                         "hadamard")) or not isinstance(data.buckets, dict):
+        raise TypeError(f"{fn}: expected data to be an ExperimentData, got "
+                        f"{type(data).__name__}")
+    need = ("depth", "depth_gated", "intensity")
+    if not all(k in data.buckets for k in need):
+        raise ValueError(f"{fn}: expected data.buckets with keys {need}, got "
+                         f"{sorted(data.buckets)}")
+    return int(data.buckets["depth"].shape[0])
+
+
+def _check_r(r, n_real: int, fn: str) -> None:
+    check_int(r, "r", fn)
+    if not 0 <= r < n_real:
+        raise ValueError(f"{fn}: expected r in [0, {n_real}), got {r}")
+
+
 def signed_buckets(data, r: int, sr: float | None = None) -> dict[str, torch.Tensor]:
     """The signed orthonormal buckets ``(1, 1, M)`` of realisation ``r`` at ``sr`` (default:
-    the largest) as :class:`ProgressiveStop` takes them."""
-    sr = sr or max(data.config.srs)
+    the largest) as :class:`ProgressiveStop` takes them.
+
+    Raises:
+        TypeError: ``data`` not an ``ExperimentData``, ``r`` not an int, ``sr`` not a number.
+        ValueError: ``r`` outside ``[0, R)``, ``sr`` outside ``(0, max SR]``.
+    """
+    fn = "signed_buckets"
+    _check_r(r, _check_data(data, fn), fn)
+    top = max(data.config.srs)
+    if sr is None:
+        sr = top
+    elif not 0.0 < check_number(sr, "sr", fn) <= top:
+        raise ValueError(f"{fn}: expected sr in (0, {top}] (the run's largest SR), got {sr}")
     out = {}
     for key, kind, gate in (("depth", "depth", False), ("gated", "depth", True),
                             ("intensity", "intensity", False)):
@@ -177,9 +214,29 @@ def _frames_s(patterns: int, fps: float) -> float:
     return 2 * patterns / fps  # one ToF frame per DMD pattern, two patterns per ±1 row
 
 
+def _check_common(data, r, method, fps, reference, fn: str) -> int:
+    n_real = _check_data(data, fn)
+    _check_r(r, n_real, fn)
+    if method is not None and method not in SOLVERS:
+        raise ValueError(f"{fn}: expected method in {SOLVERS} or None, got {method!r}")
+    check_positive(fps, "fps", fn)
+    if reference is not None and not isinstance(reference, DarkReference):
+        raise TypeError(f"{fn}: expected reference to be a DarkReference or None, got "
+                        f"{type(reference).__name__}")
+    return n_real
+
+
 def run_fixed(data, r: int = 0, method: str = "TVAL3", fps: float = DEFAULT_FPS,
               reference: DarkReference | None = None) -> AdaptiveResult:
-    """The fixed pipeline on realisation ``r`` (module docstring)."""
+    """The fixed pipeline on realisation ``r`` (module docstring).
+
+    Raises:
+        TypeError, ValueError: as :func:`run_adaptive` for ``data``, ``r``, ``method``
+            (``None`` not allowed), ``fps`` and ``reference``.
+    """
+    _check_common(data, r, method, fps, reference, "run_fixed")
+    if method is None:
+        raise ValueError(f"run_fixed: expected method in {SOLVERS}, got None")
     sr = max(data.config.srs)
     t0 = time.perf_counter()
     veil = detect_veil(_raw(data, r), reference or _reference(data), data.config.roi_px**2)
@@ -207,18 +264,26 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
 
     Args:
         data: :class:`~torchtof.experiment.ExperimentData` (a recorded or simulated run at
-            the maximum SR; smaller SRs are its prefixes). With ``repeat=True`` and more than
-            one realisation, the repeat of the first block is taken from realisation
-            ``r + 1`` (an independent draw of the same patterns).
-        r: realisation.
-        block: patterns per block.
-        method: reconstructor (``None``: TVAL3, or :func:`choose_method` with a budget).
-        time_budget_s, target_psnr: budget for :func:`choose_method`.
-        fps: ToF frames per second for the acquisition time.
+            the maximum SR; smaller SRs are its prefixes). With ``noise="repeat"``,
+            ``repeat=True`` and more than one realisation, the repeat of the second block
+            (patterns ``block`` to ``2·block − 1``, or to the end of the record if it is
+            shorter) is taken from realisation ``(r + 1) mod R`` (an independent draw of the
+            same patterns).
+        r: realisation (an int in ``[0, R)``).
+        block: patterns per block (an int ``>= 4``; with the repeats at least 4 patterns
+            must follow the first block: ``block <= M − 4``).
+        method: reconstructor, one of :data:`~torchtof.adaptive.SOLVERS` (``None``: TVAL3,
+            or :func:`choose_method` with a budget; a budget is ignored when ``method`` is
+            given).
+        time_budget_s, target_psnr: budget for :func:`choose_method` (``> 0``; finite).
+        fps: ToF frames per second for the acquisition time (``> 0``, finite).
         repeat: with ``noise="repeat"``, measure the second block twice for ``σ̂`` (else
-            estimate it from the blocks).
+            estimate it from the blocks; the far-background test, which needs a noise level,
+            is then not made, and says so in ``skipped``).
         reference: clear set-up dark frame (default: simulated for ``data.config``).
-        stop: a custom :class:`ProgressiveStop` (it reads its own ``kind``).
+        stop: a custom :class:`ProgressiveStop` for the record's ``n`` and order (it reads its
+            own ``kind``). A copy runs: the caller's stop is not changed; the copy's
+            ``noise_sigma``, if ``None``, is the pipeline's (``"pairs"`` or ``σ̂``).
         compare_fixed: also run :func:`run_fixed` and attach it.
         stop_kind: buckets the default stop reads: ``"auto"`` (default) the kind the gate
             test on the first 128 patterns chose; a fixed kind (``"depth"``: the ungated
@@ -240,32 +305,64 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         :class:`AdaptiveResult`.
 
     Raises:
-        ValueError: ``r`` out of range, unknown ``stop_kind`` or ``noise``, a level outside
-            ``(0, 1)``.
+        TypeError: ``data`` not an ``ExperimentData``, ``reference`` not a
+            :class:`DarkReference`, ``stop`` not a :class:`ProgressiveStop`, ``r`` or
+            ``block`` not an int, a flag not a bool, a number that is not one.
+        ValueError: ``r`` out of range, ``block < 4`` (or too large for the repeats), unknown
+            ``method``, ``stop_kind`` or ``noise``, a level outside ``(0, 1)``, ``fps`` or
+            ``time_budget_s`` not ``> 0``, a NaN/Inf target, a ``stop`` for another ``n`` or
+            order. All checked before any work.
     """
+    fn = "run_adaptive"
+    n_real = _check_common(data, r, method, fps, reference, fn)
     cfg = data.config
-    n_real = data.buckets["depth"].shape[0]
-    if not 0 <= r < n_real:
-        raise ValueError(f"run_adaptive: expected r in [0, {n_real}), got {r}")
+    check_int(block, "block", fn, lo=4)
+    if time_budget_s is not None:
+        if isinstance(time_budget_s, bool) or not isinstance(time_budget_s, (int, float)):
+            raise TypeError(f"{fn}: expected time_budget_s to be a number or None, got "
+                            f"{type(time_budget_s).__name__}")
+        if not time_budget_s > 0:  # NaN too
+            raise ValueError(f"{fn}: expected time_budget_s > 0, got {time_budget_s}")
+    if target_psnr is not None:
+        check_number(target_psnr, "target_psnr", fn)
+    for name, v in (("repeat", repeat), ("compare_fixed", compare_fixed),
+                    ("model_sigma", model_sigma)):
+        check_bool(v, name, fn)
+    if stop is not None:
+        if not isinstance(stop, ProgressiveStop):
+            raise TypeError(f"{fn}: expected stop to be a ProgressiveStop or None, got "
+                            f"{type(stop).__name__}")
+        if stop.n != cfg.n or stop.order != cfg.order:
+            raise ValueError(f"{fn}: expected a stop for the record's n = {cfg.n} and order "
+                             f"{cfg.order!r}, got n = {stop.n}, order {stop.order!r}")
     if stop_kind not in ("auto", "depth", "gated", "intensity"):
         raise ValueError(f"run_adaptive: expected stop_kind in ('auto', 'depth', 'gated', "
                          f"'intensity'), got {stop_kind!r}")
     if noise not in ("repeat", "pairs"):
         raise ValueError(f"run_adaptive: expected noise in ('repeat', 'pairs'), got {noise!r}")
     for name, v in (("gate_level", gate_level), ("disc_level", disc_level)):
-        if not 0.0 < float(v) < 1.0:
+        if not 0.0 < check_number(v, name, fn) < 1.0:
             raise ValueError(f"run_adaptive: expected {name} in (0, 1), got {v!r}")
+    pairs = noise == "pairs"
+    rep = (r + 1) % n_real if (repeat and n_real > 1 and not pairs) else None
+    big_m = data.hadamard.m
+    rep_end = min(2 * block, big_m)  # the second block, cut by the end of the record
+    n_rep = max(rep_end - block, 0) if rep is not None else 0  # repeated patterns measured
+    if rep is not None and n_rep < MIN_REPEATS:
+        raise ValueError(f"{fn}: noise='repeat' measures the second block (patterns block "
+                         f"to 2*block - 1) twice, but with block={block} and {big_m} patterns "
+                         f"{n_rep} are left to repeat; expected block <= {big_m - MIN_REPEATS} "
+                         f"(at least {MIN_REPEATS} repeats), or repeat=False")
     sr = max(cfg.srs)
     t0 = time.perf_counter()
     ref = reference or _reference(data)
     raw = _raw(data, r)
     veil = detect_veil(raw, ref, cfg.roi_px**2)
     sb = signed_buckets(data, r, sr)
-    # noise of the first block: repeated (independent realisation) or from the blocks
-    pairs = noise == "pairs"
-    rep = (r + 1) % n_real if (repeat and n_real > 1 and not pairs) else None
+    # noise of the second block: repeated (independent realisation) or from the blocks
     sb_rep = signed_buckets(data, rep, sr) if rep is not None else None
-    if pairs:  # the pair sums (y⁺ + y⁻)/n of every kind, read by the stop as "<kind>_sum"
+    stop_pairs = stop is not None and isinstance(stop.noise_sigma, str)
+    if pairs or stop_pairs:  # the pair sums (y⁺ + y⁻)/n of every kind, read as "<kind>_sum"
         n_pat = sb["depth"].shape[-1]
         for k, key in (("depth", "depth"), ("gated", "depth_gated"), ("intensity", "intensity")):
             sb[f"{k}_sum"] = pair_sums(data.buckets[key][r : r + 1, :, : 2 * n_pat], cfg.n)
@@ -275,11 +372,17 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
             return float(noise_from_pair_sums(sb[f"{kind}_sum"][..., : m_est or 2 * block]))
         if sb_rep is None:
             return None
-        d = sb[kind][..., block : 2 * block] - sb_rep[kind][..., block : 2 * block]
-        return float((d.pow(2).sum() / (2 * block)).sqrt())
+        d = sb[kind][..., block:rep_end] - sb_rep[kind][..., block:rep_end]
+        return float((d.pow(2).sum() / (2 * n_rep)).sqrt())
 
-    far = detect_far_background(raw, (sigma_of("intensity") or 1e-12) * cfg.n)
     skipped, stages = [], []
+    sigma_i = sigma_of("intensity")
+    if sigma_i is None:  # no noise level: |ΔS| cannot be judged significant, no test
+        far = detect_far_background(raw, None)
+        skipped.append("far-background test (no noise level: noise='repeat' without a "
+                       "repeated block)")
+    else:  # (σ̂ = 0 exactly, noise-free buckets: any change is significant)
+        far = detect_far_background(raw, (sigma_i or 1e-12) * cfg.n)
     auto = stop is None and stop_kind == "auto"
     gate_test = None
 
@@ -289,7 +392,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
             # correlated differences (lag-one −1/2): their mean square has ν ≈ 0.67 K dof
             g_dof = pair_noise_dof(d["depth"].shape[-1], robust=False)
         else:
-            d = {k: sb[k][..., block : 2 * block] - sb_rep[k][..., block : 2 * block]
+            d = {k: sb[k][..., block:rep_end] - sb_rep[k][..., block:rep_end]
                  for k in ("depth", "gated")}
             g_dof = None
         return gate_changes_image(sb["depth"][..., :m_test], sb["gated"][..., :m_test],
@@ -302,10 +405,14 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     s_kind = (("gated" if early_gate else "depth") if auto else
               stop_kind if stop is None else stop.kind)
     s_sigma = "pairs" if pairs else sigma_of(s_kind)
-    stopper = stop or ProgressiveStop(cfg.n, block=block, noise_sigma=s_sigma,
-                                      order=cfg.order, kind=s_kind)
-    if stop is not None and stop.noise_sigma is None:
-        stopper.noise_sigma = s_sigma
+    if stop is None:
+        stopper = ProgressiveStop(cfg.n, block=block, noise_sigma=s_sigma, order=cfg.order,
+                                  kind=s_kind)
+    else:  # the caller's stop is left as it is: a copy, reset, runs
+        stopper = copy.copy(stop)
+        stopper.reset()
+        if stopper.noise_sigma is None:
+            stopper.noise_sigma = s_sigma
     prog = run_progressive(sb, stopper)
     m = prog.m
     if not auto and has_noise:  # the stop did not depend on it: test all m patterns
@@ -328,7 +435,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     # 4. Morozov's bound at the lower confidence limit of σ̂² (χ² with B degrees of freedom):
     # an over-estimated σ̂ would stop the solver before it fits the signal
     # pairs: K = m − 2 differences (the all-on pair skipped), MAD: ν ≈ 0.31 K (pair_noise_dof)
-    dof = pair_noise_dof(m - 2) if pairs else block
+    dof = pair_noise_dof(m - 2) if pairs else n_rep
     tau = variance_lower_factor(dof, disc_level) if sigma is not None else 1.0
     choice = None
     if method is None:
@@ -345,7 +452,6 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                          model_sigma=model_sigma)
     image = sol.x / veil.alpha if veil.present else sol.x
     dt = time.perf_counter() - t0
-    n_rep = block if rep is not None else 0
     res = AdaptiveResult(
         image=image, kind=kind, polarity="positive" if gate else "negative", method=method,
         n_iter=int(sol.n_iter[0, 0]), solver_stop=sol.stop_reason[0][0], patterns_used=m + n_rep,

@@ -69,7 +69,16 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .._checks import check_finite, check_positive, check_tensor
+from .._checks import (
+    check_broadcast,
+    check_finite,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_real,
+    check_tensor,
+)
+from ..operators.patterns import ORDERS, check_n_order
 from .noise import noise_from_blocks, noise_from_pair_sums
 
 __all__ = ["PROGRESSIVE_RULES", "BUCKET_KINDS", "ProgressiveStop", "ProgressiveResult",
@@ -85,17 +94,62 @@ def block_statistics(y: torch.Tensor, block: int, noise_sigma: torch.Tensor | fl
     """Per-block statistics of the rules in the module docstring (functional core).
 
     Args:
-        y: signed orthonormal-Hadamard buckets ``(B, C, M)`` in acquisition order.
-        block: block length.
-        noise_sigma: ``σ`` (float or ``(B, C)``).
-        n: image side (needed for ``"energy"``; ``None`` skips it).
+        y: signed orthonormal-Hadamard buckets ``(B, C, M)`` in acquisition order (real
+            floating point, finite).
+        block: block length (an int ``>= 1``).
+        noise_sigma: ``σ >= 0`` (a number, or a tensor broadcastable to ``(B, C)``).
+        n: image side (needed for ``"energy"``; ``None`` skips it), a power of two with
+            ``M <= n²``.
         order: Hadamard order of the patterns (its first row must be the constant one).
 
     Returns:
         ``"m"`` ``(K,)`` patterns after each block, ``"change"`` ``(B, C, K)`` debiased
         relative change ``r_b``, ``"captured"`` ``(B, C, K)`` debiased captured energy and,
         with ``n``, ``"fraction"`` ``(B, C, K)``: captured energy over the Hölder bound.
+
+    Raises:
+        TypeError: ``y`` not a real floating-point tensor, ``block`` or ``n`` not an int,
+            ``noise_sigma`` neither a number nor a real floating-point tensor.
+        ValueError: ``y`` not ``(B, C, M >= 1)`` or with NaN/Inf, ``block < 1``,
+            ``noise_sigma`` negative, NaN/Inf or not broadcastable to ``(B, C)``, ``n`` not a
+            power of two in range or ``M > n²``, unknown ``order``.
     """
+    fn = "block_statistics"
+    check_real(y, "y", fn)
+    if y.ndim != 3 or y.shape[-1] < 1:
+        raise ValueError(f"{fn}: expected y of shape (B, C, M >= 1), got {tuple(y.shape)}")
+    check_int(block, "block", fn, lo=1)
+    if order not in ORDERS:
+        raise ValueError(f"{fn}: expected order in {ORDERS}, got {order!r}")
+    if n is not None:
+        check_n_order(n, order, fn)
+        if y.shape[-1] > n * n:
+            raise ValueError(f"{fn}: expected at most n² = {n * n} buckets for n = {n}, got "
+                             f"M = {y.shape[-1]} (the n of another record?)")
+    _check_sigma(noise_sigma, fn, tuple(y.shape[:-1]))
+    check_finite(y, "y", fn)
+    return _block_statistics(y, block, noise_sigma, n, order)
+
+
+def _check_sigma(noise_sigma, fn: str, shape: tuple | None = None) -> None:
+    """``noise_sigma`` a number ``>= 0`` or a real tensor ``>= 0`` (broadcastable to
+    ``shape`` when given), finite."""
+    if isinstance(noise_sigma, torch.Tensor):
+        check_real(noise_sigma, "noise_sigma", fn)
+        if shape is not None:
+            check_broadcast(noise_sigma, shape, "noise_sigma", fn, "(B, C)")
+        elif noise_sigma.ndim > 2:
+            raise ValueError(f"{fn}: expected noise_sigma broadcastable to (B, C), got shape "
+                             f"{tuple(noise_sigma.shape)}")
+        check_finite(noise_sigma, "noise_sigma", fn)
+        check_nonnegative(noise_sigma, "noise_sigma", fn)
+    else:
+        check_positive(noise_sigma, "noise_sigma", fn, strict=False)
+
+
+def _block_statistics(y: torch.Tensor, block: int, noise_sigma, n: int | None,
+                      order: str) -> dict[str, torch.Tensor]:
+    """:func:`block_statistics` without the checks (inputs checked by the caller)."""
     m = y.shape[-1]
     ends = list(range(block, m + 1, block))
     if not ends or ends[-1] != m:
@@ -132,7 +186,8 @@ class ProgressiveStop:
     beyond the noise (module docstring).
 
     Args:
-        n: image side (DMD grid ``n × n``).
+        n: image side (DMD grid ``n × n``), a power of two in ``[4, 256]``: the ``n`` of the
+            record (the rule's operators are ``Hadamard(n, m, order)``).
         block: patterns per block (the caller's block).
         rule: ``"innovation"`` (default), ``"change"`` or ``"energy"``.
         kind: which buckets the rule reads (``"gated"``, ``"depth"`` or ``"intensity"``).
@@ -141,7 +196,8 @@ class ProgressiveStop:
         tol: ``"change"``: stop when ``r_b < tol``.
         patience: consecutive explained (``"innovation"``) or small (``"change"``) blocks.
         target: ``"energy"``: captured fraction of the energy bound, in ``(0, 1]``.
-        noise_sigma: known noise std of the buckets; ``"pairs"``: estimated from the pair
+        noise_sigma: known noise std of the buckets (a number, or a tensor broadcastable to
+            the buckets' ``(B, C)``; ``>= 0``, finite); ``"pairs"``: estimated from the pair
             sums ``buckets[kind + "_sum"]`` after every block; ``None``: from the blocks.
         min_patterns: never stop before this many patterns (at least two blocks).
         recon: cheap reconstruction of ``"innovation"``: ``"tv"`` (TVAL3) or ``"pinv"``.
@@ -152,8 +208,10 @@ class ProgressiveStop:
             ``reason``).
 
     Raises:
-        ValueError: bad configuration; at call time buckets without ``kind``, of a wrong shape,
-            or with NaN/Inf.
+        TypeError, ValueError: bad configuration (checked at construction, ``noise_sigma``
+            also whenever it is set); at call time buckets without ``kind``, of a wrong shape,
+            with NaN/Inf or with more than ``n²`` patterns, a tensor ``noise_sigma`` that does
+            not broadcast to their ``(B, C)``.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -171,8 +229,7 @@ class ProgressiveStop:
                  noise_sigma: float | torch.Tensor | None = None, min_patterns: int = 128,
                  recon: str = "tv", order: str = "cake_cutting") -> None:
         fn = "ProgressiveStop"
-        if isinstance(n, bool) or not isinstance(n, int) or n < 2:
-            raise ValueError(f"{fn}: expected n to be an int >= 2, got {n!r}")
+        check_n_order(n, order, fn)
         if isinstance(block, bool) or not isinstance(block, int) or block < 4:
             raise ValueError(f"{fn}: expected block to be an int >= 4, got {block!r}")
         if rule not in PROGRESSIVE_RULES:
@@ -188,22 +245,33 @@ class ProgressiveStop:
             raise ValueError(f"{fn}: expected patience to be an int >= 1, got {patience!r}")
         if not 0.0 < float(target) <= 1.0:
             raise ValueError(f"{fn}: expected target in (0, 1], got {target}")
-        if isinstance(noise_sigma, str):
-            if noise_sigma != "pairs":
-                raise ValueError(f"{fn}: expected noise_sigma to be a number, a tensor, 'pairs' "
-                                 f"or None, got {noise_sigma!r}")
-        elif noise_sigma is not None and not isinstance(noise_sigma, torch.Tensor):
-            check_positive(noise_sigma, "noise_sigma", fn, strict=False)
         if isinstance(min_patterns, bool) or not isinstance(min_patterns, int) or min_patterns < 0:
             raise ValueError(f"{fn}: expected min_patterns to be an int >= 0, got {min_patterns!r}")
         self.n, self.block, self.rule, self.kind, self.recon = n, block, rule, kind, recon
         self.z, self.tol, self.patience, self.target = float(z), float(tol), patience, float(target)
         self.snr = float(snr)
-        self.noise_sigma, self.order = noise_sigma, order
+        self.noise_sigma, self.order = noise_sigma, order  # noise_sigma: checked by its setter
         self.min_patterns = max(min_patterns, 2 * block)
         self.last: dict = {}
         self._streak = 0
         self._cache: tuple | None = None  # (kind, m, first-bucket checksum, x̂)
+
+    @property
+    def noise_sigma(self) -> float | torch.Tensor | str | None:
+        """Known ``σ`` (a number or a tensor broadcastable to ``(B, C)``, ``>= 0``), ``"pairs"``
+        or ``None`` (class docstring); checked whenever it is set."""
+        return self._noise_sigma
+
+    @noise_sigma.setter
+    def noise_sigma(self, value) -> None:
+        fn = "ProgressiveStop"
+        if isinstance(value, str):
+            if value != "pairs":
+                raise ValueError(f"{fn}: expected noise_sigma to be a number, a tensor, 'pairs' "
+                                 f"or None, got {value!r}")
+        elif value is not None:
+            _check_sigma(value, fn)
+        self._noise_sigma = value
 
     def _sigma(self, y: torch.Tensor, buckets: dict) -> torch.Tensor:
         if self.noise_sigma is None:
@@ -241,8 +309,13 @@ class ProgressiveStop:
         if y.ndim != 3 or y.shape[-1] < 1:
             raise ValueError(f"{fn}: expected buckets[{self.kind!r}] of shape (B, C, m >= 1), "
                              f"got {tuple(y.shape)}")
-        check_finite(y, f"buckets[{self.kind!r}]", fn)
         m, bsz = y.shape[-1], self.block
+        if m > self.n * self.n:
+            raise ValueError(f"{fn}: buckets[{self.kind!r}] hold {m} patterns, more than the "
+                             f"n² = {self.n * self.n} of n = {self.n} (the n of another record?)")
+        if isinstance(self.noise_sigma, torch.Tensor):
+            check_broadcast(self.noise_sigma, tuple(y.shape[:-1]), "noise_sigma", fn, "(B, C)")
+        check_finite(y, f"buckets[{self.kind!r}]", fn)
         if m <= self.last.get("m", 0):  # not a continuation of the last call: a new acquisition
             self.reset()
         self.last = {"m": m, "reason": None}
@@ -270,8 +343,8 @@ class ProgressiveStop:
                     f"last {self._streak} block(s) predicted by the {self.recon} image: "
                     f"rho {float(rho.max()):.2f} <= 1 + {self.snr:g} + {self.z:g}*sqrt(2/B)")
             return done
-        st = block_statistics(y, bsz, sigma, self.n if self.rule == "energy" else None,
-                              self.order)
+        st = _block_statistics(y, bsz, sigma, self.n if self.rule == "energy" else None,
+                               self.order)
         if self.rule == "change":
             r = st["change"][..., -1]
             self.last["change"] = float(r.max())
@@ -314,24 +387,41 @@ def run_progressive(buckets: dict[str, torch.Tensor], stop: ProgressiveStop,
     Args:
         buckets: signed buckets ``(1, 1, M)`` per kind (``"depth"``, ``"gated"``, ``"intensity"``;
             only ``stop.kind`` is required).
-        stop: the rule.
-        block: block length (default ``stop.block``).
+        stop: the rule (a :class:`ProgressiveStop`; it is reset first and its ``last`` holds
+            the statistics of the last block afterwards).
+        block: block length, an int ``>= 1`` (``None``: ``stop.block``).
 
     Returns:
         :class:`ProgressiveResult`.
 
     Raises:
-        ValueError: buckets of different lengths or not ``(B, C, M)``.
+        TypeError: ``buckets`` not a dict of tensors, ``stop`` not a :class:`ProgressiveStop`,
+            ``block`` not an int.
+        ValueError: buckets of different lengths or not ``(B, C, M)``, without
+            ``stop.kind``, more than ``stop.n²`` patterns; ``block < 1``.
     """
     fn = "run_progressive"
     if not isinstance(buckets, dict) or not buckets:
-        raise ValueError(f"{fn}: expected a non-empty dict of bucket tensors")
+        raise TypeError(f"{fn}: expected a non-empty dict of bucket tensors, got "
+                        f"{type(buckets).__name__ if not isinstance(buckets, dict) else '{}'}")
+    for k, v in buckets.items():
+        check_tensor(v, f"buckets[{k!r}]", fn)
+    if not isinstance(stop, ProgressiveStop):
+        raise TypeError(f"{fn}: expected stop to be a ProgressiveStop, got {type(stop).__name__}")
+    if block is not None:
+        check_int(block, "block", fn, lo=1)
     lens = {v.shape[-1] for v in buckets.values()}
     if len(lens) != 1 or any(v.ndim != 3 for v in buckets.values()):
         raise ValueError(f"{fn}: expected buckets of shape (B, C, M) with one M, got "
                          f"{ {k: tuple(v.shape) for k, v in buckets.items()} }")
+    if stop.kind not in buckets:
+        raise ValueError(f"{fn}: expected buckets with the stop's kind {stop.kind!r}, got "
+                         f"{sorted(buckets)}")
     big_m = lens.pop()
-    block = block or stop.block
+    if big_m > stop.n * stop.n:
+        raise ValueError(f"{fn}: the buckets hold {big_m} patterns, more than the n² = "
+                         f"{stop.n * stop.n} of the stop's n = {stop.n} (the n of another record?)")
+    block = stop.block if block is None else block
     stop.reset()
     history = []
     for m in list(range(block, big_m, block)) + [big_m]:

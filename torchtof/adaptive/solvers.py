@@ -21,6 +21,10 @@ further only fits the noise. ``σ`` comes from repeated frames
   an over-estimate does not stop the solver before it fits the signal; ``model_sigma=False``
   keeps ``σ`` out of TVAL3's ``mu="auto"`` model choice (the residual bound only).
 - **PINV** (``"direct"``) and the unrolled TVAL3 (``"fixed"``) have no iterations to stop.
+- ``σ = 0`` means noise-free data, for every method: TVAL3 gets the published
+  equality-constrained model (``μ_auto → ∞``, with ``model_sigma``) and a zero bound, met only
+  by an exact fit; BP solves the exact constraint ``Ax = y`` (``eps=None``); the DIP runs
+  without an early stop (``max_iter`` steps); PINV and the unrolled TVAL3 ignore ``σ``.
 """
 
 from __future__ import annotations
@@ -31,6 +35,16 @@ from typing import NamedTuple
 
 import torch
 
+from .._checks import (
+    check_bool,
+    check_broadcast,
+    check_finite,
+    check_int,
+    check_nonnegative,
+    check_number,
+    check_positive,
+    check_real,
+)
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
 from ..recon import registry
@@ -74,13 +88,14 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
         method: one of :data:`SOLVERS`.
         y: buckets ``(B, C, M)``.
         A: the orthonormal operator of ``y``.
-        noise_sigma: noise std of ``y`` (float or ``(B, C)``); ``None``: no discrepancy stop
-            (each solver's own defaults).
-        max_iter: iteration cap (``None``: the solver's default; the unrolled TVAL3: its
-            number of layers).
-        sign: ``-1`` for negative-polarity buckets (the DIP fits ``−y``, see
+        noise_sigma: noise std of ``y``, ``>= 0`` and finite (a number, or a tensor
+            broadcastable to ``(B, C)``); ``0``: noise-free data (module docstring);
+            ``None``: no discrepancy stop (each solver's own defaults).
+        max_iter: iteration cap, an int ``>= 1`` (``None``: the solver's default; the
+            unrolled TVAL3: its number of layers).
+        sign: ``1``, or ``-1`` for negative-polarity buckets (the DIP fits ``−y``, see
             :mod:`torchtof.methods`).
-        seed: DIP initialisation seed.
+        seed: DIP initialisation seed (an int).
         tau: Morozov's factor of the TVAL3 and BP bounds, ``‖Ax − y‖² ≤ τ M σ²`` (``τ < 1``:
             a lower confidence limit of ``σ̂²``, see
             :func:`~torchtof.adaptive.noise.variance_lower_factor`); the DIP keeps its own.
@@ -96,7 +111,13 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
         :class:`SolveResult`.
 
     Raises:
-        ValueError: unknown method, ``y`` not ``(B, C, M)``.
+        TypeError: ``y`` not a real floating-point tensor, ``A`` not a
+            :class:`~torchtof.operators.LinearOperator`, ``max_iter`` or ``seed`` not an int,
+            ``noise_sigma`` or ``tau`` not a number (or tensor), ``model_sigma`` not a bool.
+        ValueError: unknown method, ``y`` not ``(B, C, M)``, ``noise_sigma`` negative, NaN/Inf
+            or not broadcastable to ``(B, C)``, ``max_iter < 1``, ``tau`` not ``> 0`` and
+            finite, ``sign`` not ``±1``; the solvers' own checks (``M = A.m``, NaN/Inf in
+            ``y``).
     """
     from ..recon import PseudoInverse, UnrolledTVAL3, basis_pursuit, tval3
     from ..recon.dip import fit_dip
@@ -109,12 +130,27 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
     n_iter = renamed_option(fn, "n_iter", "max_iter", n_iter, max_iter, None)
     if method not in SOLVERS:
         raise ValueError(f"{fn}: expected method in {SOLVERS}, got {method!r}")
-    if not float(tau) > 0.0:
-        raise ValueError(f"{fn}: expected tau > 0, got {tau!r}")
+    check_positive(tau, "tau", fn)
     if not isinstance(y, torch.Tensor) or y.ndim != 3:
         raise ValueError(f"{fn}: expected y of shape (B, C, M), got "
                          f"{tuple(y.shape) if isinstance(y, torch.Tensor) else type(y)}")
+    check_real(y, "y", fn)
+    if not isinstance(A, LinearOperator):
+        raise TypeError(f"{fn}: expected A to be a LinearOperator, got {type(A).__name__}")
+    if n_iter is not None:
+        check_int(n_iter, "max_iter", fn, lo=1)
+    if check_number(sign, "sign", fn) not in (1.0, -1.0):
+        raise ValueError(f"{fn}: expected sign 1 or -1, got {sign}")
+    check_int(seed, "seed", fn)
+    check_bool(model_sigma, "model_sigma", fn)
     b, c, m = y.shape
+    if isinstance(noise_sigma, torch.Tensor):
+        check_real(noise_sigma, "noise_sigma", fn)
+        check_broadcast(noise_sigma, (b, c), "noise_sigma", fn, "(B, C)")
+        check_finite(noise_sigma, "noise_sigma", fn)
+        check_nonnegative(noise_sigma, "noise_sigma", fn)
+    elif noise_sigma is not None:
+        check_positive(noise_sigma, "noise_sigma", fn, strict=False)
     conv = None  # TVAL3, BP: their own flag; else: not stopped by the iteration cap
     sig = None if noise_sigma is None else _per_sample(noise_sigma, (b, c)).to(y.dtype)
     if y.device.type == "cuda":  # time the work, not its launch
@@ -144,9 +180,11 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
             if sig is None:
                 res = basis_pursuit(y, A, eps=eps, **kw, return_result=True)
             else:  # per-sample radius: solve the samples one by one (eps is a float)
+                # σ = 0: noise-free, the exact constraint Ax = y (eps=None)
+                radii = ((tau * m) ** 0.5 * sig).tolist()  # one host read for all samples
                 outs = [basis_pursuit(y[i : i + 1, j : j + 1], A,
-                                      eps=float((tau * m) ** 0.5 * sig[i, j]), **kw,
-                                      return_result=True)
+                                      eps=float(radii[i][j]) if radii[i][j] > 0 else None,
+                                      **kw, return_result=True)
                         for i in range(b) for j in range(c)]
                 res = type(outs[0])(*(torch.cat([o[k] for o in outs]).reshape(
                     (b, c) + tuple(outs[0][k].shape[2:])) for k in range(4)))
@@ -162,12 +200,17 @@ def solve_at_noise(method: str, y: torch.Tensor, A, noise_sigma=None,
             for j in range(c):
                 yi = sign * y[i : i + 1, j : j + 1]
                 kw = dict(max_iter=steps, seed=seed)
-                if sig is not None:
-                    kw.update(early_stop="discrepancy", noise_sigma=float(sig[i, j]))
+                s_ij = None if sig is None else float(sig[i, j])
+                if s_ij == 0.0:  # noise-free: no early stop, fit for max_iter steps
+                    kw.update(early_stop=None)
+                elif s_ij is not None:
+                    kw.update(early_stop="discrepancy", noise_sigma=s_ij)
                 r = fit_dip(yi, A, **kw)
                 xr.append(sign * r.x_cal.detach())
                 ir.append(r.n_iter)
-                if sig is None:
+                if s_ij == 0.0:
+                    rr.append("max_iter")
+                elif sig is None:
                     rr.append("wmv" if r.n_iter < steps else "max_iter")
                 else:
                     res2 = float(((A(r.x_cal) - yi) ** 2).sum())
