@@ -193,6 +193,8 @@ class ExperimentConfig:
             raise ValueError(f"{func}: expected at least one sampling rate in srs, got {self.srs}")
         for sr in self.srs:
             check_in_range(sr, 0.0, 1.0, "srs", func, lo_open=True)
+        if len(set(self.srs)) != len(self.srs):
+            raise ValueError(f"{func}: expected distinct sampling rates in srs, got {self.srs}")
         if self.roi_px < self.n:
             raise ValueError(f"{func}: expected roi_px >= n ({self.n}), got {self.roi_px}")
         return self
@@ -369,17 +371,22 @@ class ExperimentData:
         """Interleaved DMD buckets ``(R, C, 2M)`` at ``sr`` (``gate`` selects the gated depth).
 
         Raises:
-            ValueError: an unknown ``kind``, or ``gate=True`` with a kind other than
-                ``"depth"`` (the depth gate applies to the depth buckets only).
+            TypeError: ``gate`` is not a bool.
+            ValueError: an unknown ``kind``, ``gate=True`` with a kind other than
+                ``"depth"`` (the depth gate applies to the depth buckets only), or an ``sr``
+                above the largest one the run acquired.
         """
+        _check_kind_gate(kind, gate)
         key = "depth_gated" if (kind == "depth" and gate) else kind
-        if key not in self.buckets:
-            raise ValueError(f"ExperimentData: expected kind in ('depth', 'intensity', 'taps'), "
-                             f"got {kind!r}")
         if gate and kind != "depth":
             raise ValueError(f"ExperimentData: gate=True applies to the depth buckets only (the "
                              f"{self.config.gate_m:g} m depth gate), got kind={kind!r}")
-        return self.buckets[key][..., : 2 * self.m(sr)]
+        m = self.m(sr)
+        if m > self.hadamard.m:
+            raise ValueError(
+                f"ExperimentData: sr={sr} needs {m} patterns, the run acquired {self.hadamard.m}"
+            )
+        return self.buckets[key][..., : 2 * m]
 
     def measurements(self, sr: float, kind: str = "depth", gate: bool = False):
         """``(A, y)``: the ±1 operator and ``y = (y⁺ − y⁻)/n`` ``(R, C, M)`` at ``sr``
@@ -389,7 +396,20 @@ class ExperimentData:
 
     def polarity(self, gate: bool, kind: str = "depth") -> str:
         """Physics polarity of images from these buckets (paper §3.1): ungated depth → negative."""
+        _check_kind_gate(kind, gate)
         return "negative" if (kind == "depth" and not gate) else "positive"
+
+
+#: The bucket kinds of :meth:`ExperimentData.split_buckets` (``"depth_gated"`` is ``"depth"``
+#: with ``gate=True``).
+KINDS = ("depth", "intensity", "taps")
+
+
+def _check_kind_gate(kind: object, gate: object) -> None:
+    if not isinstance(gate, bool):
+        raise TypeError(f"ExperimentData: expected gate to be a bool, got {type(gate).__name__}")
+    if kind not in KINDS:
+        raise ValueError(f"ExperimentData: expected kind in {KINDS}, got {kind!r}")
 
 
 class PaperExperiment:
@@ -436,7 +456,7 @@ class PaperExperiment:
         cfg = self.config
         func = "PaperExperiment.run"
         _check_int(realisations, "realisations", func, lo=1)
-        _check_int(seed, "seed", func)
+        _check_int(seed, "seed", func, lo=-(2**63), hi=2**64 - 1)  # torch.Generator's range
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"{func}: expected dtype torch.float32 or torch.float64, got {dtype}")
         t0 = time.perf_counter()

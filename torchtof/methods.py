@@ -113,6 +113,7 @@ def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: s
         spec = registry.get(name)
     except (ValueError, TypeError):
         raise ValueError(f"build_method: expected name in {tuple(METHODS)}, got {name!r}") from None
+    _check_data(data, "build_method")
     if weights is None:
         return _build(spec, data, sr, gate, kind, **options)
     if spec.label not in WEIGHTS_OPTION:
@@ -123,6 +124,12 @@ def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: s
                         f"{type(weights).__name__}")
     return _build(spec, data, sr, gate, kind, _weights=(WEIGHTS_OPTION[spec.label], weights),
                   **options)
+
+
+def _check_data(data: object, func: str) -> None:
+    if not isinstance(data, ExperimentData):
+        raise TypeError(f"{func}: expected data to be an ExperimentData (PaperExperiment.run), "
+                        f"got {type(data).__name__}")
 
 
 def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
@@ -136,6 +143,9 @@ def _scores(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str,
 
 def score_image(img: torch.Tensor, data: ExperimentData, polarity: str) -> dict[str, float]:
     """Mean ± std PSNR/SSIM of ``img`` (one image per realisation) against the object."""
+    _check_data(data, "score_image")
+    if not isinstance(img, torch.Tensor):
+        raise TypeError(f"score_image: expected img to be a torch.Tensor, got {type(img).__name__}")
     return _scores(img, data, polarity)
 
 
@@ -157,6 +167,15 @@ def evaluate(
     """Run and score ``methods`` at ``sr``; returns (rows, images) — rows hold mean ± std over
     the realisations and the wall time of the whole batch. ``options[name]`` are constructor
     keyword arguments of that method (e.g. ``{"DIP": {"max_iter": 100}}``)."""
+    func = "evaluate"
+    _check_data(data, func)
+    if isinstance(methods, str) or not all(isinstance(m, str) for m in methods):
+        raise TypeError(f"{func}: expected methods to be a sequence of method names, got "
+                        f"{methods!r}")
+    if options is not None and not (isinstance(options, dict) and all(
+            isinstance(v, dict) for v in options.values())):
+        raise TypeError(f"{func}: expected options to be a dict of name -> dict of constructor "
+                        f"options, got {options!r}")
     rows, images = [], {}
     polarity = data.polarity(gate, kind)
     for name in methods:

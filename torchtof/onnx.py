@@ -49,6 +49,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ._checks import check_bool, check_positive
 from ._optional import require
 from .recon.depth import DepthResolved
 
@@ -129,11 +130,51 @@ class DepthAmplitude(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # export and check
 # ---------------------------------------------------------------------------------------------
-def _as_tuple(inputs: torch.Tensor | Sequence[torch.Tensor]) -> tuple[torch.Tensor, ...]:
-    t = (inputs,) if isinstance(inputs, torch.Tensor) else tuple(inputs)
+def _as_tuple(inputs: torch.Tensor | Sequence[torch.Tensor], func: str = "export",
+              name: str = "example_inputs") -> tuple[torch.Tensor, ...]:
+    if isinstance(inputs, torch.Tensor):
+        return (inputs,)
+    t = tuple(inputs) if isinstance(inputs, Sequence) else ()
     if not t or not all(isinstance(i, torch.Tensor) for i in t):
-        raise TypeError("expected example inputs as a tensor or a non-empty sequence of tensors")
+        raise TypeError(f"{func}: expected {name} as a tensor or a non-empty sequence of "
+                        f"tensors, got {type(inputs).__name__}")
     return t
+
+
+def _onnx_file(path: object, func: str, must_exist: bool) -> Path:
+    """``path`` as a Path: TypeError unless path-like, ValueError for a folder (or, with
+    ``must_exist``, a missing file)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"{func}: expected path to be a str or os.PathLike, got "
+                        f"{type(path).__name__}")
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{func}: expected path to be an .onnx file, got the folder {p}")
+    if must_exist and not p.is_file():
+        raise ValueError(f"{func}: expected path to be an existing .onnx file, got {p}")
+    return p
+
+
+def _names(names: object, name: str, func: str) -> list[str] | None:
+    if names is None:
+        return None
+    if isinstance(names, str) or not isinstance(names, (tuple, list)) or not all(
+            isinstance(v, str) for v in names):
+        raise TypeError(f"{func}: expected {name} to be a sequence of str, got {names!r}")
+    return list(names)
+
+
+@contextlib.contextmanager
+def _eval_mode(module: nn.Module):
+    """``module`` in eval mode; every submodule's own training flag restored afterwards
+    (``module.train(flag)`` would overwrite a submodule deliberately left in another mode)."""
+    flags = [(m, m.training) for m in module.modules()]
+    module.eval()
+    try:
+        yield
+    finally:
+        for m, flag in flags:
+            m.training = flag
 
 
 def _flat_outputs(out: object) -> tuple[torch.Tensor, ...]:
@@ -188,7 +229,7 @@ def export(
 
     The module is run once eagerly on ``example_inputs`` first (the eager input checks,
     skipped while tracing, validate them, and caches are filled with real tensors), then
-    exported in ``eval`` mode (its training flag is restored afterwards).
+    exported in ``eval`` mode (every submodule's training flag is restored afterwards).
 
     Args:
         module: the model; ``forward`` takes tensors and returns a tensor or a tuple.
@@ -205,8 +246,10 @@ def export(
         The path written.
 
     Raises:
-        TypeError: ``module`` is not an ``nn.Module`` or inputs are not tensors.
-        ValueError: an adaptive solver inside ``module`` (the message says what to pass),
+        TypeError: ``module`` is not an ``nn.Module``, inputs are not tensors, ``path`` is
+            not path-like, ``dynamic_batch`` is not a bool or names are not strings.
+        ValueError: ``path`` is a folder, example inputs of different batch sizes with
+            ``dynamic_batch``, an adaptive solver inside ``module`` (the message says what to pass),
             unknown ``exporter``, an opset other than 17/18, a batch of 1 with
             ``dynamic_batch``, or names of the wrong length.
         onnx.checker.ValidationError: the written file is not valid ONNX.
@@ -230,17 +273,24 @@ def export(
     if exporter not in EXPORTERS:
         raise ValueError(f"{func}: expected exporter in {EXPORTERS}, got {exporter!r}")
     opset = DEFAULT_OPSET if opset is None else opset
-    if opset not in (17, 18):
+    if isinstance(opset, bool) or not isinstance(opset, int) or opset not in (17, 18):
         raise ValueError(f"{func}: expected opset 17 or 18, got {opset!r}")
+    check_bool(dynamic_batch, "dynamic_batch", func)
+    input_names = _names(input_names, "input_names", func)
+    output_names = _names(output_names, "output_names", func)
+    path = _onnx_file(path, func, must_exist=False)
     inputs = _as_tuple(example_inputs)
     if dynamic_batch and any(t.ndim == 0 or t.shape[0] == 1 for t in inputs):
         raise ValueError(
             f"{func}: expected example inputs with a batch axis of size > 1 for dynamic_batch "
             f"(a batch of 1 is specialised), got shapes {[tuple(t.shape) for t in inputs]}"
         )
-    training = module.training
-    module.eval()
-    try:
+    if dynamic_batch and len({t.shape[0] for t in inputs}) > 1:
+        raise ValueError(
+            f"{func}: expected example inputs of one batch size for dynamic_batch (one shared "
+            f"batch axis), got shapes {[tuple(t.shape) for t in inputs]}"
+        )
+    with _eval_mode(module):
         with torch.no_grad():
             outs = _flat_outputs(module(*inputs))
         in_names = list(input_names or [f"input_{i}" for i in range(len(inputs))])
@@ -250,7 +300,6 @@ def export(
                 f"{func}: expected {len(inputs)} input and {len(outs)} output names, got "
                 f"{in_names} and {out_names}"
             )
-        path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with warnings.catch_warnings(), _quiet_registration():
             warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter's notice
@@ -285,8 +334,6 @@ def export(
                     output_names=out_names,
                     dynamic_axes=axes if dynamic_batch else None,
                 )
-    finally:
-        module.train(training)
     onnx.checker.check_model(onnx.load(path), full_check=True)
     return path
 
@@ -320,6 +367,11 @@ def ort_session(path: str | os.PathLike, threads: int | None = None):
     return ort.InferenceSession(os.fspath(path), opts, providers=["CPUExecutionProvider"])
 
 
+#: numpy dtype name -> onnxruntime element type name (``NodeArg.type`` is ``tensor(<name>)``).
+_ORT_TYPES = {"float32": "float", "float64": "double", "float16": "float16", "int64": "int64",
+              "int32": "int32", "bool": "bool", "uint8": "uint8", "int8": "int8"}
+
+
 def check(
     path: str | os.PathLike,
     module: nn.Module,
@@ -343,36 +395,48 @@ def check(
 
     Args:
         path: the ``.onnx`` file.
-        module: the eager module (run in ``eval`` mode under ``no_grad``).
+        module: the eager module (run in ``eval`` mode under ``no_grad``; every submodule's
+            training flag is restored afterwards).
         inputs: a tensor or a tuple of tensors, float32.
-        rtol, atol: tolerances.
+        rtol, atol: tolerances, finite and >= 0 (the formula above).
 
     Returns:
         ``{"outputs": [{"name", "shape", "peak", "max_abs_err", "max_rel_err"}...],
         "ok": True}``.
 
     Raises:
+        TypeError: ``module`` is not an ``nn.Module``, ``inputs`` are not tensors, ``path`` is
+            not path-like or a tolerance is not a number.
+        ValueError: ``path`` is not an existing file, a tolerance is negative or not finite,
+            or the inputs do not match the graph's inputs (count or dtype).
         AssertionError: a shape differs or an output is not within tolerance (the message
             gives the worst error of each output).
     """
-    inputs = _as_tuple(inputs)
+    func = "check"
+    path = _onnx_file(path, func, must_exist=True)
+    if not isinstance(module, nn.Module):
+        raise TypeError(f"{func}: expected module to be an nn.Module, got {type(module).__name__}")
+    inputs = _as_tuple(inputs, func, "inputs")
+    rtol = check_positive(rtol, "rtol", func, strict=False)
+    atol = check_positive(atol, "atol", func, strict=False)
     onnx.checker.check_model(onnx.load(path), full_check=True)
     sess = ort_session(path)
     if len(sess.get_inputs()) != len(inputs):
         raise ValueError(
             f"check: {os.fspath(path)} takes {len(sess.get_inputs())} inputs, got {len(inputs)}"
         )
-    feeds = {
-        i.name: t.detach().cpu().numpy() for i, t in zip(sess.get_inputs(), inputs, strict=True)
-    }
+    feeds = {}
+    for i, t in zip(sess.get_inputs(), inputs, strict=True):
+        a = t.detach().cpu().numpy()
+        want_type = f"tensor({_ORT_TYPES.get(a.dtype.name, a.dtype.name)})"
+        if i.type != want_type:
+            raise ValueError(f"check: input {i.name} of {os.fspath(path)} is {i.type}, got a "
+                             f"{t.dtype} tensor")
+        feeds[i.name] = a
+    # eager first: its input checks name a wrong shape more clearly than onnxruntime does
+    with _eval_mode(module), torch.no_grad():
+        want = [t.cpu().numpy() for t in _flat_outputs(module(*inputs))]
     got = sess.run(None, feeds)
-    training = module.training
-    module.eval()
-    try:
-        with torch.no_grad():
-            want = [t.cpu().numpy() for t in _flat_outputs(module(*inputs))]
-    finally:
-        module.train(training)
     report, bad = [], []
     for meta, g, w in zip(sess.get_outputs(), got, want, strict=False):  # counted below
         if g.shape != w.shape:
