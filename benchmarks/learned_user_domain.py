@@ -75,6 +75,8 @@ def _square(img: torch.Tensor, n: int) -> torch.Tensor:
     s = min(h, w)
     crop = img[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s][None, None]
     x = F.interpolate(crop.double(), size=(n, n), mode="bilinear", antialias=True)
+    if not x.amax() > x.amin():
+        raise ValueError(f"learned_user_domain: a constant scene at n = {n} (nothing to score)")
     return (x - x.amin()) / (x.amax() - x.amin())
 
 

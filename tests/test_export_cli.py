@@ -189,6 +189,7 @@ def test_export_learned_with_a_trained_weights_file(tmp_path, capsys):
 @pytest.mark.parametrize(("argv", "msg"), [
     (["export", "bp", "--weights", "{w}"], "only the learned model loads a weights file"),
     (["export", "learned", "--weights", "{missing}"], "no such weights file"),
+    (["export", "learned", "--weights", "{w}"], "is not a learned weights file"),  # b"x"
 ])
 def test_export_weights_mistakes_are_usage_errors(tmp_path, capsys, argv, msg):
     (tmp_path / "w.pt").write_bytes(b"x")
@@ -197,5 +198,5 @@ def test_export_weights_mistakes_are_usage_errors(tmp_path, capsys, argv, msg):
         main([*argv, "--out", str(tmp_path / "o")])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert f"argument --weights: {msg}" in err and len(err.strip().splitlines()) == 1
+    assert "argument --weights:" in err and msg in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()

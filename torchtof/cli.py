@@ -423,8 +423,8 @@ def _check_train(args: argparse.Namespace) -> None:
 
         try:
             paths = check_user_paths(args.images, "train")
-        except (TypeError, FileNotFoundError, ValueError) as exc:
-            raise ValueError(f"argument --images: {exc}") from None
+        except (TypeError, OSError, ValueError) as exc:  # OSError: an unreadable image
+            raise ValueError(f"argument --images: {_one_line(exc)}") from None
         try:
             user_mixture(None if args.families is None else dict(args.families), paths, "train")
         except ValueError as exc:
@@ -442,6 +442,9 @@ def _check_export(args: argparse.Namespace) -> None:
                              f"got {args.model}")
         if not Path(args.weights).is_file():
             raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
+        from .recon.learned import check_weights_file
+
+        check_weights_file(args.weights, "argument --weights")
 
 
 #: The options of ``bench`` that only some benchmarks use (the others are common to all).
@@ -499,7 +502,8 @@ def main(argv: list[str] | None = None) -> int:
     _check_global_options(parser, given)
     args = parser.parse_args(argv)
     out = getattr(args, "out", None)  # every command's --out is a folder it writes into
-    if isinstance(out, str) and Path(out).exists() and not Path(out).is_dir():
+    unused = getattr(args, "output", None) or getattr(args, "json", None)  # export -o, bench --json
+    if isinstance(out, str) and not unused and Path(out).exists() and not Path(out).is_dir():
         args.parser.error(f"argument --out: expected a folder, {out} is a file")
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work

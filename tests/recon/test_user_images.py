@@ -116,7 +116,8 @@ def test_a_run_with_user_images_draws_them_and_records_the_files(tmp_path):
     (rec,) = recipe["data"]["user_images"]
     assert rec["sha256"] == hashlib.sha256((tmp_path / "bar.npy").read_bytes()).hexdigest()
     assert rec["images"] == 1 and rec["path"].endswith("bar.npy")
-    # a mixture of the user family alone draws crops of the bar: two levels at most
+    # a mixture of the user family alone draws crops of the bar: two levels, plus the grey
+    # values the anti-aliased resize leaves along its edges
     from torchtof.recon.learned_train import _batch
 
     _, x, _ = _batch(0, 0, 16, 64, "cake_cutting", range(4), families={"user": 1.0},
@@ -202,17 +203,37 @@ def test_user_images_are_scanned_once_unless_modified():
         draw_scenes(16, 0, 1, range(2), family="user", user_images=[u])
 
 
-def test_a_changed_image_file_is_read_again(tmp_path):
-    """The per-process cache of a run's images is keyed by the files' modification times: an
-    image rewritten between two runs in one process is drawn as it is now."""
-    import os
-
+def test_a_later_run_reads_a_changed_image_file_again(tmp_path):
+    """Within a run the images are read once (the run draws from them as they were); a later
+    run in the same process reads the files again."""
     from torchtof.recon.learned_train import _user_images
 
     f = tmp_path / "img.npy"
     np.save(f, _ramp(20, 20))
     (a,) = _user_images((str(f),))
     np.save(f, _ramp(20, 20)[::-1])
-    os.utime(f, ns=(f.stat().st_atime_ns, f.stat().st_mtime_ns + 10**9))
+    assert _user_images((str(f),))[0] is a  # the same run: unchanged
+    train_learned(steps=1, batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False,
+                  calibrate=False, user_images=f)
     (b,) = _user_images((str(f),))
     torch.testing.assert_close(b, a.flip(0))
+
+
+def test_resume_continues_with_the_runs_own_images(tmp_path):
+    """A resume that names neither images nor families continues with the checkpoint's; other
+    images, or the run's images changed on disk, are refused by name."""
+    f, g = tmp_path / "a.npy", tmp_path / "b.npy"
+    np.save(f, _ramp(24, 24))
+    np.save(g, _ramp(24, 24).T)
+    kw = dict(batch_size=2, sizes=(16,), n_layers=2, width=4, progress=False, calibrate=False)
+    run = tmp_path / "run"
+    train_learned(steps=1, user_images=f, out=run, **kw)
+    train_learned(steps=2, resume=True, out=run, **kw)
+    recipe = json.loads((run / "recipe.json").read_text())
+    assert recipe["steps_run"] == 2 and recipe["data"]["families"]["user"] == P_USER
+    assert [r["path"] for r in recipe["data"]["user_images"]] == [str(f.resolve())]
+    with pytest.raises(ValueError, match="trained on families"):
+        train_learned(steps=3, resume=True, user_images=g, out=run, **kw)
+    np.save(f, _ramp(24, 24)[::-1])
+    with pytest.raises(ValueError, match="images changed"):
+        train_learned(steps=3, resume=True, out=run, **kw)

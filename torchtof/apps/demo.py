@@ -81,9 +81,17 @@ def demo_figure(path: Path, data, images: dict, rows: list[dict], methods, title
     kinds = [k for k in ("depth", "depth_gated", "taps") if k in images]
     plt = pyplot()
     if plt is None:  # the plot extra is not installed: a plain montage, a row per bucket kind
-        cols = [("object", data.x[:1]), ("raw ToF", data.raw_tof_image[:1])]
+        # negative images (ungated depth buckets, raw depth) flipped as the scoring does; a
+        # method not run on a row's buckets leaves its panel blank
+        neg = data.polarity(False, "depth") == "negative"
+        cols = [("object", data.x[:1]),
+                ("raw ToF", -data.raw_tof_image[:1] if neg else data.raw_tof_image[:1])]
         for g in _merge_identical(methods, images):
-            cols.append((g[0], torch.cat([images[k].get(g[0], data.x)[:1] for k in kinds])))
+            panels = []
+            for k in kinds:
+                img = images[k].get(g[0], torch.zeros_like(data.x))[:1].to(data.x.dtype)
+                panels.append(-img if k == "depth" and neg else img)
+            cols.append((g[0], torch.cat(panels)))
         return save_grid(path, cols, rows=kinds, title=title)
 
     groups = _merge_identical(methods, images)

@@ -197,7 +197,8 @@ def main(args: argparse.Namespace) -> int:
         recipe_path.write_text(json.dumps(recipe, indent=1))
         print(f"tau = {calib['tau']}; wrote {out / 'learned.pt'}")
         return 0
-    if args.resume and not (Path(args.out) / "checkpoint.pt").is_file():
+    rank0 = int(os.environ.get("RANK", "0")) == 0  # under torchrun every process runs this
+    if args.resume and rank0 and not (Path(args.out) / "checkpoint.pt").is_file():
         print(f"torchtof train: no {Path(args.out) / 'checkpoint.pt'} to resume: starting at "
               "step 0", file=sys.stderr)
     r = train_learned(

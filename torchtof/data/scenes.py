@@ -166,10 +166,16 @@ def _arrays_of(f: Path) -> list[tuple[str, np.ndarray]]:
     import skimage.io
 
     img = np.asarray(skimage.io.imread(f))
+    if img.ndim == 3 and img.shape[-1] == 2:  # grey + alpha: the grey channel
+        img = img[..., 0]
     if img.ndim == 3 and img.shape[-1] == 4:
         img = skimage.color.rgba2rgb(img)
     if img.ndim == 3 and img.shape[-1] == 3:
         img = skimage.color.rgb2gray(img)
+    if img.ndim != 2:
+        raise ValueError(f"load_images: expected one grey, grey+alpha, RGB or RGBA image in "
+                         f"{os.fspath(f)!r}, got an array of shape {img.shape} (store stacks as "
+                         ".npy or .npz)")
     return [(os.fspath(f), img)]
 
 
@@ -180,12 +186,16 @@ def load_images(paths: str | os.PathLike | Sequence[str | os.PathLike],
 
     ``paths``: files or folders (a folder's files ending in :data:`IMAGE_SUFFIXES`, sorted,
     not recursive). Image files are read with ``skimage.io.imread`` (RGB(A) made grey as for
-    the bundled images); a ``.npy`` holds one 2-D image or a 3-D stack ``(K, H, W)``; a ``.npz``
-    any number of them. Values are any real units (depth in metres, counts, intensities):
-    the network is scale-equivariant, so only the shape of the image matters.
+    the bundled images; grey+alpha: the grey channel); a ``.npy`` holds one 2-D image or a 3-D
+    stack ``(K, H, W)``; a ``.npz`` any number of them. Values are any real units (depth in
+    metres, counts, intensities): the network is scale-equivariant, so only the shape of the
+    image matters. An image file holds one image (a multi-page TIFF stack is refused, or read
+    as colour channels by the image reader: store stacks as ``.npy``/``.npz``); keep 16-bit
+    depth maps grey (an image reader may reduce 16-bit RGBA to 8 bits) or in ``.npy``.
 
     Raises:
         FileNotFoundError: for a path that does not exist.
+        OSError: for an image file the reader cannot decode.
         ValueError: for an unsupported file, an empty folder, an array that is not 2-D or 3-D,
             a side below 8 pixels, a value that is not finite (mark invalid depth pixels by
             filling them first) or a constant image; the message names the file.
@@ -208,7 +218,11 @@ def load_images(paths: str | os.PathLike | Sequence[str | os.PathLike],
             raise TypeError(f"{func}: expected paths of str or os.PathLike, "
                             f"got {type(path).__name__}")
         for f in image_files(Path(path), func):
-            for label, a in _arrays_of(f):
+            arrays = _arrays_of(f)
+            if not arrays:
+                raise ValueError(f"{func}: expected at least one image in {os.fspath(f)!r}, "
+                                 "got none")
+            for label, a in arrays:
                 if a.dtype.kind not in "biuf" or a.ndim not in (2, 3):
                     raise ValueError(f"{func}: expected a real 2-D image or 3-D stack in "
                                      f"{label!r}, got dtype {a.dtype} and shape {a.shape}")

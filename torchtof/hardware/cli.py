@@ -203,6 +203,9 @@ def _check_reconstruct(args: argparse.Namespace) -> None:
                              f"weights file, got --method {args.method}")
         if not Path(args.weights).is_file():
             raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
+        from ..recon.learned import check_weights_file
+
+        check_weights_file(args.weights, "argument --weights")
     path = Path(args.store)
     if not path.exists():
         raise ValueError(f"argument STORE: no such store: {args.store}")

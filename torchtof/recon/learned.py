@@ -99,6 +99,7 @@ __all__ = [
     "DEFAULT_SCALES",
     "STOP_REASON",
     "FLIPS",
+    "check_weights_file",
 ]
 
 #: The shipped weights (with ``recipe.json`` in the same folder).
@@ -464,8 +465,32 @@ def _unrolled(
 
 
 @functools.lru_cache(maxsize=4)
-def _load_blob(path: str) -> dict:
+def _read_blob(path: str) -> dict:
     return torch.load(path, weights_only=True, map_location="cpu")
+
+
+def _load_blob(path: str, func: str = "Learned") -> dict:
+    """The contents of a :meth:`Learned.save_weights` file; a ``ValueError`` naming the file
+    when it is something else (a training checkpoint, a log, another format)."""
+    try:
+        blob = _read_blob(path)
+    except Exception as exc:  # noqa: BLE001 - every unpickling failure means "not one"
+        raise ValueError(f"{func}: {path!r} is not a learned weights file (Learned.save_weights, "
+                         f"a torchtof train run's learned.pt): {type(exc).__name__}") from None
+    if not isinstance(blob, dict) or not isinstance(blob.get("prior"), dict):
+        raise ValueError(f"{func}: {path!r} is not a learned weights file (Learned.save_weights, "
+                         "a torchtof train run's learned.pt): no 'prior' weights in it")
+    return blob
+
+
+_load_blob.cache_clear = _read_blob.cache_clear  # save_weights refreshes the cache
+
+
+def check_weights_file(path: str | os.PathLike, func: str = "check_weights_file") -> dict:
+    """The metadata (``n_layers``, ``width``, …; ``{}`` for the oldest files) of a learned
+    weights file, read once here; a ``ValueError`` naming the file when it is not one (what the
+    command line checks ``--weights`` with before any work)."""
+    return _load_blob(os.fspath(Path(path).resolve()), func).get("meta", {})
 
 
 class Learned(nn.Module):

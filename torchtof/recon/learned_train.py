@@ -110,18 +110,13 @@ class LearnedTrainResult(NamedTuple):
 P_USER = 0.5
 
 
-def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
-    """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process and
-    again only if a file changed (its modification time is part of the cache key)."""
-    if not paths:
-        return ()
-    stamps = tuple(f.stat().st_mtime_ns for p in paths for f in image_files(p, "train_learned"))
-    return _load_user_images(paths, stamps)
-
-
 @functools.lru_cache(maxsize=4)
-def _load_user_images(paths: tuple[str, ...], stamps: tuple[int, ...]) -> tuple[torch.Tensor, ...]:
-    return load_images(list(paths), "train_learned")
+def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
+    """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process: a
+    run draws from the images as they were when it (or its data process) first read them.
+    :func:`train_learned` and :func:`calibrate_tau` clear this cache when they start, so a
+    later run in the same process reads the files again."""
+    return load_images(list(paths), "train_learned") if paths else ()
 
 
 def user_image_record(paths: tuple[str, ...]) -> list[dict]:
@@ -154,6 +149,32 @@ def user_mixture(families: dict[str, float] | None, user_paths: tuple[str, ...],
         raise ValueError(f"{func}: expected families['user'] > 0 with user_images, got "
                          f"{families.get('user', 0):g}")
     return families
+
+
+def _resumed_data(run: dict | None, given: tuple, families: dict, user_paths: tuple,
+                  ckpt: Path, func: str) -> tuple[dict, tuple[str, ...]]:
+    """The scene mixture and images a resumed run continues with: the checkpoint's own
+    (``run``, recorded since user images exist) when the call names neither images nor
+    families, else the call's, which must be the same (another mixture is a fine-tune:
+    ``init``); the images' contents must not have changed (SHA-256)."""
+    if run is None:  # a checkpoint from before the record: the call's (as before)
+        return families, user_paths
+    if given == (None, None):
+        families = run["families"]
+        user_paths = tuple(r["path"] for r in run["user_images"])
+        user_paths = tuple(dict.fromkeys(user_paths))  # a folder's files, each once
+    elif families != run["families"] or sorted(
+            r["sha256"] for r in user_image_record(user_paths)) != sorted(
+            r["sha256"] for r in run["user_images"]):
+        raise ValueError(f"{func}: checkpoint {ckpt} was trained on families="
+                         f"{run['families']} with {len(run['user_images'])} image file(s); "
+                         "resume with the same (or give neither families nor user_images to "
+                         "continue with the run's own); another mixture is a fine-tune (init)")
+    files = user_image_record(user_paths)
+    if sorted(r["sha256"] for r in files) != sorted(r["sha256"] for r in run["user_images"]):
+        raise ValueError(f"{func}: the run's images changed since checkpoint {ckpt} was "
+                         "written (SHA-256 differ); restore them or start a new run")
+    return families, user_paths
 
 
 def check_user_paths(user_images, func: str) -> tuple[str, ...]:
@@ -335,6 +356,7 @@ def calibrate_tau(
     """
     user_paths = check_user_paths(user_images, "calibrate_tau")
     families = user_mixture(families, user_paths, "calibrate_tau")
+    _user_images.cache_clear()
     outs = []
     model.final_dc = False
     device = model.log_tau.device
@@ -474,6 +496,7 @@ def train_learned(
     bad = [o for o in orders if o not in ORDERS]
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
+    given_data = (user_images, families)
     user_paths = check_user_paths(user_images, func)
     families = user_mixture(families, user_paths, func)
     if init is not None and not isinstance(init, (str, os.PathLike)):
@@ -527,10 +550,14 @@ def train_learned(
         if state.get("x0", "adjoint") != x0:
             raise ValueError(f"{func}: checkpoint {ckpt} was trained with x0="
                              f"{state.get('x0', 'adjoint')!r}, got x0={x0!r}")
+        families, user_paths = _resumed_data(state.get("data"), given_data, families,
+                                             user_paths, ckpt, func)
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         start, log, wall0 = state["step"], state["log"], state["wall_s"]
 
+    _user_images.cache_clear()  # this run reads its images afresh
+    data_record = {"families": families, "user_images": user_image_record(user_paths)}
     is_dist, rank, world, created = dist_setup(distributed)
     t0 = time.perf_counter()
     losses: list[float] = []
@@ -554,7 +581,7 @@ def train_learned(
             tmp = ckpt.with_suffix(".tmp")
             torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
                         "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
-                        "meta": model.meta(),
+                        "meta": model.meta(), "data": data_record,
                         "wall_s": wall0 + time.perf_counter() - t0}, tmp)
             tmp.replace(ckpt)
             (outdir / "log.json").write_text(json.dumps(log, indent=0))
@@ -628,7 +655,7 @@ def train_learned(
                 "data": {
                     "families": families,
                     "train_images": list(TRAIN_IMAGES),
-                    "user_images": user_image_record(user_paths),
+                    "user_images": data_record["user_images"],
                     "noise": {"p_clean": p_clean, "gaussian_levels": list(TRAIN_LEVELS),
                               "levels_scaled_to_n": noise_ref,
                               "p_levels_scaled": p_noise_ref if noise_ref else None,
