@@ -13,7 +13,7 @@ shipped network unless ``--weights`` says otherwise) on the same buckets: cake-c
 Hadamard rows, Gaussian noise of ``level × (max y − min y)``, one seeded draw per scene,
 PSNR of the output clipped to [0, 1] (``benchmarks/eval_learned.py``'s conventions).
 
-    python benchmarks/learned_user_domain.py --make-data ud
+    python benchmarks/learned_user_domain.py --make-data ud            # [--split top-bottom]
     torchtof --threads 1 train --init shipped --images ud/motorcycle_left.npy \\
         --steps 1500 --lr 5e-4 --seed 1 --out ft_moto
     OMP_NUM_THREADS=1 python benchmarks/learned_user_domain.py \\
@@ -47,8 +47,12 @@ from torchtof.recon.auto import auto  # noqa: E402
 from torchtof.recon.learned import WEIGHTS_FILE, Learned  # noqa: E402
 from torchtof.recon.tval3 import tval3  # noqa: E402
 
-#: The evaluation crops of the right half ``(row, column, side)`` (it is 500 × 370).
-CROPS = ((0, 0, 370), (130, 0, 370), (150, 120, 200))
+#: The evaluation crops ``(row, column, side)`` of each split's held-out part: the right half
+#: (500 × 370) of ``left-right``, the bottom half (250 × 741) of ``top-bottom``.
+CROPS = {"left-right": ((0, 0, 370), (130, 0, 370), (150, 120, 200)),
+         "top-bottom": ((0, 0, 250), (0, 245, 250), (0, 491, 250))}
+#: The training part's file name of each split (``--make-data``).
+TRAIN_FILE = {"left-right": "motorcycle_left.npy", "top-bottom": "motorcycle_top.npy"}
 
 
 def depth_map() -> np.ndarray:
@@ -62,8 +66,13 @@ def depth_map() -> np.ndarray:
     return 1.0 / disp[tuple(idx)]
 
 
-def halves() -> tuple[np.ndarray, np.ndarray]:
+def halves(split: str = "left-right") -> tuple[np.ndarray, np.ndarray]:
+    """``(training part, held-out part)`` of the depth map: left and right halves, or top and
+    bottom halves."""
     z = depth_map()
+    if split == "top-bottom":
+        h = z.shape[0] // 2
+        return z[:h], z[h:]
     w = z.shape[1] // 2
     return z[:, :w], z[:, w:]
 
@@ -80,21 +89,23 @@ def _square(img: torch.Tensor, n: int) -> torch.Tensor:
     return (x - x.amin()) / (x.amax() - x.amin())
 
 
-def eval_scenes(n: int, images: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
-    """The evaluation scenes at side ``n``, each min–max normalised to [0, 1]: the right
-    half's crops (:data:`CROPS`), or ``images`` (the caller's, ``(H, W)`` each) centre-cropped
-    to a square; ``(K, 1, n, n)`` float32."""
+def eval_scenes(n: int, images: tuple[torch.Tensor, ...] | None = None,
+                split: str = "left-right") -> torch.Tensor:
+    """The evaluation scenes at side ``n``, each min–max normalised to [0, 1]: the held-out
+    part's crops (:data:`CROPS` of ``split``), or ``images`` (the caller's, ``(H, W)`` each)
+    centre-cropped to a square; ``(K, 1, n, n)`` float32."""
     if images is not None:
         return torch.cat([_square(img, n) for img in images]).float()
-    right = torch.from_numpy(halves()[1])
-    return torch.cat([_square(right[r : r + s, c : c + s], n) for r, c, s in CROPS]).float()
+    held = torch.from_numpy(halves(split)[1])
+    return torch.cat([_square(held[r : r + s, c : c + s], n)
+                      for r, c, s in CROPS[split]]).float()
 
 
 def run(sizes, srs, levels, weights: list[str], with_auto: bool = False,
-        images: tuple[torch.Tensor, ...] | None = None) -> list[dict]:
+        images: tuple[torch.Tensor, ...] | None = None, split: str = "left-right") -> list[dict]:
     rows = []
     for n in sizes:
-        x = eval_scenes(n, images)
+        x = eval_scenes(n, images, split)
         for sr in srs:
             A = Hadamard(n, sr=sr, order="cake_cutting")
             nets = {w: Learned(A, pretrained=WEIGHTS_FILE if w == "shipped" else w).eval()
@@ -137,7 +148,10 @@ def table(rows: list[dict], weights: list[str]) -> str:
 def main(argv=None) -> int:
     p = OneLineParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--make-data", type=Path, default=None, metavar="DIR",
-                   help="write DIR/motorcycle_left.npy (the training half) and exit")
+                   help="write the split's training half (DIR/motorcycle_left.npy or "
+                        "DIR/motorcycle_top.npy) and exit")
+    p.add_argument("--split", choices=list(CROPS), default="left-right",
+                   help="train on the left (top) half, score crops of the right (bottom) half")
     p.add_argument("--weights", nargs="+", default=["shipped"],
                    help="weights files to score ('shipped': the package's)")
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
@@ -152,9 +166,9 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.make_data is not None:
         a.make_data.mkdir(parents=True, exist_ok=True)
-        left = halves()[0]
-        np.save(a.make_data / "motorcycle_left.npy", left)
-        print(f"wrote {a.make_data / 'motorcycle_left.npy'} ({left.shape[0]} × {left.shape[1]})")
+        part = halves(a.split)[0]
+        np.save(a.make_data / TRAIN_FILE[a.split], part)
+        print(f"wrote {a.make_data / TRAIN_FILE[a.split]} ({part.shape[0]} × {part.shape[1]})")
         return 0
     if a.table is not None:
         d = json.loads(a.table.read_text())
@@ -173,11 +187,11 @@ def main(argv=None) -> int:
         except (OSError, ValueError, TypeError) as exc:
             p.error(f"argument --eval-images: {exc}")
     torch.set_num_threads(1)
-    rows = run(a.sizes, a.srs, a.levels, a.weights, a.auto, images)
+    rows = run(a.sizes, a.srs, a.levels, a.weights, a.auto, images, a.split)
     print(table(rows, [k for k in rows[0] if k not in ("n", "sr", "level", "tval3")]))
     if a.out is not None:
         a.out.write_text(json.dumps({"weights": a.weights, "rows": rows,
-                                     "scenes": a.eval_images or {"motorcycle_right": CROPS}},
+                                     "scenes": a.eval_images or {a.split: CROPS[a.split]}},
                                     indent=1))
     return 0
 
