@@ -440,8 +440,6 @@ def _check_export(args: argparse.Namespace) -> None:
         if args.model != "learned":
             raise ValueError(f"argument --weights: only the learned model loads a weights file, "
                              f"got {args.model}")
-        if not Path(args.weights).is_file():
-            raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
         from .recon.learned import check_weights_file
 
         check_weights_file(args.weights, "argument --weights")

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .._checks import check_float_dtype
+from .._checks import check_float_dtype, check_int
 from ..recon.synthetic import scene_seed
 
 __all__ = [
@@ -278,15 +278,10 @@ def _finite_once(t: torch.Tensor) -> bool:
 
 def _check_seed(seed: object, name: str, func: str, lo: int = -(2**63),
                 hi: int | None = 2**64 - 1) -> int:
-    """An int (``numpy`` integers too; not a bool, nor a float: 1.5 was truncated to 1) in
-    ``[lo, hi]`` (by default what ``torch.Generator.manual_seed`` accepts)."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"{func}: expected {name} to be an int, got {type(seed).__name__}")
-    if int(seed) < lo or (hi is not None and int(seed) > hi):
-        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
-        raise ValueError(f"{func}: expected {name} {'in ' if hi is not None else ''}{rng}, "
-                         f"got {seed}")
-    return int(seed)
+    """:func:`~torchtof._checks.check_int` accepting ``numpy`` integers too (not a bool, nor a
+    float: 1.5 was truncated to 1), by default in what ``torch.Generator.manual_seed``
+    accepts."""
+    return check_int(int(seed) if isinstance(seed, np.integer) else seed, name, func, lo, hi)
 
 
 class _Draw:

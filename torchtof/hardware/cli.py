@@ -201,8 +201,6 @@ def _check_reconstruct(args: argparse.Namespace) -> None:
         if args.method not in WEIGHTS_OPTION:
             raise ValueError(f"argument --weights: only {' and '.join(WEIGHTS_OPTION)} load a "
                              f"weights file, got --method {args.method}")
-        if not Path(args.weights).is_file():
-            raise ValueError(f"argument --weights: no such weights file: {args.weights!r}")
         from ..recon.learned import check_weights_file
 
         check_weights_file(args.weights, "argument --weights")

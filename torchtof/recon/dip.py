@@ -27,7 +27,14 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape, check_tensor, unchecked
+from .._checks import (
+    check_finite,
+    check_int,
+    check_positive,
+    check_shape,
+    check_tensor,
+    unchecked,
+)
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
 from .base import ReconResult, relative_residual, renamed_option
@@ -190,25 +197,17 @@ def _check_a_y(A: LinearOperator, y: torch.Tensor, func: str) -> None:
     check_finite(y, "y", func)
 
 
-def _check_int(v: object, name: str, func: str, lo: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
-    if v < lo:
-        raise ValueError(f"{func}: expected {name} >= {lo}, got {v}")
-    return v
-
-
 def _check_options(func, max_iter, lr, betas, zeta, early_stop, window, patience, noise_sigma,
                    seed, unet, lr_step, lr_gamma) -> tuple:
     """The checks of :func:`fit_dip`'s options, shared by :func:`dip` and :class:`DIP` (which
     run them once, before any fit): ``(max_iter, lr, zeta, window, patience, noise_sigma,
     seed, lr_step, lr_gamma)`` as numbers (``zeta`` and ``noise_sigma`` may stay ``"auto"``,
     which needs ``y``)."""
-    max_iter = _check_int(max_iter, "max_iter", func, 1)
-    window = _check_int(window, "window", func, 2)
-    patience = _check_int(patience, "patience", func, 1)
-    lr_step = _check_int(lr_step, "lr_step", func, 1)
-    seed = _check_int(seed, "seed", func, 0)
+    max_iter = check_int(max_iter, "max_iter", func, 1)
+    window = check_int(window, "window", func, 2)
+    patience = check_int(patience, "patience", func, 1)
+    lr_step = check_int(lr_step, "lr_step", func, 1)
+    seed = check_int(seed, "seed", func, 0)
     lr = check_positive(lr, "lr", func)
     if zeta != "auto":
         if isinstance(zeta, str):

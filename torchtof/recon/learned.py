@@ -483,13 +483,12 @@ def _load_blob(path: str, func: str = "Learned") -> dict:
     return blob
 
 
-_load_blob.cache_clear = _read_blob.cache_clear  # save_weights refreshes the cache
-
-
 def check_weights_file(path: str | os.PathLike, func: str = "check_weights_file") -> dict:
     """The metadata (``n_layers``, ``width``, …; ``{}`` for the oldest files) of a learned
-    weights file, read once here; a ``ValueError`` naming the file when it is not one (what the
-    command line checks ``--weights`` with before any work)."""
+    weights file, read once here; a ``ValueError`` naming the file when it is missing or not
+    one (what the command line checks ``--weights`` with before any work)."""
+    if not Path(path).is_file():
+        raise ValueError(f"{func}: no such weights file: {os.fspath(path)!r}")
     return _load_blob(os.fspath(Path(path).resolve()), func).get("meta", {})
 
 
@@ -658,7 +657,7 @@ class Learned(nn.Module):
                      **meta},
         }
         torch.save(blob, Path(path))
-        _load_blob.cache_clear()
+        _read_blob.cache_clear()  # a file rewritten in place is read afresh
 
     def steps(self) -> torch.Tensor:
         """The step sizes ``γ_k ∈ (0, 2)``, shape ``(K,)``."""

@@ -159,19 +159,18 @@ def _resumed_data(run: dict | None, given: tuple, families: dict, user_paths: tu
     ``init``); the images' contents must not have changed (SHA-256)."""
     if run is None:  # a checkpoint from before the record: the call's (as before)
         return families, user_paths
-    if given == (None, None):
+    adopted = given == (None, None)
+    if adopted:
         families = run["families"]
-        user_paths = tuple(r["path"] for r in run["user_images"])
-        user_paths = tuple(dict.fromkeys(user_paths))  # a folder's files, each once
-    elif families != run["families"] or sorted(
-            r["sha256"] for r in user_image_record(user_paths)) != sorted(
-            r["sha256"] for r in run["user_images"]):
+        user_paths = tuple(dict.fromkeys(r["path"] for r in run["user_images"]))  # each once
+    same = (sorted(r["sha256"] for r in user_image_record(user_paths))
+            == sorted(r["sha256"] for r in run["user_images"]))
+    if not adopted and (families != run["families"] or not same):
         raise ValueError(f"{func}: checkpoint {ckpt} was trained on families="
                          f"{run['families']} with {len(run['user_images'])} image file(s); "
                          "resume with the same (or give neither families nor user_images to "
                          "continue with the run's own); another mixture is a fine-tune (init)")
-    files = user_image_record(user_paths)
-    if sorted(r["sha256"] for r in files) != sorted(r["sha256"] for r in run["user_images"]):
+    if not same:
         raise ValueError(f"{func}: the run's images changed since checkpoint {ckpt} was "
                          "written (SHA-256 differ); restore them or start a new run")
     return families, user_paths
