@@ -29,6 +29,7 @@ from torchtof.sensor import (
     correlation_taps,
     cw_tof_sensor,
     phasor_from_depth,
+    tap_amplitude,
     tof_noise,
 )
 
@@ -437,3 +438,28 @@ def test_sensor_chain_unchanged_on_ordinary_input():
     p = phasor_from_depth(100.0, depth, 30e6)
     frame = cw_tof_sensor(p, shot=None, adc_bits=None, amp_threshold=1, no_photon_m=5)
     torch.testing.assert_close(frame.depth, depth)
+
+
+def test_tap_amplitude_does_not_overflow_in_the_differences():
+    # c1 - c2 = 6e38 overflows float32, but the amplitude (c1 - c2)/2 = 3e38 does not:
+    # Eq. 8 must return it, not NaN (inf/inf inside the scaled hypot).
+    taps = torch.tensor([3e38, -3e38, 0.0, 0.0]).view(1, 4, 1, 1)
+    amp = tap_amplitude(taps)
+    assert torch.isfinite(amp).all()
+    assert amp.item() == pytest.approx(3e38, rel=1e-6)
+    # an amplitude beyond float32's range is inf, as the exact value rounds to
+    big = torch.tensor([3e38, -3e38, -3e38, 3e38]).view(1, 4, 1, 1)
+    assert tap_amplitude(big).item() == math.inf
+
+
+def test_cw_tof_sensor_refuses_intensity_below_half_the_phasor():
+    # I >= |P|/2 for any sum of returns (triangle inequality); below it the Eq. 6 taps
+    # B + ½Re(P e^{jτ}) go negative, which no camera measures.
+    p = torch.full((1, 1, 2, 2), 100.0 + 0j)
+    with pytest.raises(ValueError, match="intensity >= \\|phasor\\|/2"):
+        cw_tof_sensor(p, torch.full((1, 1, 2, 2), 10.0), shot=None)
+    # exactly |P|/2 (and a rounding below it) is a fully modulated return
+    f = cw_tof_sensor(p, torch.full((1, 1, 2, 2), 50.0 * (1 - 1e-6)), shot=None, adc_bits=None)
+    assert (f.taps >= -1e-3).all()
+    f = cw_tof_sensor(p, torch.full((1, 1, 2, 2), 50.0), shot=None, adc_bits=None)
+    assert f.amplitude.flatten().tolist() == [50.0] * 4

@@ -225,12 +225,15 @@ def correlation_taps(
     return offset + 0.5 * torch.cat([c * re - s * im for c, s in table], dim=1)
 
 
-def _safe_iq(taps: torch.Tensor, func: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``q = c₄ − c₃``, ``i = c₁ − c₂`` and the mask ``(q, i) ≠ 0`` (Eq. 7/8 operands)."""
+def _safe_iq(
+    taps: torch.Tensor, func: str, half: bool = False
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``q = c₄ − c₃``, ``i = c₁ − c₂`` (each halved if ``half``) and the mask ``(q, i) ≠ 0``
+    (Eq. 7/8 operands)."""
     check_real(taps, "taps", func)
     check_shape(taps, (None, 4, None, None), "taps", func, "(B, 4, H, W)")
     check_finite(taps, "taps", func)
-    c1, c2, c3, c4 = taps.unbind(dim=1)
+    c1, c2, c3, c4 = (0.5 * taps if half else taps).unbind(dim=1)
     q = (c4 - c3).unsqueeze(1)
     i = (c1 - c2).unsqueeze(1)
     nonzero = (q != 0) | (i != 0)  # not q² + i² > 0: it underflows at 1e-30 (float32)
@@ -302,14 +305,15 @@ def tap_amplitude(taps: torch.Tensor) -> torch.Tensor:
         >>> tap_amplitude(taps).item()  # |P| / 2
         2.5
     """
-    q, i, nonzero = _safe_iq(taps, "tap_amplitude")
-    # ½·hypot(q, i) as m·sqrt((q/m)² + (i/m)²), m = max(|q|, |i|): no q², i² to over- or
+    q, i, nonzero = _safe_iq(taps, "tap_amplitude", half=True)
+    # hypot(q/2, i/2) as m·sqrt((q/m)² + (i/m)²), m = max(|q|, |i|): no q², i² to over- or
     # underflow at 1e±30 (float32), exports to ONNX (aten.hypot does not), and the guarded
-    # operands keep the gradient finite at q = i = 0.
+    # operands keep the gradient finite at q = i = 0. The halves are taken before the
+    # differences (exact: a power-of-two scaling), so taps of ±3e38 do not overflow.
     q_safe = torch.where(nonzero, q, torch.ones_like(q))
     i_safe = torch.where(nonzero, i, torch.ones_like(i))
     m = torch.maximum(q_safe.abs(), i_safe.abs())
-    amp = 0.5 * m * torch.sqrt((q_safe / m) ** 2 + (i_safe / m) ** 2)
+    amp = m * torch.sqrt((q_safe / m) ** 2 + (i_safe / m) ** 2)
     return torch.where(nonzero, amp, torch.zeros_like(amp))
 
 

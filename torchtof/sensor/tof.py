@@ -171,6 +171,20 @@ def cw_tof_sensor(
                 f"got {tuple(intensity.shape)}"
             )
         check_finite(intensity, "intensity", func)
+        # Each return of amplitude a_j brings a_j/2 of unmodulated light per tap, and
+        # |Σ a_j e^{jφ_j}| ≤ Σ a_j (triangle inequality), so I ≥ |P|/2; below it a tap
+        # c = B + ½Re(P e^{jτ}) would be negative for zero ambient light. The relative slack
+        # 1e-4 absorbs the rounding of an I computed by the same optics as P.
+        half = 0.5 * phasor.abs()
+        short = intensity < half * (1.0 - 1e-4)
+        if bool(short.any()):
+            k = int(short.flatten().nonzero()[0])
+            raise ValueError(
+                f"{func}: expected intensity >= |phasor|/2 (the unmodulated light of a "
+                f"return is at least half its modulated amplitude), got "
+                f"{float(intensity.flatten()[k]):.6g} < {float(half.flatten()[k]):.6g} at "
+                f"flat index {k}"
+            )
     taps = correlation_taps(phasor, float(ambient_e) + intensity, order)
     taps = tof_noise(taps, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn, generator)
     amplitude, phase, depth = camera_readout(
