@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import torch
 
-from .._checks import check_positive, check_rank
+from .._checks import check_in_range, check_positive, check_rank
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
 
@@ -135,11 +135,28 @@ def training_noise(
     log-uniform in ``levels`` and, with probability ``p_shot``, shot noise at ``photons``
     log-uniform in ``[3, 300]`` per pixel with stray light uniform in ``[0, 2]``.
 
+    Raises:
+        TypeError: if ``g`` is not a ``torch.Generator`` or a probability or level not a
+            number.
+        ValueError: if ``p_clean`` or ``p_shot`` is not in ``[0, 1]`` or ``levels`` is not two
+            finite levels ``0 < lo <= hi`` (a log-uniform draw needs ``lo > 0``).
+
     Example:
         >>> r = training_noise(torch.Generator().manual_seed(0))
         >>> r.level >= 0
         True
     """
+    func = "training_noise"
+    if not isinstance(g, torch.Generator):
+        raise TypeError(f"{func}: expected g to be a torch.Generator, got {type(g).__name__}")
+    check_in_range(p_clean, 0.0, 1.0, "p_clean", func)
+    check_in_range(p_shot, 0.0, 1.0, "p_shot", func)
+    if not isinstance(levels, (tuple, list)) or len(levels) != 2:
+        raise TypeError(f"{func}: expected levels to be a pair (lo, hi), got {levels!r}")
+    check_positive(levels[0], "levels[0]", func)
+    check_positive(levels[1], "levels[1]", func)
+    if levels[0] > levels[1]:
+        raise ValueError(f"{func}: expected levels[0] <= levels[1], got {tuple(levels)}")
 
     def u() -> float:
         return float(torch.rand((), generator=g, dtype=torch.float64))

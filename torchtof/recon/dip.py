@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import itertools
 import math
 import warnings
 from typing import NamedTuple
@@ -207,7 +208,7 @@ def _check_options(func, max_iter, lr, betas, zeta, early_stop, window, patience
     window = check_int(window, "window", func, 2)
     patience = check_int(patience, "patience", func, 1)
     lr_step = check_int(lr_step, "lr_step", func, 1)
-    seed = check_int(seed, "seed", func, 0)
+    seed = check_int(seed, "seed", func, 0, 2**64 - 1)  # torch.Generator.manual_seed's range
     lr = check_positive(lr, "lr", func)
     if zeta != "auto":
         if isinstance(zeta, str):
@@ -399,7 +400,8 @@ def fit_dip(
             ``"discrepancy"``; used by ``zeta="auto"`` when given (else estimated). ``"auto"``:
             the tail estimate of :func:`~torchtof.recon.noise.tail_noise_sigma` (for
             low-to-high orders such as cake-cutting).
-        seed: seed of the weight initialisation (ignored when ``unet`` is given).
+        seed: seed of the weight initialisation, an int in ``[0, 2⁶⁴)`` (ignored when ``unet``
+            is given).
         unet: network to start from (copied, not modified); default :func:`default_unet`.
         progress: show a tqdm progress bar.
         lr_step: iterations between learning-rate decays, ``>= 1``.
@@ -595,6 +597,12 @@ def _dip_batch(y, A, x0, output, func, fit_kwargs):
     yd = y.detach()
     const = (yd.amax(-1) == yd.amin(-1)).tolist()  # one host read: the samples with no contrast
     # (constant buckets, zero spread: the z-scored fit has nothing to fit)
+    if isinstance(fit_kwargs.get("noise_sigma"), str):  # "auto": every estimate before any fit
+        for i, j in itertools.product(range(b), range(c)):
+            # the estimate fit_dip makes of the sample (the same slice: the same number)
+            if not const[i][j] and float(tail_noise_sigma(yd[i : i + 1, j : j + 1])[0, 0]) <= 0:
+                raise ValueError(f"{func}: noise_sigma='auto' estimated 0 for sample ({i}, {j}) "
+                                 "(noise-free tail); pass a noise level")
     for i in range(b):
         row = []
         for j in range(c):
@@ -657,7 +665,8 @@ def dip(
     Raises:
         TypeError, ValueError: as :func:`fit_dip` (but constant buckets are no error);
             ``TypeError`` for a name that is no option of :func:`fit_dip`; ``ValueError`` for
-            an unknown ``output`` or ``x0`` of the wrong shape.
+            an unknown ``output`` or ``x0`` of the wrong shape, or with ``noise_sigma="auto"``
+            for a sample whose estimate is 0 (every sample is estimated before any fit).
 
     Shape:
         - y: :math:`(B, C, M)`.

@@ -24,10 +24,17 @@ scalar ``τ`` is then set by :func:`calibrate_tau`: a grid search of the mean PS
 of the same recipe at steps ``10⁶ …`` (never drawn by a run of fewer steps, and disjoint
 from the evaluation seeds).
 
-Outputs in ``out``: ``checkpoint.pt`` (model, optimiser, scheduler, step; written every
-``checkpoint_every`` steps, ``resume=True`` continues from it), ``log.json`` (one record per
+Outputs in ``out``: ``checkpoint.pt`` (model, optimiser, scheduler, step, the run's settings
+and per-step losses; written every ``checkpoint_every`` steps and when the run ends or stops,
+``resume=True`` continues from it with the same settings, so that the resumed run writes
+the log records and ``final_loss`` of the uninterrupted one), ``log.json`` (one record per
 logged step), and at the end ``learned.pt`` (:meth:`Learned.save_weights`) with
-``recipe.json`` (the command, seed, data recipe, torch version, wall time and load).
+``recipe.json`` (the command, seed, data recipe, torch version, wall time and load). Every
+file is written to a temporary file, flushed to disk and renamed over the old one.
+
+Under ``torchrun`` with ``device="cuda"`` (no index) each process trains on
+``cuda:LOCAL_RANK`` (:func:`rank_device`), and a ``max_minutes`` stop is decided by the
+ranks together (:func:`stop_after_step`).
 
 Command line: ``torchtof train --model learned`` (:func:`add_arguments`, :func:`main`).
 """
@@ -49,7 +56,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from .._checks import check_device
+from .._checks import check_device, check_in_range, check_int, check_positive
 from ..data import (
     FAMILIES,
     TRAIN_IMAGES,
@@ -62,7 +69,7 @@ from ..data import (
     training_noise,
 )
 from ..operators.hadamard import Hadamard
-from ..operators.patterns import ORDERS
+from ..operators.patterns import N_MAX, ORDERS
 from .learned import (
     DEFAULT_N_LAYERS,
     DEFAULT_SCALES,
@@ -165,7 +172,7 @@ def _resumed_data(run: dict | None, given: tuple, families: dict, user_paths: tu
         user_paths = tuple(dict.fromkeys(r["path"] for r in run["user_images"]))  # each once
     same = (sorted(r["sha256"] for r in user_image_record(user_paths))
             == sorted(r["sha256"] for r in run["user_images"]))
-    if not adopted and (families != run["families"] or not same):
+    if not adopted and (not same_mixture(families, run["families"]) or not same):
         raise ValueError(f"{func}: checkpoint {ckpt} was trained on families="
                          f"{run['families']} with {len(run['user_images'])} image file(s); "
                          "resume with the same (or give neither families nor user_images to "
@@ -174,6 +181,105 @@ def _resumed_data(run: dict | None, given: tuple, families: dict, user_paths: tu
         raise ValueError(f"{func}: the run's images changed since checkpoint {ckpt} was "
                          "written (SHA-256 differ); restore them or start a new run")
     return families, user_paths
+
+
+def same_mixture(a: dict[str, float], b: dict[str, float]) -> bool:
+    """Whether two family mixtures draw the same scenes: the same probabilities of the
+    families drawn at all (a zero entry, e.g. :data:`~torchtof.data.FAMILIES`' ``leaves`` and
+    ``user``, is the family left out)."""
+    return ({k: v for k, v in a.items() if v > 0} == {k: v for k, v in b.items() if v > 0})
+
+
+def run_settings(seed: int, steps: int, lr: float, batch_size: int, sizes: tuple[int, ...],
+                 p_large: float, sr_range: tuple[float, float], orders: tuple[str, ...],
+                 noise_ref: int | None, p_clean: float, p_noise_ref: float) -> dict:
+    """The settings of a run that ``checkpoint.pt`` records (key ``"run"``): a resume must
+    repeat every one but ``steps`` (:func:`check_run_settings`), since the draws and the
+    optimiser depend on them. A setting without effect is recorded as ``None``: ``p_large``
+    with one size, ``p_noise_ref`` without ``noise_ref``.
+
+    Example:
+        >>> run_settings(0, 10, 2e-3, 4, (16,), 0.3, (0.1, 0.5), ("natural",), None, 0.3,
+        ...              0.5)["p_large"] is None
+        True
+    """
+    return {"seed": int(seed), "steps": int(steps), "lr": float(lr),
+            "batch_size": int(batch_size), "sizes": [int(n) for n in sorted(sizes)],
+            "p_large": float(p_large) if len(sizes) > 1 else None,
+            "sr_range": [float(v) for v in sr_range], "orders": list(orders),
+            "noise_ref": noise_ref, "p_clean": float(p_clean),
+            "p_noise_ref": float(p_noise_ref) if noise_ref else None}
+
+
+def check_run_settings(have: dict | None, want: dict, ckpt: os.PathLike, func: str) -> None:
+    """``ValueError`` naming every setting (:func:`run_settings`) but ``steps`` in which a
+    resumed call differs from the run of checkpoint ``ckpt`` (``have``; ``None`` or a missing
+    key, a checkpoint from before the record: not compared). ``steps`` may change (extend or
+    shorten a run, not below the checkpoint's step): :func:`train_learned` records it."""
+    if not have:
+        return
+    diff = [f"{k}={have[k]!r} (got {v!r})" for k, v in want.items()
+            if k != "steps" and k in have and have[k] != v]
+    if diff:
+        raise ValueError(f"{func}: checkpoint {os.fspath(ckpt)} was written by a run with "
+                         f"other settings: {', '.join(diff)}; a resume repeats the run's "
+                         "settings; another recipe is a new run (another out), or a fine-tune "
+                         "(init)")
+
+
+def stop_after_step(t0: float, max_minutes: float | None, is_dist: bool,
+                    device: torch.device | str = "cpu") -> bool:
+    """Whether a run started at ``t0`` (``time.perf_counter()``) stops after this step for
+    ``max_minutes``. Under DDP (``is_dist``) the decision is the ranks' together (an
+    all-reduce MAX of every rank's flag: one collective per step), so that every rank stops
+    after the same step: rank 0 writes the checkpoints and would otherwise wait at a
+    collective the others never reach. ``max_minutes = None``: never, and no collective."""
+    if max_minutes is None:
+        return False
+    late = time.perf_counter() - t0 > 60 * max_minutes
+    if not is_dist:
+        return late
+    flag = torch.tensor(float(late), device=device)
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return bool(flag.item())
+
+
+def rank_device(device, distributed: bool | None = None):
+    """The device this process trains on: under ``torchrun`` (``LOCAL_RANK`` set and
+    ``distributed`` not ``False``) a CUDA device given without an index is
+    ``cuda:LOCAL_RANK``, so that the processes of a node use one GPU each; else ``device``.
+
+    Example:
+        >>> rank_device("cpu", True)
+        'cpu'
+    """
+    local = os.environ.get("LOCAL_RANK")
+    if distributed is False or local is None:
+        return device
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        return device  # check_device names it
+    if dev.type == "cuda" and dev.index is None:
+        return torch.device("cuda", int(local))
+    return device
+
+
+def atomic_write(path: Path, write) -> None:
+    """Write ``path`` through ``write(tmp_path)`` into a temporary file beside it, flushed to
+    disk (``os.fsync``) and renamed over ``path``: a crash leaves the old file or the new one,
+    never a torn one."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    with open(tmp, "rb+") as f:
+        os.fsync(f.fileno())
+    tmp.replace(path)
+
+
+def write_text(path: Path, text: str) -> None:
+    """``path.write_text(text)`` through :func:`atomic_write`."""
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
 
 
 def check_user_paths(user_images, func: str) -> tuple[str, ...]:
@@ -420,12 +526,16 @@ def train_learned(
     file (``init``) (module docstring).
 
     Args:
-        steps: optimiser steps ``>= 1`` (the cosine schedule spans them).
+        steps: optimiser steps ``>= 1`` (the cosine schedule spans them). A resume may
+            change it (not below the checkpoint's step): the learning rate follows the new
+            schedule from the resumed step on, and ``recipe.json`` records the change
+            (``steps_changes``).
         batch_size: global batch, divisible by the number of processes.
         lr: peak Adam learning rate.
-        seed: base seed of every draw (operators, scenes, noise, initialisation).
-        sizes: image sides drawn (powers of two, ``>= 8``).
-        p_large: probability of the largest size.
+        seed: base seed of every draw (operators, scenes, noise, initialisation), an int in
+            ``[0, 2⁶⁴)``.
+        sizes: image sides drawn (powers of two in ``[8, 256]``).
+        p_large: probability of the largest size, in ``[0, 1]``.
         sr_range: ``(lo, hi)`` sampling rates, ``0 < lo <= hi <= 1``.
         orders: Hadamard orders drawn.
         n_layers, width, shuffle, scales: the network (:class:`Learned`).
@@ -436,17 +546,25 @@ def train_learned(
             Gaussian level is drawn from the scaled levels (else from the unscaled ones): a
             mixture of the two ranges.
         out: folder of the checkpoint, log and final weights (``None``: nothing written).
-        checkpoint_every: steps between checkpoints (0: none).
-        resume: continue from ``out/checkpoint.pt`` if it exists.
+        checkpoint_every: steps between checkpoints (0: only the final one, written when the
+            run ends or stops, which ``resume`` and a calibration-only run need).
+        resume: continue from ``out/checkpoint.pt`` if it exists. The call must repeat the
+            run's settings (:func:`run_settings`: ``seed``, ``lr``, ``batch_size``, ``sizes``,
+            ``p_large``, ``sr_range``, ``orders``, ``noise_ref``, ``p_clean``,
+            ``p_noise_ref``; the network, ``x0`` and the scene mixture), else a ``ValueError``
+            names what differs; ``steps`` may change (see ``steps``). Checkpoints from
+            before a record skip its comparison.
         log_every: steps between ``log.json`` records and progress updates.
         progress: show a tqdm progress bar on rank 0.
         distributed: ``None`` detects torchrun, ``True`` requires it, ``False`` never.
-        max_minutes: stop (and save) after that much wall time, even before ``steps``.
+        max_minutes: stop (and save) after that much wall time (``>= 0``), even before
+            ``steps``; under DDP every rank stops after the same step.
         command: the command line recorded in ``recipe.json``.
         calibrate: set the final step's ``τ`` by :func:`calibrate_tau` at the end (else the
             final step stays off).
-        device: where the model trains (``"cpu"``, ``"cuda"``, ...); the data are drawn on
-            the CPU and moved there. The returned model and the weights file are on the CPU.
+        device: where the model trains (``"cpu"``, ``"cuda"``, ...; under ``torchrun``
+            ``"cuda"`` is ``cuda:LOCAL_RANK``); the data are drawn on the CPU and moved there.
+            The returned model and the weights file are on the CPU.
         workers: processes that draw the data ahead of the optimiser (0: this process). The
             draws depend only on ``(seed, step, index)``, so the run is the same.
         families: the scene families' probabilities (:func:`torchtof.data.draw_scene`;
@@ -471,7 +589,8 @@ def train_learned(
         :class:`LearnedTrainResult`.
 
     Raises:
-        ValueError: for invalid arguments (named in the message).
+        ValueError, TypeError: for invalid arguments (named in the message), or a resume
+            whose settings differ from the checkpoint's run.
     """
     func = "train_learned"
     for name, v, least in (("steps", steps, 1), ("batch_size", batch_size, 1),
@@ -482,19 +601,32 @@ def train_learned(
     if noise_ref is not None and (isinstance(noise_ref, bool) or not isinstance(noise_ref, int)
                                   or noise_ref < 1):
         raise ValueError(f"{func}: expected noise_ref to be None or an int >= 1, got {noise_ref!r}")
-    for name, v in (("p_clean", p_clean), ("p_noise_ref", p_noise_ref)):
+    for name, v in (("p_clean", p_clean), ("p_noise_ref", p_noise_ref), ("p_large", p_large)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
             raise ValueError(f"{func}: expected {name} in [0, 1], got {v!r}")
-    if not (lr > 0 and math.isfinite(lr)):
-        raise ValueError(f"{func}: expected lr > 0, got {lr!r}")
+    check_int(seed, "seed", func, 0, 2**64 - 1)  # torch.manual_seed's range
+    check_positive(lr, "lr", func)
+    if max_minutes is not None:
+        check_positive(max_minutes, "max_minutes", func, strict=False)
+    if not isinstance(sr_range, (tuple, list)) or len(sr_range) != 2:
+        raise TypeError(f"{func}: expected sr_range to be a pair (lo, hi), got {sr_range!r}")
     lo, hi = sr_range
+    check_in_range(lo, 0.0, 1.0, "sr_range[0]", func, lo_open=True)
+    check_in_range(hi, 0.0, 1.0, "sr_range[1]", func, lo_open=True)
     if not 0 < lo <= hi <= 1:
         raise ValueError(f"{func}: expected 0 < sr_range[0] <= sr_range[1] <= 1, got {sr_range}")
-    if not sizes or any(s < 8 or s & (s - 1) for s in sizes):
-        raise ValueError(f"{func}: expected sizes to be powers of two >= 8, got {sizes}")
+    if not isinstance(sizes, (tuple, list)) or not all(
+            isinstance(n, int) and not isinstance(n, bool) for n in sizes):
+        raise TypeError(f"{func}: expected sizes to be a tuple of ints, got {sizes!r}")
+    if not sizes or any(s < 8 or s > N_MAX or s & (s - 1) for s in sizes):
+        raise ValueError(f"{func}: expected sizes to be powers of two in [8, {N_MAX}], "
+                         f"got {sizes}")
+    if not isinstance(orders, (tuple, list)):
+        raise TypeError(f"{func}: expected orders to be a tuple of names, got {orders!r}")
     bad = [o for o in orders if o not in ORDERS]
     if not orders or bad:
         raise ValueError(f"{func}: expected orders from {ORDERS}, got {orders}")
+    orders = tuple(orders)
     given_data = (user_images, families)
     user_paths = check_user_paths(user_images, func)
     families = user_mixture(families, user_paths, func)
@@ -504,7 +636,9 @@ def train_learned(
         raise ValueError(f"{func}: expected init to be a weights file, got {os.fspath(init)!r}")
     check_x0(x0, func, optional=False)
     sizes = tuple(sorted(sizes))
-    device = check_device(device, "device", func)
+    device = check_device(rank_device(device, distributed), "device", func)
+    settings = run_settings(seed, steps, lr, batch_size, sizes, p_large, (lo, hi), orders,
+                            noise_ref, p_clean, p_noise_ref)
 
     torch.manual_seed(seed)
     model = Learned(Hadamard(sizes[0], sr=0.25), n_layers=n_layers, pretrained=False,
@@ -527,10 +661,19 @@ def train_learned(
         opt, lambda s: 0.05 + 0.475 * (1 + math.cos(math.pi * min(s, steps) / steps))
     )
     outdir = Path(out) if out is not None else None
-    start, log, wall0 = 0, [], 0.0
+    start, log, wall0, history, steps_changes = 0, [], 0.0, [], []
     ckpt = outdir / "checkpoint.pt" if outdir is not None else None
     if resume and ckpt is not None and ckpt.is_file():
         state = torch.load(ckpt, weights_only=False, map_location=device)
+        if state["step"] > steps:
+            raise ValueError(f"{func}: checkpoint {ckpt} is at step {state['step']}, beyond "
+                             f"steps={steps}; resume with the run's steps")
+        check_run_settings(state.get("run"), settings, ckpt, func)
+        steps_changes = list(state.get("steps_changes", []))
+        if state.get("run") and state["run"].get("steps", steps) != steps:
+            # the schedule is the new steps' from here on (a jump in the learning rate)
+            steps_changes.append({"step": state["step"], "from": state["run"]["steps"],
+                                  "to": steps})
         want = {k: v for k, v in model.meta().items() if k != "model"}
         have = state.get("meta")  # checkpoints before it: the shapes below say it
         if have is not None and {k: have.get(k) for k in want} != want:
@@ -554,12 +697,14 @@ def train_learned(
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         start, log, wall0 = state["step"], state["log"], state["wall_s"]
+        # the run's per-step losses (checkpoints before the record: this process's only)
+        history = list(state.get("losses", []))
 
     _user_images.cache_clear()  # this run reads its images afresh
     data_record = {"families": families, "user_images": user_image_record(user_paths)}
-    is_dist, rank, world, created = dist_setup(distributed)
+    is_dist, rank, world, created = dist_setup(distributed, func)
     t0 = time.perf_counter()
-    losses: list[float] = []
+    losses: list[float] = []  # this call's; history: the run's, from step 1
     try:
         if batch_size % world:
             raise ValueError(f"{func}: expected batch_size divisible by the world size {world}, "
@@ -577,13 +722,13 @@ def train_learned(
             if ckpt is None or rank != 0:
                 return
             outdir.mkdir(parents=True, exist_ok=True)
-            tmp = ckpt.with_suffix(".tmp")
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
-                        "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
-                        "meta": model.meta(), "data": data_record,
-                        "wall_s": wall0 + time.perf_counter() - t0}, tmp)
-            tmp.replace(ckpt)
-            (outdir / "log.json").write_text(json.dumps(log, indent=0))
+            state = {"model": model.state_dict(), "opt": opt.state_dict(),
+                     "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
+                     "meta": model.meta(), "data": data_record, "run": settings,
+                     "steps_changes": steps_changes, "losses": history,
+                     "wall_s": wall0 + time.perf_counter() - t0}
+            atomic_write(ckpt, functools.partial(torch.save, state))
+            write_text(outdir / "log.json", json.dumps(log, indent=0))
 
         net: nn.Module = model
         if is_dist:  # A has no parameters: swapping it per step leaves DDP's buckets intact
@@ -606,8 +751,9 @@ def train_learned(
                 dist.all_reduce(mean)
                 mean /= world
             losses.append(float(mean))
+            history.append(losses[-1])
             if rank == 0 and ((step + 1) % log_every == 0 or step == steps - 1):
-                recent = losses[-log_every:]
+                recent = history[-log_every:]
                 log.append({"step": step + 1, "loss": float(np.mean(recent)), "n": n,
                             "sr": m / (n * n), "order": order, "lr": sched.get_last_lr()[0],
                             "wall_s": round(wall0 + time.perf_counter() - t0, 1)})
@@ -616,7 +762,7 @@ def train_learned(
                     bar.set_postfix(loss=f"{log[-1]['loss']:.5f}")
             if checkpoint_every and (step + 1) % checkpoint_every == 0:
                 save_checkpoint(step + 1)
-            if max_minutes is not None and time.perf_counter() - t0 > 60 * max_minutes:
+            if stop_after_step(t0, max_minutes, is_dist, device):  # the ranks together
                 step += 1
                 break
         else:
@@ -639,6 +785,7 @@ def train_learned(
                 "seed": seed,
                 "steps_run": step,
                 "steps": steps,
+                "steps_changes": steps_changes,
                 "batch_size": batch_size,
                 "world_size": world,
                 "lr": lr,
@@ -662,8 +809,8 @@ def train_learned(
                 },
                 "final_step_calibration": calib,
                 "calibration_wall_s": round(time.perf_counter() - t_cal, 1),
-                "final_loss": (float(np.mean(losses[-max(1, len(losses) // 10):]))
-                               if losses else None),
+                "final_loss": (float(np.mean(history[-max(1, len(history) // 10):]))
+                               if history else None),
                 "torch_version": str(torch.__version__),
                 "wall_s": round(wall, 1),
                 "load_avg_end": list(os.getloadavg()),
@@ -673,11 +820,11 @@ def train_learned(
             }
             model.to("cpu")
             model.A = Hadamard(sizes[0], sr=0.25)
-            model.save_weights(outdir / "learned.pt", seed=seed, steps=step,
-                               torch_version=str(torch.__version__), noise_ref=noise_ref,
-                               p_noise_ref=p_noise_ref if noise_ref else None,
-                               p_clean=p_clean)
-            (outdir / "recipe.json").write_text(json.dumps(recipe, indent=1))
+            atomic_write(outdir / "learned.pt", functools.partial(
+                model.save_weights, seed=seed, steps=step, torch_version=str(torch.__version__),
+                noise_ref=noise_ref, p_noise_ref=p_noise_ref if noise_ref else None,
+                p_clean=p_clean))
+            write_text(outdir / "recipe.json", json.dumps(recipe, indent=1))
         if is_dist:
             dist.barrier()
     finally:

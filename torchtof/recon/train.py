@@ -88,8 +88,10 @@ def noisy_measurements(
     return torch.cat(out)
 
 
-def _dist_setup(distributed: bool | None) -> tuple[bool, int, int, bool]:
-    """``(distributed, rank, world, created_group)`` from the torchrun environment."""
+def _dist_setup(distributed: bool | None,
+                func: str = "train_unrolled") -> tuple[bool, int, int, bool]:
+    """``(distributed, rank, world, created_group)`` from the torchrun environment (``func``:
+    the caller, named in the error)."""
     env = all(k in os.environ for k in ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT"))
     if distributed is None:
         distributed = env and int(os.environ["WORLD_SIZE"]) > 1
@@ -99,7 +101,7 @@ def _dist_setup(distributed: bool | None) -> tuple[bool, int, int, bool]:
     if not dist.is_initialized():
         if not env:
             raise ValueError(
-                "train_unrolled: distributed=True needs torchrun's RANK, WORLD_SIZE, MASTER_ADDR "
+                f"{func}: distributed=True needs torchrun's RANK, WORLD_SIZE, MASTER_ADDR "
                 "and MASTER_PORT environment variables (or an initialised process group)"
             )
         dist.init_process_group("gloo")
@@ -165,7 +167,7 @@ def train_unrolled(
 
     A = Hadamard(n, sr=sr, order=order)
     model = UnrolledTVAL3(A, n_layers=n_layers, pretrained=False)
-    is_dist, rank, world, created = _dist_setup(distributed)
+    is_dist, rank, world, created = _dist_setup(distributed, func)
     try:
         if batch_size % world:
             raise ValueError(

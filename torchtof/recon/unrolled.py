@@ -57,6 +57,7 @@ converged TVAL3 is better.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import warnings
@@ -173,7 +174,11 @@ def _unrolled_tval3(y: torch.Tensor, A: LinearOperator, per_iter: tuple, isotrop
     check_finite(y, "y", func)
     names = _SCALAR_NAMES
     if all(v is None for v in per_iter):  # the shipped scalars: the module's forward
-        return UnrolledTVAL3(A, isotropic=isotropic).to(device=y.device)(y)
+        # the scalars on y's device (exp there, as the module moved to it would compute them);
+        # the caller's A is used as given, never moved (the operator casts per call)
+        net = UnrolledTVAL3(A, isotropic=isotropic)
+        per_iter = tuple(getattr(net, k).to(device=y.device).exp() for k in PARAM_NAMES)
+        check_values = False
     missing = [k for k, v in zip(names, per_iter, strict=True) if v is None]
     if missing:
         raise ValueError(f"{func}: expected mu, beta, step, thresh and precond all given or "
@@ -278,6 +283,20 @@ def _raw_init(n_layers: int) -> dict[str, torch.Tensor]:
             for k, v in zip(PARAM_NAMES, values, strict=True)}
 
 
+@functools.lru_cache(maxsize=16)
+def _read_cached(path: str, mtime_ns: int, size: int) -> dict:
+    return torch.load(path, weights_only=True)
+
+
+def _read_weights(path: str | os.PathLike) -> dict:
+    """The contents of a weights file, read once per version of the file (keyed by its path,
+    modification time and size: a file rewritten in place is read again); callers copy the
+    tensors out, never keep or change them."""
+    p = Path(path).resolve()
+    st = p.stat()
+    return _read_cached(os.fspath(p), st.st_mtime_ns, st.st_size)
+
+
 class UnrolledTVAL3(nn.Module):
     """Unrolled TVAL3 with learned per-iteration scalars (:func:`unrolled_tval3`).
 
@@ -342,7 +361,7 @@ class UnrolledTVAL3(nn.Module):
         self.weights_file: str | None = None
         if pretrained is True:
             path = weight_path(A.n, A.m, n_layers)
-            if path.is_file() and self._meta_matches(torch.load(path, weights_only=True)["meta"]):
+            if path.is_file() and self._meta_matches(_read_weights(path).get("meta", {})):
                 self.load_weights(path)
             else:
                 warnings.warn(
@@ -383,7 +402,7 @@ class UnrolledTVAL3(nn.Module):
                 shapes do not match this network.
         """
         func = "UnrolledTVAL3.load_weights"
-        blob = torch.load(Path(path), weights_only=True)
+        blob = _read_weights(path)
         meta, state = blob.get("meta", {}), blob.get("state_dict", {})
         if not self._meta_matches(meta):
             raise ValueError(
