@@ -304,7 +304,12 @@ def intensity_bucket(amplitude: torch.Tensor, roi: object = None) -> torch.Tenso
     .. math::
         S_i = \sum_{p \in \mathrm{ROI}} a_i(p)
 
-    Linear in the light; ``amplitude`` may be the ToF amplitude (Eq. 8) or offset image.
+    A sum over the ROI, so linear in the per-pixel values it is given. With the offset
+    (intensity) image those are linear in the light; the ToF amplitude (Eq. 8) is not:
+    it is ``½|P|`` of the phasor sum of every return on the pixel, so where two returns
+    overlap (stray light, multipath, a scattering sheet) ``½|P₁ + P₂| ≤ ½|P₁| + ½|P₂|`` and
+    the bucket of the object's light depends on the phases of the others (it can even fall
+    as more light arrives).
 
     Args:
         amplitude: amplitude/intensity frames, one per pattern.

@@ -22,6 +22,15 @@ The camera adds the ambient offset, shot and read noise, digitises the taps, com
 (Eq. 7), amplitude (Eq. 8) and depth (Eq. 1) and applies the rules: clip to [1, 5] m,
 "no photon" (amplitude below threshold) → 5 m, 0.25 m output step.
 
+``scattering_model="depth"`` applies the paper's Eq. 15 to the Eq. 1 depth of each pixel
+*before* these rules (:func:`~torchtof.sensor.scatter_depth`, then
+:func:`~torchtof.sensor.camera_rules`), so the depth stays in the camera's output domain: in
+``[min_m, max_m]`` on the ``step_m`` grid, and a pixel without photons still reports
+``max_m`` (5 m), which the 3 m gate removes. The model is phenomenological — it describes the
+camera's depth map, not the light — so it leaves the taps, the amplitude and the phase of the
+frames, hence the tap and intensity buckets, as they are in air; only the ``"phasor"`` model
+scatters the light itself.
+
 **Comparing a depth image with the binary object** (the paper's "ToF image", Fig. 5b): the
 raw ToF depth map is taken with every mirror on, averaged over the sensor pixels of each
 DMD pixel onto the 32×32 grid, and scored with :func:`torchtof.metrics.compare`: min-max
@@ -58,9 +67,11 @@ from .scenes import Scene, get_scene
 from .sensor import (
     add_multipath,
     blur_phasor,
+    camera_rules,
     cw_tof_sensor,
     dmd_to_sensor,
     dust_map,
+    phase_to_depth,
     phasor_from_depth,
     scatter_depth,
     scatter_phasor,
@@ -119,11 +130,11 @@ class ExperimentConfig:
     psf_sigma_px: float = 0.6  # optical blur on the sensor (mixed pixels)
     multipath_strength: float = 0.35
     multipath_extra_m: float = 1.6
-    multipath_sigma_px: float = 6.0
+    multipath_sigma_px: float = 6.0  # spread of the multipath copy; 0: none (same pixel)
     stray_e: float = 1000.0  # peak amplitude of pattern-independent stray returns (calibrated)
     stray_near_m: float = 2.3
-    stray_far_m: float = 4.9
-    stray_sigma_px: float = 3.0
+    stray_far_m: float = 4.9  # >= stray_near_m
+    stray_sigma_px: float = 3.0  # correlation length of the stray maps, > 0
     stray_seed: int = 11
     # scattering sheet
     scattering: bool = False
@@ -133,7 +144,7 @@ class ExperimentConfig:
     backscatter_e: float = 700.0  # peak backscatter amplitude (dust map maximum)
     sheet_m: float = 1.2
     depth_s_m: float = 0.4  # Eq. 15's Dˢ scale for the depth-domain model
-    dust_sigma_px: float = 6.0
+    dust_sigma_px: float = 6.0  # correlation length of the dust map, > 0
     dust_seed: int = 7
     # acquisition
     srs: tuple[float, ...] = PAPER_SRS
@@ -165,11 +176,17 @@ class ExperimentConfig:
         if self.step_m is not None:
             check_positive(self.step_m, "step_m", func)
         for name in ("min_m", "max_m", "sheet_m", "multipath_extra_m", "stray_near_m",
-                     "stray_far_m", "multipath_sigma_px", "stray_sigma_px", "dust_sigma_px"):
+                     "stray_far_m", "multipath_sigma_px"):
             check_positive(getattr(self, name), name, func, strict=False)
+        # correlation lengths of the smooth random stray and dust maps (dust_map): > 0
+        for name in ("stray_sigma_px", "dust_sigma_px"):
+            check_positive(getattr(self, name), name, func)
         if not self.max_m > self.min_m:
             raise ValueError(f"{func}: expected max_m > min_m, got min_m={self.min_m}, "
                              f"max_m={self.max_m}")
+        if not self.stray_far_m >= self.stray_near_m:
+            raise ValueError(f"{func}: expected stray_far_m >= stray_near_m, got "
+                             f"stray_near_m={self.stray_near_m}, stray_far_m={self.stray_far_m}")
         if not isinstance(self.scattering, bool):
             raise TypeError(f"{func}: expected scattering to be a bool, got "
                             f"{type(self.scattering).__name__}")
@@ -300,7 +317,7 @@ def _frames(scene, patterns, cfg, generator, dust, stray):
         # (σ scaled by n/P) before imaging onto the sensor: same result, ~8x cheaper.
         sigma = cfg.multipath_sigma_px * cfg.n / p
         phasor = add_multipath(phasor, cfg.multipath_strength, cfg.multipath_extra_m, cfg.freq_hz,
-                               sigma)
+                               sigma or None)  # 0: an unspread copy (the config's comment)
         mag = mag + cfg.multipath_strength * _smooth(mag, sigma)
     phasor = _smooth(dmd_to_sensor(phasor, p), cfg.psf_sigma_px)
     mag = _smooth(dmd_to_sensor(mag, p), cfg.psf_sigma_px)
@@ -313,15 +330,19 @@ def _frames(scene, patterns, cfg, generator, dust, stray):
                                 cfg.sheet_m, cfg.freq_hz)
         mag = cfg.alpha * _smooth(mag, cfg.scatter_sigma_px) + b
     g = cfg.gain() if cfg.adc_bits is not None else 1.0
+    rules = dict(min_m=cfg.min_m, max_m=cfg.max_m, amp_threshold=cfg.amp_threshold_e / g,
+                 no_photon_m=cfg.max_m, step_m=cfg.step_m)
     frame = cw_tof_sensor(
         phasor, 0.5 * mag, freq_hz=cfg.freq_hz, ambient_e=cfg.ambient_e, shot=cfg.shot,
         read_noise_e=cfg.read_noise_e, adc_bits=cfg.adc_bits, gain_e_per_dn=g,
-        min_m=cfg.min_m, max_m=cfg.max_m, amp_threshold=cfg.amp_threshold_e / g,
-        no_photon_m=cfg.max_m, step_m=cfg.step_m, generator=generator,
+        generator=generator, **rules,
     )
     if cfg.scattering and cfg.scattering_model == "depth":
-        depth = scatter_depth(frame.depth, cfg.alpha, cfg.depth_s_m * dust)  # Eq. 15
-        frame = frame._replace(depth=depth)
+        # Eq. 15 on the Eq. 1 depth, then the camera's rules (module docstring): the output
+        # keeps the camera's [min_m, max_m] clip, step grid and no-photon depth
+        depth = scatter_depth(phase_to_depth(frame.phase, cfg.freq_hz), cfg.alpha,
+                              cfg.depth_s_m * dust)
+        frame = frame._replace(depth=camera_rules(depth, frame.amplitude, **rules))
     return frame
 
 

@@ -31,20 +31,44 @@ images) with any reconstructor and applying Eq. 7 (phase), Eq. 8 (amplitude) and
     t = \\max\\big(k \\cdot \\tfrac12 σ_y \\sqrt{M/N},\\; r \\cdot \\max_u Â(u)\\big)
 
 with ``σ_y`` the noise std of the I/Q buckets, ``M/N`` the sampling rate and defaults
-``k = 3``, ``r = 0.1``. The noise term needs the reconstructor's operator (its ``A``) with
-orthonormal rows; otherwise (TGI on DMD buckets, unknown operators) only the relative
-floor applies. ``σ_y √(M/N)`` is the noise std of each of ``Î, Q̂`` on a pixel for
+``k = 3``, ``r = 0.1``. ``σ_y √(M/N)`` is the noise std of each of ``Î, Q̂`` on a pixel for
 the pseudo-inverse of orthonormal Hadamard rows (entries ``±1/n``: ``Σ_i A_{iu}² = M/N``);
 an empty pixel then has a Rayleigh amplitude and passes with probability
-``exp(−k²/2) ≈ 1.1 %``. Regularised reconstructors leave less noise, so the rule is
-conservative for them. The relative floor ``r`` removes dim returns that are not the object
+``exp(−k²/2) ≈ 1.1 %``. The noise term is computed at the scale of the reconstructor's
+images, which it needs to know (with ``A`` its operator, of orthonormal rows):
+
+- images in the units of ``A⁺y`` (PseudoInverse, TVAL3, BasisPursuit, :class:`JointTV`, …,
+  every reconstructor but the correlation family): ``√(M/N)`` as above. Regularised
+  reconstructors leave less noise, so the rule is conservative for them;
+- TGI, ``Aᵀ(y − ⟨y⟩)/M`` (``1/M`` of the pseudo-inverse's scale): its pixel noise variance
+  ``σ_y² ‖C a_u‖²/M²`` (``a_u`` the column of ``A``, ``C`` the centring) averages, over the
+  pixels, to ``σ_y² (‖A‖_F² − ‖Aᵀ1‖²/M)/(N M²) = σ_y² (M − 1)/(N M²)`` (orthonormal rows:
+  ``‖A‖_F² = M``, ``‖Aᵀ1‖² = ‖1‖² = M``), so the noise term uses ``√((M − 1)/N)/M``.
+
+Any other operator (TGI on the DMD buckets of :class:`~torchtof.operators.DMDSplit`, operators
+without orthonormal rows) leaves the scale of the image noise unknown: the relative floor
+alone applies. The relative floor ``r`` removes dim returns that are not the object
 (multipath spill, a 35 % copy in the experiment, lands mostly below it).
+
+**Masked pixels.** By default every pixel reports the Eq. 1 depth of its phase, and the
+mask (``DepthResult.mask``) says which of them are empty: there the phase is noise or
+round-off. The mask is a statistical decision (a dim object pixel, e.g. an edge pixel the
+object half covers, may fall below the relative floor), so the depth is kept for the caller
+to judge. ``no_photon_m=d`` instead reports a fixed depth ``d`` on masked pixels, like the
+camera's pixels "without receiving any photon" (paper §2.2,
+:func:`~torchtof.sensor.camera_rules`), so that the depth map alone
+(``DepthResolved.forward``, the exported model) tells which pixels are empty: the camera's
+own value is the far end of its range, ``no_photon_m=5.0`` (outside ``[0, c/(2f))`` at
+30 MHz, beyond a 3 m gate); ``0.0`` passes a depth gate. The phase and amplitude of a masked
+pixel are left as Eqs. 7 and 8 give them.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from fractions import Fraction
+from statistics import NormalDist
 from typing import NamedTuple
 
 import torch
@@ -63,7 +87,7 @@ from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
 from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, largest_eig_normal
-from .tval3 import B_SPREAD, auto_weights, bucket_noise_sigma, check_buckets
+from .tval3 import B_SPREAD, NOISE_QUANTILE, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
     "MODES",
@@ -93,10 +117,12 @@ class DepthResult(NamedTuple):
     """Output of :func:`depth_resolved` (all ``(B, 1, n, n)`` unless noted).
 
     Attributes:
-        depth: depth in metres, Eq. 1 of the per-pixel phase, in ``[0, c/(2f))``.
+        depth: depth in metres, Eq. 1 of the per-pixel phase, in ``[0, c/(2f))``; with
+            ``no_photon_m`` given, that depth where ``mask`` is ``False`` (module docstring).
         amplitude: Eq. 8 amplitude ``½|P̂|`` in the units of the buckets.
         phase: Eq. 7 phase in ``[0, 2π)``.
-        mask: bool, ``True`` where the amplitude is above the mask threshold (module doc).
+        mask: bool, ``True`` where the amplitude is above the mask threshold (module doc);
+            for :class:`DualFrequencyDepth` also where the two frequencies agree.
         images: the reconstructed I/Q ``(B, 2, n, n)`` or tap images ``(B, 4, n, n)``.
         threshold: the mask threshold per image ``(B,)``.
         x: the depth again (the reconstructor contract's name for the output).
@@ -281,9 +307,13 @@ def joint_tv(
     ``mu="auto"`` picks the model from the noise as :func:`~torchtof.recon.tval3` does
     (``μ = 0.7 σ_s^{-1.3}`` on the scaled buckets; above ``2⁸`` the constrained model with
     ``μ = 2⁸``, else TV-L2 with ``4β``), with one ``σ`` per sample: ``noise_sigma`` (e.g.
-    :func:`tap_noise_sigma`) or the smallest per-channel tail estimate of
-    :func:`~torchtof.recon.bucket_noise_sigma` (I and Q carry the same noise; the tail of
-    the channel with less signal in it reads closer to the truth).
+    :func:`tap_noise_sigma`) or the tail estimate of
+    :func:`~torchtof.recon.bucket_noise_sigma` applied to the length ``‖y_{·,i}‖₂`` of the
+    channel vector of each measurement (invariant to a rotation of the channel vector, as the
+    gain is, so that the global-phase invariance also holds with ``mu="auto"``): with the
+    same white noise ``σ`` on the ``C`` channels that length is ``σ`` times a chi variable
+    with ``C`` degrees of freedom, whose ``q``-quantile replaces the half-normal one
+    (:func:`_channel_noise_sigma`).
 
     Args:
         y: measurements ``(B, C, M)``, ``M = A.m``, float32/float64.
@@ -348,7 +378,7 @@ def joint_tv(
     b = y * gain[:, None, None]
     if mu == "auto":
         if noise_sigma is None:
-            sigma = bucket_noise_sigma(y).amin(dim=1)
+            sigma = _channel_noise_sigma(y)
         elif isinstance(noise_sigma, torch.Tensor):
             sigma = _noise_tensor(noise_sigma, y, fn)
         else:
@@ -394,6 +424,62 @@ class JointTVResult(NamedTuple):
     residual: torch.Tensor
     converged: torch.Tensor
     stop_reason: tuple
+
+
+def _chi_cdf(x: float, c: int) -> float:
+    """CDF of the chi distribution with ``c`` degrees of freedom at ``x >= 0``: the regularised
+    lower incomplete gamma function ``P(c/2, x²/2)``, by the recurrence
+    ``P(a + 1, t) = P(a, t) − tᵃ e^{−t}/Γ(a + 1)`` from ``P(1, t) = 1 − e^{−t}`` or
+    ``P(½, t) = erf(√t)`` (Abramowitz & Stegun, *Handbook of Mathematical Functions*,
+    §6.5)."""
+    t = 0.5 * x * x
+    a, p = (1.0, -math.expm1(-t)) if c % 2 == 0 else (0.5, math.erf(math.sqrt(t)))
+    while a < 0.5 * c:
+        p -= math.exp(a * math.log(t) - t - math.lgamma(a + 1.0)) if t > 0 else 0.0
+        a += 1.0
+    return p
+
+
+@functools.lru_cache(maxsize=32)
+def _chi_quantile(c: int, q: float) -> float:
+    """The ``q``-quantile of the chi distribution with ``c`` degrees of freedom (bisection on
+    :func:`_chi_cdf`; ``c = 1``: the half-normal ``Φ⁻¹((1+q)/2)``, ``c = 2``: the Rayleigh
+    ``√(−2 ln(1 − q))``)."""
+    lo, hi = 0.0, 1.0
+    while _chi_cdf(hi, c) < q:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _chi_cdf(mid, c) < q:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-15 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def _channel_noise_sigma(y: torch.Tensor) -> torch.Tensor:
+    """Noise std ``(B,)`` of buckets ``(B, C, M)`` with the same white noise on every channel,
+    invariant to a rotation of the channel vector (e.g. a global phase of the I/Q pair).
+
+    The tail rule of :func:`~torchtof.recon.bucket_noise_sigma` (a low quantile ``q`` of the
+    high-order measurements) applied to the length ``r_i = ‖y_{·,i}‖₂`` of each measurement's
+    channel vector: noise alone makes ``r = σχ_C`` (chi with ``C`` degrees of freedom), so
+    ``σ̂ = Q_q(r) / χ_C⁻¹(q)``. One channel: :func:`~torchtof.recon.bucket_noise_sigma` itself.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> y = 0.5 * torch.randn(1, 2, 65536, generator=g)
+        >>> round(float(_channel_noise_sigma(y)), 1)
+        0.5
+    """
+    if y.shape[1] == 1:
+        return bucket_noise_sigma(y)[:, 0]
+    q = NOISE_QUANTILE
+    half_normal = NormalDist().inv_cdf((1.0 + q) / 2)  # what bucket_noise_sigma divides by
+    r = y.norm(dim=1, keepdim=True)
+    return bucket_noise_sigma(r)[:, 0] * (half_normal / _chi_quantile(int(y.shape[1]), q))
 
 
 def _noise_tensor(noise_sigma: torch.Tensor, y: torch.Tensor, fn: str) -> torch.Tensor:
@@ -508,6 +594,21 @@ def _operator_of(reconstructor: nn.Module) -> LinearOperator | None:
     return A if isinstance(A, LinearOperator) else None
 
 
+def _noise_gain(reconstructor: nn.Module, n_pix: int) -> float | None:
+    """Noise std of an image pixel per unit noise std of the buckets, at the scale of the
+    reconstructor's images, or ``None`` where it is not known (module docstring, "Amplitude
+    mask"): ``√(M/N)`` for images in the units of ``A⁺y``, ``√((M − 1)/N)/M`` (RMS over the
+    pixels) for TGI, both for an operator with orthonormal rows."""
+    from .correlation import TGI
+
+    A = _operator_of(reconstructor)
+    if A is None or not A.orthonormal_rows:
+        return None
+    if isinstance(reconstructor, TGI):  # Aᵀ(y − ⟨y⟩)/M
+        return math.sqrt((A.m - 1) / n_pix) / A.m
+    return math.sqrt(min(A.m, n_pix) / n_pix)
+
+
 def depth_resolved(
     y: torch.Tensor,
     reconstructor: nn.Module,
@@ -516,6 +617,7 @@ def depth_resolved(
     k_sigma: float = MASK_K_SIGMA,
     rel_floor: float = MASK_REL,
     noise_sigma: torch.Tensor | float | None = None,
+    no_photon_m: float | None = None,
 ) -> DepthResult:
     """Depth, amplitude and phase per DMD pixel from per-tap (or I/Q) buckets.
 
@@ -541,6 +643,11 @@ def depth_resolved(
             ``rel_floor ∈ [0, 1)``.
         noise_sigma: noise std of the I/Q buckets, ``(B,)`` or a float; ``None``: from the
             taps (:func:`tap_noise_sigma`) for four-tap input, else no noise term in the mask.
+            A reconstructor that takes ``noise_sigma`` gets it when it is given or measured
+            from the taps; with I/Q input and ``None`` it estimates the noise itself (a zero
+            would make :class:`JointTV` fit the noise exactly).
+        no_photon_m: depth reported by masked pixels, metres ``>= 0`` (module docstring;
+            the camera's rule is 5 m); ``None``: the Eq. 1 depth on every pixel.
 
     Returns:
         :class:`DepthResult`.
@@ -553,6 +660,10 @@ def depth_resolved(
     Shape:
         - y: :math:`(B, 4, M')` or :math:`(B, 2, M')`.
         - Output: depth, amplitude, phase, mask :math:`(B, 1, n, n)`.
+
+    The noise term of the mask needs the scale of the reconstructor's images: known for the
+    pseudo-inverse scale and for TGI on an operator with orthonormal rows (module docstring);
+    for any other the relative floor alone applies.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -575,6 +686,8 @@ def depth_resolved(
     r = check_positive(rel_floor, "rel_floor", func, strict=False)
     if r >= 1:
         raise ValueError(f"{func}: expected rel_floor in [0, 1), got {rel_floor}")
+    fill = (None if no_photon_m is None
+            else check_positive(no_photon_m, "no_photon_m", func, strict=False))
     taps_in = y.shape[1] == 4
     if mode == "taps" and not taps_in:
         raise ValueError(f"{func}: mode='taps' needs tap buckets (B, 4, M), got {tuple(y.shape)}")
@@ -585,7 +698,9 @@ def depth_resolved(
     else:
         sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", func, False))
     meas = iq_buckets(y) if (mode == "iq" and taps_in) else y
-    kw = {"noise_sigma": sigma} if getattr(reconstructor, "accepts_noise_sigma", False) else {}
+    known = noise_sigma is not None or taps_in  # else sigma is a zero placeholder (mask only)
+    accepts = getattr(reconstructor, "accepts_noise_sigma", False)
+    kw = {"noise_sigma": sigma} if (known and accepts) else {}
     solve = getattr(reconstructor, "solve", None)
     sol = solve(meas, **kw) if callable(solve) else None
     images = reconstructor(meas, **kw) if sol is None else sol.x
@@ -598,16 +713,18 @@ def depth_resolved(
         phase, amplitude = iq_phase_amplitude(images)
     else:
         phase, amplitude = tap_phase(images), tap_amplitude(images)
-    depth = phase_to_depth(phase, f)
     n_pix = images.shape[-1] * images.shape[-2]
-    A = _operator_of(reconstructor)
-    if A is not None and A.orthonormal_rows:  # pixel noise σ_y √(M/N) (module docstring)
-        noise_amp = 0.5 * sigma * math.sqrt(min(A.m, n_pix) / n_pix)
+    gain = _noise_gain(reconstructor, n_pix)
+    if gain is not None:  # pixel noise, e.g. σ_y √(M/N) (module docstring)
+        noise_amp = 0.5 * sigma * gain
     else:  # unknown scale of the image noise: the relative floor alone
         noise_amp = torch.zeros_like(sigma)
     peak = amplitude.flatten(1).amax(dim=1)
     threshold = torch.maximum(k * noise_amp, r * peak)
     mask = amplitude > threshold.reshape(-1, 1, 1, 1)
+    depth = phase_to_depth(phase, f)
+    if fill is not None:  # masked pixels: the no-photon depth (module docstring)
+        depth = torch.where(mask, depth, torch.full_like(depth, fill))
     if sol is None:
         return DepthResult(depth, amplitude, phase, mask, images, threshold, depth)
     return DepthResult(depth, amplitude, phase, mask, images, threshold, depth, sol.n_iter,
@@ -618,13 +735,14 @@ class DepthResolved(nn.Module):
     """Depth-resolved ghost imaging (:func:`depth_resolved`) with the reconstructor inside.
 
     ``solve(y)`` returns the :class:`DepthResult`; ``forward(y)`` returns the depth map
-    ``(B, 1, n, n)`` (tensor in, tensor out, for export); ``depth_amplitude(y)`` returns
+    ``(B, 1, n, n)`` (tensor in, tensor out, for export; with ``no_photon_m`` given, masked
+    pixels report it, so the map carries the mask); ``depth_amplitude(y)`` returns
     ``(depth, amplitude)``.
 
     Args:
         reconstructor: any reconstructor module (see :func:`depth_resolved`).
         freq_hz: modulation frequency in Hz.
-        mode, k_sigma, rel_floor: as :func:`depth_resolved`.
+        mode, k_sigma, rel_floor, no_photon_m: as :func:`depth_resolved`.
 
     Example:
         >>> from torchtof.operators import Hadamard
@@ -635,7 +753,8 @@ class DepthResolved(nn.Module):
     """
 
     def __init__(self, reconstructor: nn.Module, freq_hz: float = 30e6, mode: str = "iq",
-                 k_sigma: float = MASK_K_SIGMA, rel_floor: float = MASK_REL) -> None:
+                 k_sigma: float = MASK_K_SIGMA, rel_floor: float = MASK_REL,
+                 no_photon_m: float | None = None) -> None:
         super().__init__()
         func = "DepthResolved"
         _check_reconstructor(reconstructor, func)
@@ -649,11 +768,13 @@ class DepthResolved(nn.Module):
         self.freq_hz = float(freq_hz)
         self.mode = mode
         self.k_sigma, self.rel_floor = float(k_sigma), float(rel_floor)
+        self.no_photon_m = (None if no_photon_m is None
+                            else check_positive(no_photon_m, "no_photon_m", func, strict=False))
 
     def solve(self, y: torch.Tensor, noise_sigma: torch.Tensor | float | None = None
               ) -> DepthResult:
         return depth_resolved(y, self.reconstructor, self.freq_hz, self.mode, self.k_sigma,
-                              self.rel_floor, noise_sigma)
+                              self.rel_floor, noise_sigma, self.no_photon_m)
 
     def depth_amplitude(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         res = self.solve(y)
@@ -783,7 +904,9 @@ def dual_frequency_depth(
     pixel (memory checked first, :func:`torchtof.set_memory_limit`).
 
     Args:
-        phase_1, phase_2: phases in ``[0, 2π)`` at ``freq_1_hz``/``freq_2_hz``, same shape.
+        phase_1, phase_2: phases in ``[0, 2π)`` at ``freq_1_hz``/``freq_2_hz``, same shape
+            (Eq. 7 as :func:`~torchtof.sensor.tap_phase` wraps it; ``2π`` itself, which a
+            rounded ``remainder`` can return, is accepted).
         freq_1_hz, freq_2_hz: the two frequencies in Hz, different, ``> 0``.
         max_m: the range to unwrap into, metres, ``≤`` the common range (default it).
         return_gap: also return the disagreement ``|d₁ − d₂|`` of the chosen pair (metres),
@@ -797,9 +920,10 @@ def dual_frequency_depth(
 
     Raises:
         TypeError: if a phase is not a real floating tensor.
-        ValueError: on different shapes, equal or non-positive frequencies, frequencies
-            without a common range of at most :data:`MAX_HYPOTHESES` hypotheses, ``max_m``
-            outside ``(0, common range]``, or hypotheses that exceed the memory limit.
+        ValueError: on different shapes, a phase outside ``[0, 2π]``, equal or non-positive
+            frequencies, frequencies without a common range of at most
+            :data:`MAX_HYPOTHESES` hypotheses, ``max_m`` outside ``(0, common range]``, or
+            hypotheses that exceed the memory limit.
 
     Example:
         >>> d = torch.tensor([0.5, 4.0, 6.2, 11.0])
@@ -813,6 +937,7 @@ def dual_frequency_depth(
         if p.is_complex():
             raise TypeError(f"{func}: expected {name} to be a real tensor, got {p.dtype}")
         check_finite(p, name, func)
+        _check_phase_range(p, name, func)
     if phase_1.shape != phase_2.shape:
         raise ValueError(f"{func}: expected phase_1 and phase_2 of the same shape, got "
                          f"{tuple(phase_1.shape)} and {tuple(phase_2.shape)}")
@@ -844,6 +969,19 @@ def dual_frequency_depth(
     a1, a2 = d1.gather(-1, i1).squeeze(-1), d2.gather(-1, i2).squeeze(-1)
     depth = torch.remainder((w1 * a1 + w2 * a2) / (w1 + w2), top)
     return (depth, (a1 - a2).abs()) if return_gap else depth
+
+
+def _check_phase_range(p: torch.Tensor, name: str, func: str) -> None:
+    """Raise ``ValueError`` unless the phases lie in ``[0, 2π]`` (one host read at entry; eager
+    mode only, as :func:`~torchtof._checks.check_finite`). The upper end has a slack of the
+    dtype's rounding: ``remainder(θ, 2π)`` in float32 can return ``float32(2π) > 2π``."""
+    if p.numel() == 0 or p.is_meta or is_tracing():
+        return
+    lo, hi = (float(v) for v in torch.aminmax(p.detach()))
+    top = 2.0 * math.pi * (1.0 + 4 * torch.finfo(p.dtype).eps)
+    if lo < 0 or hi > top:
+        raise ValueError(f"{func}: expected {name} in [0, 2π) (Eq. 7 wrapped, e.g. "
+                         f"torch.remainder(θ, 2π)), got values in [{lo:.6g}, {hi:.6g}]")
 
 
 def hypothesis_spacing(freq_1_hz: float, freq_2_hz: float) -> float:
@@ -878,12 +1016,14 @@ class DualFrequencyDepth(nn.Module):
         """:class:`DepthResult` with the unwrapped depth; amplitude, phase and images of the
         first frequency; the mask: both amplitude masks, and the two depths of the chosen
         hypothesis agree within a quarter of the hypothesis spacing (0.62 m for 30 + 20 MHz;
-        wrong pairs differ by a multiple of the spacing)."""
+        wrong pairs differ by a multiple of the spacing). Unlike :func:`depth_resolved` the
+        depth is not filled where the mask is off: it is the unwrapped depth of the two phases
+        on every pixel (the mask says which to trust)."""
         a, b = self.rec_1.solve(y_1), self.rec_2.solve(y_2)
         depth, gap = dual_frequency_depth(a.phase, b.phase, *self.freqs_hz, self.max_m,
                                           return_gap=True)
         ok = gap < 0.25 * hypothesis_spacing(*self.freqs_hz)
-        return a._replace(depth=depth, mask=a.mask & b.mask & ok)
+        return a._replace(depth=depth, x=depth, mask=a.mask & b.mask & ok)
 
     def forward(self, y_1: torch.Tensor, y_2: torch.Tensor) -> torch.Tensor:
         return self.solve(y_1, y_2).depth

@@ -240,6 +240,25 @@ def _safe_iq(
     return q, i, nonzero
 
 
+def _pow2_rescale(q: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(q·s, i·s)`` with ``s`` a power of two per pixel that brings ``m = max(|q|, |i|)``
+    into ``[2^-e, 2^e]``, ``e = maxexp/2 − 2`` (``2^±62`` in float32, ``2^±510`` in float64),
+    and ``s = 1`` where ``m`` already lies there.
+
+    ``atan2(q, i)`` is invariant to a common positive scale, and a power of two scales
+    exactly, so the phase does not change (bit for bit wherever nothing over- or underflows);
+    but the backward of ``atan2`` divides by ``q² + i²``, which underflows to 0 in float32 for
+    ``m`` below about 1e-19 (an infinite or NaN gradient for a finite true one, ``1/|P|``) and
+    overflows above 1e19. The factor is chosen by comparisons (no ``log2``/``exp2`` rounding,
+    exports to ONNX) and is a constant per pixel (no gradient of its own)."""
+    e = math.frexp(torch.finfo(q.dtype).max)[1] // 2 - 2  # max < 2^maxexp
+    hi, k = 2.0**e, 2.0 ** (2 * e)
+    m = torch.maximum(q.abs(), i.abs())
+    s = torch.where(m > hi, torch.full_like(m, 1.0 / k),
+                    torch.where(m < 1.0 / hi, torch.full_like(m, k), torch.ones_like(m)))
+    return q * s, i * s
+
+
 def tap_phase(taps: torch.Tensor) -> torch.Tensor:
     """Phase from the four taps, paper Eq. 7, wrapped to ``[0, 2π)``.
 
@@ -251,7 +270,11 @@ def tap_phase(taps: torch.Tensor) -> torch.Tensor:
     :func:`correlation_taps`); for taps in the text order it returns ``π/4`` or ``5π/4``
     whatever the true phase. A pixel with ``c₁ = c₂`` and ``c₃ = c₄`` (no modulated light)
     gets phase 0 with a zero gradient (no NaN: ``atan2(0, 0)`` has no derivative, so both
-    operands are replaced there before the call).
+    operands are replaced there before the call). Operands far from 1 (the larger of
+    ``|c₄ − c₃|``, ``|c₁ − c₂|`` below ``2^-62`` or above ``2^62`` in float32) are first
+    scaled by a power of two: the phase is scale-invariant and unchanged, and the gradient
+    stays finite where ``q² + i²`` in ``atan2``'s backward would underflow (it is
+    ``1/|P|``-sized, e.g. ``1e20`` at ``|P| = 1e-20``).
 
     Args:
         taps: real ``(B, 4, H, W)`` taps in the Fig. 1 order.
@@ -269,6 +292,7 @@ def tap_phase(taps: torch.Tensor) -> torch.Tensor:
         1.5708
     """
     q, i, nonzero = _safe_iq(taps, "tap_phase")
+    q, i = _pow2_rescale(q, i)
     q_safe = torch.where(nonzero, q, torch.zeros_like(q))
     i_safe = torch.where(nonzero, i, torch.ones_like(i))
     theta = torch.where(nonzero, torch.atan2(q_safe, i_safe), torch.zeros_like(q))

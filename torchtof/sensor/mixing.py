@@ -33,7 +33,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .._checks import check_finite, check_positive, check_rank, check_tensor
+from .._checks import check_finite, check_float_dtype, check_positive, check_rank, check_tensor
 from .._memory import check_memory
 
 __all__ = ["area_overlap_matrix", "dmd_to_sensor", "DMDToSensor", "blur_phasor"]
@@ -82,14 +82,15 @@ def area_overlap_matrix(
     Args:
         n_in: number of input pixels (DMD mirrors along one axis), ``≥ 1``.
         n_out: number of output pixels (sensor pixels along that axis), ``≥ 1``.
-        dtype: dtype of the result (default: ``torch.get_default_dtype()``).
+        dtype: floating dtype of the result (default: ``torch.get_default_dtype()``; the
+            weights are fractions, an integer dtype would truncate them).
         device: device of the result.
 
     Returns:
         ``(n_out, n_in)`` non-negative matrix with unit row sums.
 
     Raises:
-        TypeError: if a size is not an int.
+        TypeError: if a size is not an int or ``dtype`` not a floating dtype.
         ValueError: if a size is below 1.
 
     Example:
@@ -101,8 +102,8 @@ def area_overlap_matrix(
     func = "area_overlap_matrix"
     _check_size(n_in, "n_in", func)
     _check_size(n_out, "n_out", func)
+    dtype = torch.get_default_dtype() if dtype is None else check_float_dtype(dtype, "dtype", func)
     check_memory(3 * n_in * n_out * 8, f"an {n_out}x{n_in} overlap matrix", func)
-    dtype = torch.get_default_dtype() if dtype is None else dtype
     return _overlap_cpu(n_in, n_out).to(dtype=dtype, device=device, copy=True)
 
 
@@ -203,8 +204,9 @@ def blur_phasor(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
     The blur is linear, so blurring ``Re P`` and ``Im P`` separately blurs the phasor:
     neighbouring returns add as phasors (forward scatter of a sheet, spread multipath
     returns). The kernel of ``kornia.filters.gaussian_blur2d`` with reflect borders: sampled
-    at integer offsets up to a radius ``⌈3σ⌉`` (clipped to the image so the reflection is
-    defined) and normalised to sum 1, applied as a row and a column convolution.
+    at integer offsets up to a radius ``⌈3σ⌉`` (clipped per axis to the image, ``H − 1`` for
+    the column and ``W − 1`` for the row kernel, so the reflection is defined) and normalised
+    to sum 1, applied as a row and a column convolution.
 
     Args:
         x: ``(B, C, H, W)`` complex phasors or real image.
@@ -225,7 +227,8 @@ def blur_phasor(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
     func = "blur_phasor"
     _check_input(x, func)
     sigma = check_positive(sigma_px, "sigma_px", func)
-    radius = min(math.ceil(3.0 * sigma), min(x.shape[-2:]) - 1)
+    full = math.ceil(3.0 * sigma)
+    radius = (min(full, x.shape[-2] - 1), min(full, x.shape[-1] - 1))  # (rows, cols)
     if not x.is_complex():
         return _blur_real(x, radius, sigma)
     c = x.shape[1]
@@ -241,15 +244,20 @@ def _gauss_taps(radius: int, sigma: float) -> tuple[float, ...]:
     return tuple(v / total for v in w)
 
 
-def _blur_real(x: torch.Tensor, radius: int, sigma: float) -> torch.Tensor:
+def _blur_real(x: torch.Tensor, radius: tuple[int, int], sigma: float) -> torch.Tensor:
     """Separable Gaussian blur of a real ``(B, C, H, W)`` image with reflected borders: the
     kernel of ``kornia.filters.gaussian_blur2d`` (sampled, normalised), built once per
-    ``(radius, σ)`` and applied as a row then a column convolution of every channel."""
-    if radius == 0:
+    ``(radius, σ)`` and applied as a row then a column convolution of every channel;
+    ``radius = (r_H, r_W)``, the column and the row kernel's (0: no blur along that axis)."""
+    r_h, r_w = radius
+    if r_h == 0 and r_w == 0:
         return x
     b, c, h, w = x.shape
-    k = torch.tensor(_gauss_taps(radius, sigma), dtype=x.dtype, device=x.device)
-    z = F.pad(x.reshape(b * c, 1, h, w), (radius, radius, radius, radius), mode="reflect")
-    z = F.conv2d(z, k.view(1, 1, 1, -1))
-    z = F.conv2d(z, k.view(1, 1, -1, 1))
+    z = F.pad(x.reshape(b * c, 1, h, w), (r_w, r_w, r_h, r_h), mode="reflect")
+    if r_w:
+        k = torch.tensor(_gauss_taps(r_w, sigma), dtype=x.dtype, device=x.device)
+        z = F.conv2d(z, k.view(1, 1, 1, -1))
+    if r_h:
+        k = torch.tensor(_gauss_taps(r_h, sigma), dtype=x.dtype, device=x.device)
+        z = F.conv2d(z, k.view(1, 1, -1, 1))
     return z.reshape(b, c, h, w)

@@ -75,6 +75,8 @@ def add_multipath(
             broadcast to the phasor (or would grow its batch), NaN/Inf or negative values
             (numbers or tensors), or a non-positive ``freq_hz``/``blur_sigma``.
 
+    Tensor ``strength``/``extra_path_m`` are moved to the phasor's device and real dtype.
+
     Shape:
         - phasor: :math:`(B, 1, H, W)`; output: :math:`(B, 1, H, W)`
 
@@ -88,7 +90,11 @@ def add_multipath(
     strength = _check_scalar_or_real(strength, "strength", func, phasor)
     extra_path_m = _check_scalar_or_real(extra_path_m, "extra_path_m", func, phasor)
     f = check_positive(freq_hz, "freq_hz", func)
+    if blur_sigma is not None:
+        check_positive(blur_sigma, "blur_sigma", func)
     indirect = phasor if blur_sigma is None else blur_phasor(phasor, blur_sigma)
+    if isinstance(extra_path_m, torch.Tensor):  # the maps follow the phasor's device
+        extra_path_m = extra_path_m.to(device=phasor.device)
     theta = extra_path_m * (4.0 * math.pi * f / SPEED_OF_LIGHT)
     if isinstance(theta, torch.Tensor):
         theta = theta.to(phasor.real.dtype)
@@ -96,7 +102,7 @@ def add_multipath(
     else:
         delay = complex(math.cos(theta), math.sin(theta))
     if isinstance(strength, torch.Tensor):
-        strength = strength.to(phasor.real.dtype)
+        strength = strength.to(dtype=phasor.real.dtype, device=phasor.device)
     return phasor + strength * delay * indirect
 
 

@@ -25,11 +25,20 @@ forms are linear in their input; ``α = 1`` with no blur and no backscatter is t
 from __future__ import annotations
 
 import math
+import numbers
 
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_in_range, check_positive, check_rank, check_tensor
+from .._checks import (
+    check_finite,
+    check_in_range,
+    check_int,
+    check_nonnegative,
+    check_positive,
+    check_rank,
+    check_tensor,
+)
 from .._memory import check_memory
 from .functional import SPEED_OF_LIGHT, check_phasor, check_real
 from .mixing import blur_phasor, size_pair
@@ -51,7 +60,8 @@ def _check_alpha(alpha: float, func: str) -> float:
 
 
 def _check_term(value: object, x: torch.Tensor, name: str, func: str) -> torch.Tensor | float:
-    """A non-negative number or a real tensor that broadcasts to ``x`` (cast to its dtype)."""
+    """A non-negative number or a real, finite, non-negative tensor that broadcasts to ``x``
+    (cast to its real dtype and device): the same rules for both forms."""
     if not isinstance(value, torch.Tensor):
         return check_positive(value, name, func, strict=False)
     check_real(value, name, func)
@@ -64,6 +74,7 @@ def _check_term(value: object, x: torch.Tensor, name: str, func: str) -> torch.T
             f"{func}: expected {name} broadcastable to {tuple(x.shape)}, got {tuple(value.shape)}"
         )
     check_finite(value, name, func)
+    check_nonnegative(value, name, func)
     return value.to(dtype=x.real.dtype, device=x.device)
 
 
@@ -119,7 +130,7 @@ def scatter_depth(
     Args:
         depth: real ``(B, C, H, W)`` depth maps in metres (usually ``C = 1``).
         alpha: transmittance ratio ``α ∈ (0, 1]`` (paper: ``0 < α < 1``; 1 = clear).
-        depth_s: scattered-light term ``Dˢ`` in metres, a number ``≥ 0`` or a real tensor
+        depth_s: scattered-light term ``Dˢ`` in metres, ``≥ 0``: a number or a real tensor
             broadcastable to ``depth`` (e.g. ``dust_m · dust_map(...)``, shape ``(1, 1, H, W)``).
 
     Returns:
@@ -127,8 +138,14 @@ def scatter_depth(
 
     Raises:
         TypeError: if ``depth``/``depth_s`` are not real tensors.
-        ValueError: if ``alpha ∉ (0, 1]``, on a wrong rank, non-finite input or a
-            ``depth_s`` that does not broadcast.
+        ValueError: if ``alpha ∉ (0, 1]``, on a wrong rank, non-finite input, a negative
+            ``depth_s`` or one that does not broadcast.
+
+    The result is not clipped or quantised: applied to a camera's output (clipped to
+    ``[1, 5]`` m, 0.25 m steps, 5 m for pixels without photons) it leaves that domain (a dark
+    pixel's 5 m becomes ``5α + Dˢ``). To model a camera behind the sheet, apply it to the
+    Eq. 1 depth and the camera rules after it, as
+    :class:`~torchtof.experiment.PaperExperiment` does with ``scattering_model="depth"``.
 
     Example:
         >>> scatter_depth(torch.full((1, 1, 2, 2), 2.0), alpha=0.5, depth_s=1.0).unique().tolist()
@@ -156,8 +173,8 @@ def scatter_phasor(
         phasor: complex ``(B, 1, H, W)`` phasor reaching the sheet.
         alpha: transmittance ``α ∈ (0, 1]`` of the direct light.
         blur_sigma: forward-scatter Gaussian blur in pixels (``None``: none).
-        backscatter: backscatter amplitude ``b`` in the phasor's units (e⁻), a number ``≥ 0``
-            or a real map broadcastable to the phasor (e.g. ``b₀ · dust_map(...)``).
+        backscatter: backscatter amplitude ``b ≥ 0`` in the phasor's units (e⁻), a number or
+            a real map broadcastable to the phasor (e.g. ``b₀ · dust_map(...)``).
         sheet_m: distance of the sheet ``d_s`` in metres (the backscatter's phase, Eq. 1).
         freq_hz: modulation frequency in Hz, ``> 0``.
 
@@ -166,8 +183,8 @@ def scatter_phasor(
 
     Raises:
         TypeError: if ``phasor`` is not complex or ``backscatter`` is not real.
-        ValueError: if ``alpha ∉ (0, 1]``, on a wrong shape, non-finite input or invalid
-            parameters.
+        ValueError: if ``alpha ∉ (0, 1]``, on a wrong shape, non-finite input, a negative
+            ``backscatter`` or invalid parameters.
 
     Shape:
         - phasor: :math:`(B, 1, H, W)`; output: :math:`(B, 1, H, W)`
@@ -247,14 +264,16 @@ class ScatteringMedium(nn.Module):
         dust_m: scale of the dust map in metres for ``Dˢ`` (depth mode).
         size: ``(H, W)`` of the dust map (default: the paper's 64×64 sensor region).
         dust_sigma_px: correlation length of the dust in pixels.
-        seed: seed of the dust map.
+        seed: seed of the dust map, an int (``torch.Generator``'s range).
         blur_sigma: forward-scatter blur in pixels (phasor mode; ``None``: none).
         backscatter_e: peak backscatter amplitude in e⁻ (phasor mode).
         sheet_m: sheet distance in metres (phasor mode).
         freq_hz: modulation frequency in Hz (phasor mode).
 
     Raises:
-        ValueError: if ``alpha ∉ (0, 1]`` or another parameter is invalid.
+        TypeError: if ``seed`` is not an int or ``depth_s`` not a number or real tensor.
+        ValueError: if ``alpha ∉ (0, 1]`` or another parameter is invalid (a ``depth_s``
+            tensor with NaN/Inf or a negative entry included).
 
     Example:
         >>> medium = ScatteringMedium(alpha=0.6, size=(8, 8))
@@ -295,12 +314,18 @@ class ScatteringMedium(nn.Module):
         self.freq_hz = check_positive(freq_hz, "freq_hz", func)
         if isinstance(depth_s, torch.Tensor):
             check_real(depth_s, "depth_s", func)
+            check_finite(depth_s, "depth_s", func)
+            check_nonnegative(depth_s, "depth_s", func)
             self.register_buffer("depth_s", depth_s.detach().clone(), persistent=False)
         else:
             self.depth_s = (
                 None if depth_s is None else check_positive(depth_s, "depth_s", func, strict=False)
             )
-        gen = torch.Generator().manual_seed(int(seed))
+        if isinstance(seed, numbers.Integral) and not isinstance(seed, bool):
+            seed = int(seed)  # a NumPy integer
+        check_int(seed, "seed", func, lo=-(2**63), hi=2**64 - 1)  # torch.Generator's range
+        gen = torch.Generator().manual_seed(seed)
+        check_positive(dust_sigma_px, "dust_sigma_px", func)  # named here, not as dust_map's
         dust = dust_map(self.size, dust_sigma_px, gen, dtype=torch.float64)
         self.register_buffer("dust", dust, persistent=False)
 
