@@ -51,6 +51,14 @@ GOLDEN = [
     ("STATUS_SYS", b"", True, "c0 2a 02 00 0b 1a"),
     ("STATUS_MAIN", b"", True, "c0 2a 02 00 0c 1a"),
     ("GET_VERSION", b"", True, "c0 2a 02 00 05 02"),
+    # TI's dlpc350_api.cpp: TRIG_OUT1_CTL 0x1A1D, 3 bytes [invert, rising, falling]
+    # (DLPC350_SetTrigOutConfig; 0xBB = 0 us); SOURCE_SEL 0x1A00; VID_SIG_STAT 0x071C
+    ("TRIG_OUT1_CTL", dlp.payload_trig_out1(), False, "40 2a 05 00 1d 1a 00 bb bb"),
+    ("TRIG_OUT1_CTL", dlp.payload_trig_out1(True, 0xBC, 0xD5), False,
+     "40 2a 05 00 1d 1a 01 bc d5"),
+    ("SOURCE_SEL", b"", True, "c0 2a 02 00 00 1a"),
+    ("SOURCE_SEL", b"\x08", False, "40 2a 03 00 00 1a 08"),
+    ("VID_SIG_STAT", b"", True, "c0 2a 02 00 1c 07"),
 ]
 
 
@@ -178,13 +186,16 @@ def test_show_sequence_canonical_order_and_state():
     log = bench.lightcrafter_usb.log
     names = [m.command for m in log]
     assert names == ["PAT_START_STOP", "DISP_MODE", "DISP_MODE", "DISP_MODE", "PAT_DISP_MODE",
-                     "PAT_CONFIG", "PAT_TRIG_MODE", "PAT_EXPO_PRD", "MBOX_CONTROL",
-                     "MBOX_ADDRESS", "MBOX_DATA", "MBOX_CONTROL", "LUT_VALID", "LUT_VALID",
-                     "LUT_VALID", "PAT_START_STOP"]
+                     "PAT_CONFIG", "PAT_TRIG_MODE", "PAT_EXPO_PRD", "TRIG_OUT1_CTL",
+                     "MBOX_CONTROL", "MBOX_ADDRESS", "MBOX_DATA", "MBOX_CONTROL", "LUT_VALID",
+                     "LUT_VALID", "LUT_VALID", "PAT_START_STOP"]
     # display mode read back, switched, read back again until it took effect
     assert [m.read for m in log[1:4]] == [True, False, True]
+    # TRIG_OUT1 active high, rising and falling delay 0xBB = 0 us (DLPC350_SetTrigOutConfig),
+    # written with the sequence stopped and before the validation, as TI's API asks
+    assert not log[8].read and log[8].payload == bytes([0x00, 0xBB, 0xBB])
     # the validation is polled: the fake reads busy (bit 7) once
-    assert [m.read for m in log[12:15]] == [False, True, True]
+    assert [m.read for m in log[13:16]] == [False, True, True]
     fake = bench.lightcrafter_usb
     assert fake.state["config"] == (5, 0, 5, 0) and fake.state["exposure_us"] == 5000
     entries = [dlp.unpack_lut_entry(e) for e in fake.pattern_lut]
@@ -195,8 +206,9 @@ def test_show_sequence_canonical_order_and_state():
     # the DMD showed exactly the patterns, in order
     np.testing.assert_array_equal(np.stack(fake.shown), pats)
     lcr.show_sequence(pats, exposure_us=5000)  # already in pattern mode: no second switch
-    assert [m.command for m in log[16:19]] == ["PAT_START_STOP", "DISP_MODE", "PAT_DISP_MODE"]
-    assert log[17].read
+    assert [m.command for m in log[17:20]] == ["PAT_START_STOP", "DISP_MODE", "PAT_DISP_MODE"]
+    assert log[18].read
+    assert fake.state["trig_out1"] == (0x00, 0xBB, 0xBB)
 
 
 def test_display_mode_switch_is_waited_for():

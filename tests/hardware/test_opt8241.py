@@ -99,6 +99,23 @@ FIELDS = [
     ("binning_en", 1, 0x5C, 0x2F, b"\x00\x10\x00"),  # id 2006: bank 3 reg 47 bit 12
     ("rows_to_merge", 1, 0x5C, 0x2F, b"\x01\x00\x00"),  # id 2008: reg 47 bits 0-9
     ("cols_to_merge", 1, 0x5C, 0x30, b"\x01\x00\x00"),  # id 2009: reg 48 bits 0-9
+    # PLL 2: ids 7064, 7065 (bank 0 reg 13 bits 0-15, 16-21), 7079 (reg 15 bits 2-3), 7081
+    # (reg 15 bits 7-9); sscg_en id 8665 (reg 14 bit 3)
+    ("mod_m_frac2", 0xABCD, 0x58, 0x0D, b"\xcd\xab\x00"),
+    ("mod_m2", 20, 0x58, 0x0D, b"\x00\x00\x14"),
+    ("mod_n2", 2, 0x58, 0x0F, b"\x08\x00\x00"),
+    ("mod_ps2", 5, 0x58, 0x0F, b"\x80\x02\x00"),  # 5 << 7 = 0x280
+    ("sscg_en", 1, 0x58, 0x0E, b"\x08\x00\x00"),
+    # phase calibration: ids 2091, 2095 (bank 3 regs 55, 56 bits 4-15, 12-bit signed: 0xFFF
+    # is -1), 2098, 2099 (reg 81 bits 16, 17), 9981 (reg 182 bit 19), 8801 (reg 128 bit 0)
+    ("phase_corr_1", 0xFFF, 0x5C, 0x37, b"\xf0\xff\x00"),
+    ("phase_corr_2", 0x123, 0x5C, 0x38, b"\x30\x12\x00"),
+    ("disable_offset_corr", 1, 0x5C, 0x51, b"\x00\x00\x01"),
+    ("disable_temp_corr", 1, 0x5C, 0x51, b"\x00\x00\x02"),
+    ("filt_en", 1, 0x5C, 0xB6, b"\x00\x00\x08"),
+    ("phase_lin_corr_en", 1, 0x5C, 0x80, b"\x01\x00\x00"),
+    ("hdr_scale", 3, 0x5C, 0x4C, b"\xc0\x00\x00"),  # id 6377: reg 76 bits 6-8
+    ("padding_en", 1, 0x5C, 0x3C, b"\x01\x00\x00"),  # id 6146: reg 60 bit 0
 ]
 
 
@@ -161,10 +178,15 @@ def test_set_modulation_frequency_request_sequence():
         (0x0F, b"\x02\x00\x00"),  # mod_n1 = 2
         (0x0C, b"\x00\x00\x0f"),  # mod_m_frac1 = 0
         (0x0F, b"\x22\x00\x00"),  # mod_ps1 = 2
+        # PLL 2 as PLL 1 (TintinCDKCameraNoCalibration.conf: mod_freq2 = mod_freq1):
+        (0x0D, b"\x00\x00\x0f"),  # mod_m2 = 15 (reg 13 bits 16-21)
+        (0x0F, b"\x2a\x00\x00"),  # mod_n2 = 2 (reg 15 bits 2-3), PLL 1's bits kept
+        (0x0D, b"\x00\x00\x0f"),  # mod_m_frac2 = 0 (reg 13 bits 0-15)
+        (0x0F, b"\x2a\x01\x00"),  # mod_ps2 = 2 (reg 15 bits 7-9: 0x100)
         (0x02, b"\x00\x00\x00"),  # mod_pll_update = 0
         (0xB3, b"\x00\x05\x00"),  # delay_fb_coeff_1 = 30 · 1024 / 24 = 1280 (DML, SDK)
     ]
-    assert cam.freq_hz == 30e6
+    assert cam.freq_hz == 30e6 and cam.pll2_freq_hz == 30e6
 
 
 def test_integration_time_conversion():
@@ -419,15 +441,15 @@ def test_driver_rejects_bad_modes_and_sizes():
 # -- device frame numbers (OPT9221.dml debug_frame_number_en, bank 3 reg 57 bit 12) ------------
 def test_configure_with_frame_ids_writes_the_counter_bit_byte_exact():
     """Read-modify-write of 0x5C39: bit 12 set, the register's other bits kept
-    (op_serial_width, bit 10, set here); blk_header_en, frm_header_en and frm_trailer_en
-    (0x5C3C bits 2, 1, 3) cleared."""
-    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x00000E, 0x5883: 0x04, **QVGA})
+    (op_serial_width, bit 10, set here); blk_header_en, frm_header_en, frm_trailer_en and
+    padding_en (0x5C3C bits 2, 1, 3, 0) cleared."""
+    dev = Recorder({0x5C39: 0x000400, 0x5C3C: 0x00000F, 0x5883: 0x04, **QVGA})
     opt.OPT8241(dev, frame_ids=True).configure()
     writes = [e for e in dev.log if e[0] == 0x40]
     assert (0x40, 0x09, 0x5C, 0x39, b"\x00\x14\x00") in writes
     hdr = [e[4] for e in writes if e[2:4] == (0x5C, 0x3C)]
-    # blk_header_en, then frm_header_en, then frm_trailer_en
-    assert hdr == [b"\x0a\x00\x00", b"\x08\x00\x00", b"\x00\x00\x00"]
+    # blk_header_en, then frm_header_en, then frm_trailer_en, then padding_en
+    assert hdr == [b"\x0b\x00\x00", b"\x09\x00\x00", b"\x01\x00\x00", b"\x00\x00\x00"]
     assert dev.regs[0x5C3C] == 0 and dev.regs[0x5C39] == 0x001400
     dev = Recorder({0x5C39: 0x001400, 0x5883: 0x04, **QVGA})
     opt.OPT8241(dev, frame_ids=False).configure()

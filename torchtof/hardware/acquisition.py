@@ -95,6 +95,24 @@ def _versions() -> dict[str, str]:
     return out
 
 
+def _camera_settings(camera) -> dict:
+    """What :meth:`~.opt8241.OPT8241.configure` set beyond the frame format, read back from an
+    OPT8241 (nothing from a camera without these registers): PLL 2's frequency, the unambiguous
+    range ``c/(2f)``, TI's phase calibration (off: ``disable_offset_corr``,
+    ``disable_temp_corr``, ``filt_en``, ``phase_lin_corr_en``), ``hdr_scale``, and
+    ``sscg_en`` (left as TI's profile set it)."""
+    read = getattr(camera, "read_field", None)
+    if read is None or not hasattr(camera, "pll2_freq_hz"):
+        return {}
+    off = {"disable_offset_corr": 1, "disable_temp_corr": 1, "filt_en": 0,
+           "phase_lin_corr_en": 0, "phase_corr_1": 0, "phase_corr_2": 0}
+    return {"mod_freq_hz_requested": getattr(camera, "mod_freq_hz", None),
+            "pll2_freq_hz": camera.pll2_freq_hz,
+            "unambiguous_range_m": camera.unambiguous_range_m,
+            "phase_calibration": "off" if all(read(k) == v for k, v in off.items()) else "on",
+            "hdr_scale": read("hdr_scale"), "sscg_en": read("sscg_en")}
+
+
 def _signed(buf: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
     """Signed Hadamard buckets ``y = y⁺ − y⁻`` ``(1, C, m)`` of the first ``frames`` frames,
     and their pair sums ``y⁺ + y⁻`` as ``"<kind>_sum"`` (the free noise estimate of
@@ -381,7 +399,9 @@ def acquire(
         sr, m: sampling rate ``m / n²`` or the number of ±1 patterns ``m`` (``m`` wins).
         order: Hadamard order (:mod:`torchtof.operators.patterns`).
         exposure_us, period_us: DMD exposure and period per pattern (µs); the camera's frame
-            time is programmed to fit the period (``camera.configure(period_us=...)``).
+            time is programmed to fit the period (``camera.configure(period_us=...)``, which
+            also programs the camera's modulation frequency and switches TI's phase
+            calibration off: :meth:`~.opt8241.OPT8241.configure`).
         block: ±1 patterns (pairs) per block; ``stop`` is asked after each block but the last.
         stop: optional ``stop(y) -> bool`` called after each block with the signed buckets
             measured so far, ``{"depth", "gated", "intensity"}`` each ``y⁺ − y⁻`` of shape
@@ -421,6 +441,9 @@ def acquire(
         FrameTimeoutError, FrameError, FrameSequenceError, ProtocolError: a transient fault
             that persisted after ``retries`` attempts (names the pattern index / command).
         DeviceLostError: a device disappeared (resume later with ``resume=True``).
+        HardwareError: the LightCrafter's video input is not the parallel port, not locked,
+            not 912 × 1140 or not at ``video_hz`` (``check_video_input``, before the store
+            is created).
     """
     if isinstance(block, bool) or not isinstance(block, int) or block < 1:
         raise ValueError(f"acquire: expected block a positive int, got {block!r}")
@@ -457,6 +480,9 @@ def acquire(
         spacing = min(b - a for a, b in zip(times_us, times_us[1:])) if seq > 1 else period_us
         camera.configure(period_us=min(period_us, spacing), spacing_us=spacing)
         camera._configured = True
+    check_video = getattr(lightcrafter, "check_video_input", None)
+    if check_video is not None:  # the bit planes come from the video input: before any store
+        check_video(video_hz)
     attrs = {
         "format": _FORMAT, "n": n, "m": m_total, "sr": m_total / (n * n), "order": order,
         "frames": n_frames, "frame_order": "interleaved phi+, phi- (DMDSplit)", "block": block,
@@ -468,7 +494,7 @@ def acquire(
                    "width": camera.width, "height": camera.height,
                    "rules": vars(camera.rules).copy(), "quads": getattr(camera, "quads", None),
                    "roi": list(camera.roi) if getattr(camera, "roi", None) else None,
-                   "mode": getattr(camera, "mode", None)},
+                   "mode": getattr(camera, "mode", None), **_camera_settings(camera)},
         "timing_checks": bool(check_timing),
         "versions": _versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         **(metadata or {}),

@@ -24,7 +24,8 @@ def _sim_config(args: argparse.Namespace):
     from ..experiment import ExperimentConfig
 
     kw = {"n": args.n, "scene": args.scene, "roi_px": args.roi_px or 2 * args.n,
-          "srs": (args.sr,), "scattering": args.scattering}
+          "srs": (args.sr,), "scattering": args.scattering,
+          "freq_hz": args.mod_freq_mhz * 1e6}  # the simulated light at the camera's frequency
     if args.noise_free:
         kw.update(shot=None, read_noise_e=0.0)
     return ExperimentConfig(**kw).validate()
@@ -45,7 +46,8 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
     """The two devices: simulated (``--simulated``) or the real bench — LightCrafter 4500
     (USB 0451:6401) with a :class:`~torchtof.hardware.video.WindowVideoPort` on display
     ``--display``, OPT8241 (USB 0451:9105). Everything after this is the same code."""
-    cam_kw = {"mode": args.camera_mode, "quads": args.quads}
+    cam_kw = {"mode": args.camera_mode, "quads": args.quads,
+              "mod_freq_hz": args.mod_freq_mhz * 1e6}
     if args.simulated:
         from .simulated import Faults, SimulatedBench
 
@@ -242,6 +244,7 @@ def _check_acquire(args: argparse.Namespace) -> None:
     from ..apps.args import check_patterns
 
     check_patterns(args.n, args.sr)
+    _check_mod_freq(args)
     _check_timing(args)
     if args.sim_faults is not None:
         if not args.simulated:
@@ -256,6 +259,26 @@ def _check_acquire(args: argparse.Namespace) -> None:
     _check_output(args)
 
 
+def _check_mod_freq(args: argparse.Namespace) -> None:
+    """``--mod-freq-mhz``: a frequency the OPT8241's PLL makes with ``--quads``
+    (:func:`~torchtof.hardware.opt8241.pll_settings`) whose unambiguous range ``c/(2f)``
+    reaches the camera rules' ``max_m`` (5 m, paper §2.2;
+    :func:`~torchtof.hardware.opt8241.check_unambiguous_range`), named in the message."""
+    from . import opt8241 as opt
+
+    f = args.mod_freq_mhz * 1e6
+    try:
+        opt.pll_settings(f, args.quads)
+    except ValueError as exc:
+        raise ValueError(f"argument --mod-freq-mhz: the OPT8241's PLL cannot make "
+                         f"{args.mod_freq_mhz:g} MHz with --quads {args.quads} "
+                         f"({_bare(exc, 'pll_settings: ')})") from None
+    # the camera rules' max_m: CameraRules' on the real bench, ExperimentConfig's simulated
+    # (rules_from_config); both are the paper's 5 m and acquire has no option to change them
+    opt.check_unambiguous_range(f, opt.CameraRules().max_m, "argument --mod-freq-mhz",
+                                "--mod-freq-mhz")
+
+
 def _check_timing(args: argparse.Namespace) -> None:
     """``--exposure-us``, ``--period-us``, ``--trigger`` and ``--video-hz`` against the DLPC350's
     rules (:func:`~torchtof.hardware.dlpc350.payload_exposure_period`: PAT_EXPO_PRD takes
@@ -264,6 +287,7 @@ def _check_timing(args: argparse.Namespace) -> None:
     fits one video frame), each message naming the options."""
     from . import dlpc350 as dlp
 
+    dlp.check_video_hz(args.video_hz, "argument --video-hz", "--video-hz")
     exposure = args.exposure_us
     period = exposure if args.period_us is None else args.period_us
     for flag, v in (("--exposure-us", exposure), ("--period-us", period)):
@@ -355,7 +379,8 @@ def add_parsers(sub) -> None:
                    help="vsync: each pattern starts at a VSYNC of the video input, exposures "
                    "within one video frame (TI's video-mode examples); internal: the DMD paces")
     a.add_argument("--video-hz", type=positive_float, default=60.0,
-                   help="video input frame rate in Hz")
+                   help="video input frame rate in Hz, at most 120 (the DLPC350's video input); "
+                   "checked against the rate the LightCrafter measures before a run")
     a.add_argument("--display", type=nonneg_int, default=1,
                    help="display index of the LightCrafter's HDMI input (real bench)")
     a.add_argument("--camera-mode", default="quad", choices=["quad", "iq", "depth", "depth8",
@@ -371,6 +396,12 @@ def add_parsers(sub) -> None:
                    "(OPT8241.set_roi); default on the real bench: the whole 320x240 sensor")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
                    help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
+    a.add_argument("--mod-freq-mhz", type=positive_float, default=30.0, metavar="MHZ",
+                   help="OPT8241 modulation frequency programmed into PLL 1 and PLL 2 (default "
+                   "30, the paper's: unambiguous range c/2f = 5.0 m). TI's optimal band for "
+                   "the board is 39-60 MHz (2.5-3.8 m): above 30 MHz the range is shorter "
+                   "than the camera rules' 5 m and is refused (docs/hardware.md, 'Modulation "
+                   "frequency')")
     a.add_argument("--block", type=positive_int, default=None,
                    help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
     a.add_argument("--auto", action="store_true",

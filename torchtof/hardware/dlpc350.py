@@ -64,6 +64,13 @@ __all__ = [
     "VideoPort",
     "patterns_per_vsync",
     "pattern_times_us",
+    "check_video_hz",
+    "payload_trig_out1",
+    "decode_source_sel",
+    "decode_video_status",
+    "encode_video_status",
+    "MAX_VIDEO_HZ",
+    "DMD_SHAPE",
 ]
 
 VID, PID = 0x0451, 0x6401
@@ -90,6 +97,12 @@ COMMANDS: dict[str, tuple[int, int, int | None]] = {
     "STATUS_HW": (0x1A, 0x0A, 0),
     "STATUS_SYS": (0x1A, 0x0B, 0),
     "STATUS_MAIN": (0x1A, 0x0C, 0),
+    # TI's DLPC350 API (dlpc350_api.cpp CmdList; DLPC350_SetTrigOutConfig,
+    # DLPC350_GetInputSource, DLPC350_GetVideoSignalStatus): a 3-byte write, a 1-byte and a
+    # 28-byte read
+    "TRIG_OUT1_CTL": (0x1A, 0x1D, 3),
+    "SOURCE_SEL": (0x1A, 0x00, 1),
+    "VID_SIG_STAT": (0x07, 0x1C, 0),
 }
 _BY_WORD = {(c2 << 8) | c3: name for name, (c2, c3, _) in COMMANDS.items()}
 
@@ -110,6 +123,30 @@ _LUT_ERRORS = {
 #: The ``LUT_VALID`` bits that reject the sequence; the others are TI's warnings.
 LUT_FATAL_BITS = 0x03
 MIN_DARK_US = 230  # PAT_EXPO_PRD: exposure == period or exposure <= period - 230 us
+#: (rows, columns) of the LightCrafter 4500's DMD: pattern display mode "Assumes a 1-bit
+#: through 8-bit image with a pixel resolution of 912 x 1140" (TI's DLPC350 API,
+#: dlpc350_api.cpp, documentation of DLPC350_SetMode).
+DMD_SHAPE = (1140, 912)
+#: Highest video input rate: "Video Display mode ... up to 1280 x 800 up to 120 Hz" (TI's
+#: DLPC350 API, dlpc350_api.cpp, documentation of DLPC350_SetMode; the LightCrafter 4500
+#: user's guide DLPU011 was not available where this was written).
+MAX_VIDEO_HZ = 120.0
+#: TRIG_OUT1 edge delay codes (DLPC350_SetTrigOutConfig, dlpc350_api.cpp): "Each bit adds
+#: 107.2 ns, 0x00 = -20.05 µs, ... 0xBB = 0.00 µs, ..., 0xD5 = +2.787 µs".
+TRIG_OUT_ZERO_DELAY, TRIG_OUT_MAX_DELAY, TRIG_OUT_DELAY_STEP_NS = 0xBB, 0xD5, 107.2
+#: SOURCE_SEL source field (bits 2:0) and parallel port width field (bits 7:3)
+#: (DLPC350_SetInputSource / DLPC350_GetInputSource, dlpc350_api.cpp).
+SOURCES = {0: "parallel", 1: "internal test pattern", 2: "flash", 3: "FPD-link"}
+PORT_WIDTHS = {0: 30, 1: 24, 2: 20, 3: 16, 4: 10, 5: 8}
+#: VID_SIG_STAT status bits that mean "locked" (DLPC350_isSourceLocked: ``(Status &
+#: SOURCE_LOCK_MASK) == SOURCE_LOCKED``, mask 0x03, locked 0x02; dlpc350_api.cpp).
+SOURCE_LOCK_MASK, SOURCE_LOCKED = 0x03, 0x02
+#: Units the VID_SIG_STAT vertical frequency word may be in (Hz per count): TI's API returns
+#: the raw word (DLPC350_GetVideoSignalStatus) and its unit is not in TI's code; 0.01 Hz fits
+#: a 16-bit word at every rate, 1 Hz is the plain reading. Both are accepted (device-only).
+VFREQ_UNITS_HZ = (0.01, 1.0)
+#: Relative difference allowed between the video input's measured rate and ``video_hz``.
+VIDEO_HZ_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -343,14 +380,24 @@ def lut_entry(pattern: int, bit_depth: int = 1, leds: str = "RGB", trig: str = "
     and pattern number, byte 1 bit depth and LEDs, byte 2 flags).
 
     bits 1:0 trigger type (0 internal, 1 external +, 2 external −, 3 none/continue),
-    bits 7:2 pattern number (bit plane, 0–24; 25 = fill), bits 11:8 bit depth (1–8),
+    bits 7:2 pattern number (bit plane, 0–24), bits 11:8 bit depth (1–8),
     bits 14:12 LEDs (b0 R, b1 G, b2 B), bit 16 invert, bit 17 insert black, bit 18 buffer
     swap, bit 19 trigger-out with the previous pattern.
+
+    The pattern number follows TI's code: ``DLPC350_AddToPatLut`` (dlpc350_api.cpp) returns
+    -1 for ``PatNum > 24``, although its comment (and pyCrafter4500's ``send_pattern_lut``)
+    describes 25 as a white fill.
+
+    Raises:
+        ValueError: a pattern outside 0–24, a bit depth outside 1–8, unknown LEDs or trigger.
     """
     trigs = {"internal": 0, "external+": 1, "external-": 2, "none": 3}
     if trig not in trigs:
         raise ValueError(f"lut_entry: expected trig in {tuple(trigs)}, got {trig!r}")
-    _u8(pattern, "pattern", 0, 25)
+    if isinstance(pattern, bool) or not isinstance(pattern, (int, np.integer)) or \
+            not 0 <= pattern <= 24:
+        raise ValueError(f"lut_entry: expected pattern in [0, 24] (TI's DLPC350_AddToPatLut "
+                         f"returns -1 for PatNum > 24), got {pattern!r}")
     _u8(bit_depth, "bit_depth", 1, 8)
     if not leds or set(leds) - set("RGB"):
         raise ValueError(f"lut_entry: expected leds a non-empty subset of 'RGB', got {leds!r}")
@@ -411,16 +458,100 @@ def unpack_bitplane(frame: np.ndarray, k: int) -> np.ndarray:
     return (frame[..., BITPLANE_CHANNELS[k // 8]] >> (k % 8)) & 1
 
 
+def check_video_hz(video_hz: float, where: str, option: str = "video_hz") -> float:
+    """``video_hz`` as a float in ``(0, 120]`` Hz (:data:`MAX_VIDEO_HZ`: the DLPC350's video
+    input runs "up to 120 Hz", DLPC350_SetMode's documentation in TI's dlpc350_api.cpp).
+
+    Raises:
+        ValueError: naming ``where`` and ``option``.
+    """
+    if isinstance(video_hz, bool) or not isinstance(video_hz, (int, float, np.integer,
+                                                              np.floating)) or \
+            not 0 < float(video_hz) <= MAX_VIDEO_HZ:
+        raise ValueError(f"{where}: expected {option} in (0, {MAX_VIDEO_HZ:g}] Hz (the DLPC350's "
+                         f"video input runs up to {MAX_VIDEO_HZ:g} Hz, DLPC350_SetMode), got "
+                         f"{video_hz!r}")
+    return float(video_hz)
+
+
+def payload_trig_out1(invert: bool = False, rising: int = TRIG_OUT_ZERO_DELAY,
+                      falling: int = TRIG_OUT_ZERO_DELAY) -> bytes:
+    """``TRIG_OUT1_CTL``: ``[invert, rising delay, falling delay]`` as
+    ``DLPC350_SetTrigOutConfig(1, invert, rising, falling)`` sends them (dlpc350_api.cpp):
+    invert 0 = active high; delays in steps of 107.2 ns, ``0xBB`` = 0 µs, at most ``0xD5``
+    (+2.787 µs). The default, a non-inverted pulse without delay, is what :meth:`LightCrafter4500.
+    show_sequence` writes.
+
+    Example:
+        >>> payload_trig_out1().hex(" ")
+        '00 bb bb'
+    """
+    if not isinstance(invert, (bool, np.bool_)):
+        raise TypeError(f"dlpc350.payload_trig_out1: expected invert a bool, got {invert!r}")
+    return (bytes([int(invert)]) + _u8(rising, "payload_trig_out1 rising", 0, TRIG_OUT_MAX_DELAY)
+            + _u8(falling, "payload_trig_out1 falling", 0, TRIG_OUT_MAX_DELAY))
+
+
+def decode_source_sel(data: bytes) -> dict:
+    """The ``SOURCE_SEL`` read byte as ``DLPC350_GetInputSource`` decodes it: source = bits
+    2:0 (0 parallel, 1 test pattern, 2 flash, 3 FPD-link), port width = bits 7:3 (0 = 30,
+    1 = 24, 2 = 20, 3 = 16, 4 = 10, 5 = 8 bits).
+
+    Example:
+        >>> decode_source_sel(b"\\x08")
+        {'source': 0, 'source_name': 'parallel', 'port_width': 1, 'port_bits': 24}
+    """
+    if len(data) < 1:
+        raise ProtocolError("SOURCE_SEL", "empty reply")
+    source, width = data[0] & 0x07, data[0] >> 3
+    return {"source": source, "source_name": SOURCES.get(source, f"unknown ({source})"),
+            "port_width": width, "port_bits": PORT_WIDTHS.get(width)}
+
+
+_VID_SIG = struct.Struct("<BHHBBBIHHHHHHHH")  # 28 bytes, DLPC350_GetVideoSignalStatus
+_VID_SIG_FIELDS = ("status", "h_res", "v_res", "reserved", "hsync_pol", "vsync_pol",
+                   "pix_clock", "h_freq", "v_freq", "total_pixels_per_line",
+                   "total_lines_per_frame", "active_pixels_per_line", "active_lines_per_frame",
+                   "first_active_pixel", "first_active_line")
+
+
+def decode_video_status(data: bytes) -> dict:
+    """The 28 ``VID_SIG_STAT`` bytes as ``DLPC350_GetVideoSignalStatus`` (dlpc350_api.cpp)
+    reads them: status (byte 0, bits 1:0), HRes, VRes (u16 LE at 1, 3), a reserved byte,
+    HSync and VSync polarity, the pixel clock (u32 at 8), HFreq, VFreq, total pixels per
+    line, total lines per frame, active pixels per line, active lines per frame, first active
+    pixel, first active line (u16 each from byte 12). The units of the clock and frequency
+    words are not in TI's code (device-only); they are returned raw.
+
+    Raises:
+        ProtocolError: fewer than 28 bytes.
+    """
+    if len(data) < _VID_SIG.size:
+        raise ProtocolError("VID_SIG_STAT", f"expected {_VID_SIG.size} bytes, got {len(data)}")
+    out = dict(zip(_VID_SIG_FIELDS, _VID_SIG.unpack_from(bytes(data)), strict=True))
+    out["status"] &= SOURCE_LOCK_MASK
+    return out
+
+
+def encode_video_status(**fields) -> bytes:
+    """Inverse of :func:`decode_video_status` (the simulator answers with it); missing
+    fields are 0."""
+    unknown = set(fields) - set(_VID_SIG_FIELDS)
+    if unknown:
+        raise ValueError(f"dlpc350.encode_video_status: unknown fields {sorted(unknown)}")
+    return _VID_SIG.pack(*(int(fields.get(k, 0)) for k in _VID_SIG_FIELDS))
+
+
 def patterns_per_vsync(exposure_us: int, period_us: int, video_hz: float) -> int:
     """Patterns shown per video input frame on the VSYNC trigger: ``⌊frame period /
     period⌋``; the exposures within one input frame cannot exceed the frame time (TI's
     DLPC350 programmer's guide, as pyCrafter4500's ``pattern_mode`` example keeps them).
 
     Raises:
-        ValueError: a period longer than the video frame.
+        ValueError: a period longer than the video frame, or ``video_hz`` outside
+            ``(0, 120]`` (:func:`check_video_hz`).
     """
-    if not (isinstance(video_hz, (int, float)) and 0 < video_hz < 1e4):
-        raise ValueError(f"dlpc350: expected video_hz in (0, 1e4), got {video_hz!r}")
+    check_video_hz(video_hz, "dlpc350.patterns_per_vsync")
     frame_us = 1e6 / video_hz
     if max(exposure_us, period_us) > frame_us:
         raise ValueError(f"dlpc350: a {period_us} us pattern period does not fit one "
@@ -665,8 +796,18 @@ class LightCrafter4500:
         self.sent.append((name, bytes(payload)))
 
     def read(self, name: str) -> bytes:
-        """Read command ``name``; returns the reply data."""
-        return self._transfer(name, b"", read=True).payload
+        """Read command ``name``; returns the reply data.
+
+        Raises:
+            NackError: the device set the NACK flag, or answered with no data (length 0):
+                TI's ``DLPC350_Read`` (dlpc350_api.cpp) returns -2, its NACK code, for
+                ``head.flags.nack == 1 || head.length == 0``.
+        """
+        data = self._transfer(name, b"", read=True).payload
+        if not data:
+            raise NackError(name, "the reply carries no data (length 0), which TI's "
+                            "DLPC350_Read counts as a NACK")
+        return data
 
     def display_mode(self) -> str:
         """``"pattern"`` or ``"video"``, read back with ``DISP_MODE`` (DLPC350 command
@@ -690,6 +831,54 @@ class LightCrafter4500:
             if time.monotonic() - t0 > timeout_s:
                 raise ProtocolError("DISP_MODE", f"still not in {want} mode after {timeout_s:g} s")
             time.sleep(poll_s)
+
+    def video_input(self) -> dict:
+        """The video input as the controller reports it: ``SOURCE_SEL``
+        (:func:`decode_source_sel`) and ``VID_SIG_STAT`` (:func:`decode_video_status`)."""
+        return {**decode_source_sel(self.read("SOURCE_SEL")),
+                **decode_video_status(self.read("VID_SIG_STAT"))}
+
+    def check_video_input(self, video_hz: float, shape: tuple[int, int] = DMD_SHAPE) -> dict:
+        """Check, before a run, that the bit planes can come from the video input: the input
+        source is the parallel port (``SOURCE_SEL`` source 0, ``DLPC350_GetInputSource``), the
+        video signal is locked (``DLPC350_isSourceLocked``), its active area is ``shape`` =
+        (lines, pixels) — the DMD's 912 × 1140, which pattern display mode assumes
+        (``DLPC350_SetMode``'s documentation) — and its vertical rate is within 1 % of
+        ``video_hz`` (the raw ``VFreq`` word read in 0.01 Hz or in Hz, :data:`VFREQ_UNITS_HZ`).
+        Returns what was read.
+
+        Raises:
+            ValueError: ``video_hz`` outside ``(0, 120]`` (:func:`check_video_hz`).
+            HardwareError: any check fails; the message lists everything that was read.
+            NackError, ProtocolError: from the reads.
+        """
+        video_hz = check_video_hz(video_hz, "LightCrafter4500.check_video_input")
+        got = self.video_input()
+        rows, cols = (int(v) for v in shape)
+        rates = [got["v_freq"] * unit for unit in VFREQ_UNITS_HZ]
+        problems = []
+        if got["source"] != 0:
+            problems.append(f"the input source is {got['source_name']} (SOURCE_SEL source "
+                            f"{got['source']}), not the parallel port (source 0)")
+        if got["status"] != SOURCE_LOCKED:
+            problems.append(f"the video signal is not locked (VID_SIG_STAT status "
+                            f"{got['status']}, locked is {SOURCE_LOCKED})")
+        if (got["active_pixels_per_line"], got["active_lines_per_frame"]) != (cols, rows):
+            problems.append(f"the active area is {got['active_pixels_per_line']}x"
+                            f"{got['active_lines_per_frame']}, the DMD needs {cols}x{rows}")
+        if not any(abs(r - video_hz) <= VIDEO_HZ_TOLERANCE * video_hz for r in rates):
+            problems.append(f"the vertical rate word {got['v_freq']} is neither "
+                            f"{rates[0]:g} Hz (0.01 Hz units) nor {rates[1]:g} Hz within "
+                            f"{VIDEO_HZ_TOLERANCE:.0%} of video_hz = {video_hz:g}")
+        if problems:
+            read = ", ".join(f"{k}={v}" for k, v in got.items())
+            raise HardwareError(
+                f"{self.what}: the video input cannot carry the patterns: "
+                + "; ".join(problems) + f". Read: {read}. Extend the desktop onto the "
+                f"LightCrafter's HDMI input at {cols}x{rows}, {video_hz:g} Hz, no scaling "
+                "(README 'Real hardware'), and select its video input (TI's LightCrafter 4500 "
+                "GUI, or SOURCE_SEL 0x1A00)")
+        return got
 
     # -- commands ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -766,8 +955,11 @@ class LightCrafter4500:
         The order of pyCrafter4500's ``pattern_mode`` (stop → display mode → pattern source →
         pattern config → trigger mode → exposure/period → (image LUT) → pattern LUT →
         validate → start), with the display mode read back and switched only when it
-        differs (:meth:`set_display_mode`), and LUT validation polled and its error bits
-        decoded. Each pattern raises TRIG_OUT1 while it is shown (the camera's trigger).
+        differs (:meth:`set_display_mode`), TRIG_OUT1 set active high with no delay after the
+        exposure/period (``TRIG_OUT1_CTL``, :func:`payload_trig_out1`; TI's
+        ``DLPC350_SetTrigOutConfig`` wants the sequence stopped and a validation after it),
+        and LUT validation polled and its error bits decoded. Each pattern raises TRIG_OUT1
+        while it is shown (the camera's trigger).
 
         ``trigger="vsync"`` (default): as in TI's and pyCrafter4500's video-mode examples the
         sequence is paced by the video input's VSYNC: ``⌊frame period / period⌋`` patterns
@@ -836,6 +1028,9 @@ class LightCrafter4500:
                                                         max(1, len(images))))
         self.write("PAT_TRIG_MODE", payload_trigger_mode(trigger))
         self.write("PAT_EXPO_PRD", payload_exposure_period(exposure_us, period_us))
+        # TRIG_OUT1 (the camera's trigger) active high, no delay: DLPC350_SetTrigOutConfig
+        # asks for it while the sequence is stopped, before the validation
+        self.write("TRIG_OUT1_CTL", payload_trig_out1())
         if images:
             self.load_image_lut(images)
         self.load_pattern_lut(entries)

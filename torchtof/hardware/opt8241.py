@@ -25,18 +25,41 @@ slave                 read request  write req.   shift  bytes
 parameter is a bit field of one 24-bit register (:data:`REGISTERS`), written by
 read-modify-write.
 
-* Modulation frequency (DML description of ``mod_m1``; system clock 48 MHz,
-  ``ToFTintinCamera::_getSystemClockFrequency``)::
+* Modulation frequency (system clock 48 MHz, ``ToFTintinCamera::_getSystemClockFrequency``),
+  read back as the SDK does (``TintinVCOFrequency::get``,
+  ``TintinModulationFrequencyParameter::get``)::
 
-      f_vco = 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / mod_n1
+      f_vco = 2 · 48 MHz · (mod_m1 + mod_m_frac1 / 2^16) / 2^mod_n1
       f_mod = f_vco / ((1 + mod_ps1) · quad_cnt_max)
 
+  (the DML description of ``mod_m1`` divides by ``mod_n1`` instead of ``2^mod_n1 / 2``: the
+  two agree only for ``mod_n1`` = 1 or 2, so :func:`pll_frequency_hz` refuses any other),
   programmed as ``TintinModulationFrequencyParameter`` / ``TintinVCOFrequency`` do
   (ToFTintinCamera.cpp): ``mod_ps1 = ⌊300 / quad_cnt_max / f_MHz⌋``, ``mod_n1 = 2``,
   ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0 with
   10 ms between the last PLL write and releasing ``mod_pll_update`` (``TintinVCOFrequency::set``
   sleeps 10 ms there); then
   ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML; ``TintinUnambiguousRangeParameter::set``).
+  :meth:`OPT8241.configure` programs :attr:`OPT8241.mod_freq_hz` (default 30 MHz, the
+  paper's) into PLL 1 **and PLL 2** (``mod_m2``, ``mod_m_frac2``, ``mod_n2``, ``mod_ps2``), as
+  TI's one-frequency profile asks (TintinCDKCameraNoCalibration.conf: ``mod_freq1 = mod_freq2
+  = 48``, ``dealias_en = 0``); TI's other CDK profiles (``unambiguous_range`` 4 or 8) leave
+  40 MHz in PLL 1 and 60 MHz in PLL 2 with de-aliasing on (``TintinUnambiguousRangeParameter::
+  set``, ``modPS1 = 1``, ``modPS2 = 0`` from ``TintinCDKUnambiguousRangeParameter``). It
+  refuses a frequency whose unambiguous range ``c/(2f)`` is shorter than the camera rules'
+  ``max_m`` (:func:`check_unambiguous_range`). TI's optimal band is 39-60 MHz
+  (``TintinCDKModulationFrequencyParameter``, TintinCDKCameraCommon.h): 30 MHz lies below it
+  (docs/hardware.md, "Modulation frequency").
+* Phase calibration off: TI's profile calibrates the phase for its defining parameters
+  (``ToFCamera::_init``: ``unambiguous_range``, ``frame_rate``, ``sub_frame_cnt_max``,
+  ``quad_cnt_max``, ``mix_volt``, ``intg_time``), which torchtof changes, so
+  :meth:`OPT8241.configure` writes what ``ToFTintinCamera::_applyCalibrationParams`` writes
+  with the calibration disabled (:attr:`OPT8241.CALIBRATION_OFF`): ``disable_offset_corr =
+  1``, ``phase_corr_1 = phase_corr_2 = 0``, ``disable_temp_corr = 1``, ``filt_en = 0``,
+  ``phase_lin_corr_en = 0``. It also writes ``hdr_scale = 0`` (DML id 6377: integration time
+  ``>> hdr_scale`` on alternate frames) and ``padding_en = 0`` (DML id 6146: zeros after a
+  frame's last packet); ``sscg_en`` (DML id 8665, no description; TI's CDK profiles set it) is
+  read and recorded, not written.
 * Frame time: ``pix_cnt_max · quad_cnt_max · sub_frame_cnt_max`` cycles at 48 MHz (DML
   description of ``pix_cnt_max``; ``ToFCamera::_getFrameRate``), 33.3 ms at the DML defaults;
   ``ToFCamera::_setFrameRate`` sets ``pix_cnt_max`` and reads ``pix_cnt_max_set_failed``. The
@@ -125,7 +148,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..sensor import camera_rules, phase_to_depth, tap_amplitude, tap_phase
+from ..sensor import SPEED_OF_LIGHT, camera_rules, phase_to_depth, tap_amplitude, tap_phase
 from .dlpc350 import ensure_configuration, find_device, translate_usb_error
 from .errors import (
     FrameError,
@@ -149,6 +172,9 @@ __all__ = [
     "register_request",
     "pll_settings",
     "pll_frequency_hz",
+    "DEFAULT_MOD_FREQ_HZ",
+    "unambiguous_range_m",
+    "check_unambiguous_range",
     "pack_depth",
     "pack_depth2",
     "pack_iq",
@@ -259,6 +285,31 @@ REGISTERS: dict[str, Field] = {
     "binning_en": Field(0x5C2F, 12, 12),
     "rows_to_merge": Field(0x5C2F, 0, 9),
     "cols_to_merge": Field(0x5C30, 0, 9),
+    # PLL 2 (DML ids 7065, 7064, 7079, 7081: bank 0 reg 13 bits 16-21 / 0-15, reg 15 bits 2-3
+    # / 7-9), programmed as PLL 1 for one frequency (TintinCDKCameraNoCalibration.conf:
+    # mod_freq2 = mod_freq1, dealias_en = 0; TintinCDKModulationFrequencyParameter for
+    # MOD_FREQ2, TintinCDKCamera.cpp)
+    "mod_m_frac2": Field(0x580D, 0, 15),
+    "mod_m2": Field(0x580D, 16, 21),
+    "mod_n2": Field(0x580F, 2, 3),
+    "mod_ps2": Field(0x580F, 7, 9),
+    # spread-spectrum clock, DML id 8665 (bank 0 reg 14 bit 3; no DML description): read and
+    # recorded, never written (TI's CDK profiles set sscg_en = true)
+    "sscg_en": Field(0x580E, 3, 3),
+    # phase calibration, written as ToFTintinCamera::_applyCalibrationParams writes it with the
+    # calibration disabled: DML ids 2091, 2095 (bank 3 regs 55, 56 bits 4-15, signed), 2098,
+    # 2099 (reg 81 bits 16, 17), 9981 (reg 182 bit 19, CROSS_TALK_EN), 8801 (reg 128 bit 0,
+    # NONLINEARITY_ENABLE; ToFTintinCamera.h)
+    "phase_corr_1": Field(0x5C37, 4, 15),
+    "phase_corr_2": Field(0x5C38, 4, 15),
+    "disable_offset_corr": Field(0x5C51, 16, 16),
+    "disable_temp_corr": Field(0x5C51, 17, 17),
+    "filt_en": Field(0x5CB6, 19, 19),
+    "phase_lin_corr_en": Field(0x5C80, 0, 0),
+    # integration time >> hdr_scale on alternate frames, DML id 6377 (bank 3 reg 76 bits 6-8)
+    "hdr_scale": Field(0x5C4C, 6, 8),
+    # zero padding of a frame's last packet to the block size, DML id 6146 (reg 60 bit 0)
+    "padding_en": Field(0x5C3C, 0, 0),
 }
 #: The sensor (DML defaults of ``row_end`` 239 and ``col_end`` 19: 320 columns in blocks of 16).
 SENSOR_ROWS, SENSOR_COLS, ROI_COL_STEP = 240, 320, 16
@@ -275,6 +326,16 @@ TILLUM_SLAVE_ADDR_INIT = 0x72
 #: Valid ``quad_cnt_max`` and ``sub_frame_cnt_max`` (OPT9221.dml descriptions of ids 82, 83).
 QUAD_COUNTS = (4, 6)
 SUB_FRAME_COUNTS = (1, 2, 4, 8)
+#: The modulation frequency :meth:`OPT8241.configure` programs by default: the paper's 30 MHz
+#: (unambiguous range c/2f = 4.997 m, the paper's "5 m"). TI's optimal band for this board is
+#: 39-60 MHz (``TintinCDKModulationFrequencyParameter::getOptimalMinimum``/``Maximum``,
+#: TintinCDKCameraCommon.h): 30 MHz lies below it (docs/hardware.md, "Modulation frequency").
+DEFAULT_MOD_FREQ_HZ = 30e6
+#: TI's optimal modulation band of the TintinCDK board, Hz (TintinCDKCameraCommon.h).
+TI_OPTIMAL_MOD_FREQ_HZ = (39e6, 60e6)
+#: The paper's "5 m at 30 MHz" takes c as 3·10^8 m/s (exactly, c/2f = 4.9965 m): the range
+#: check (:func:`check_unambiguous_range`) allows that rounding and no more.
+PAPER_C = 3e8
 
 #: frame mode -> (output_mode, pixel_data_size, op_data_arrange_mode) (module docstring).
 #: ``pixel_data_size`` defines only 2 and 4 (OPT9221.dml id 1067); in ``"quad"`` mode the SDK
@@ -357,14 +418,64 @@ def pll_settings(freq_hz: float, quad_cnt_max: int = 4) -> dict[str, int]:
     return {"mod_ps1": ps, "mod_n1": n, "mod_m1": m, "mod_m_frac1": int((m_f - m) * (1 << 16))}
 
 
+def unambiguous_range_m(freq_hz: float) -> float:
+    """``c / (2 f)``: the depth at which the phase of one modulation frequency wraps (Eq. 1).
+
+    Example:
+        >>> round(unambiguous_range_m(30e6), 4)
+        4.9965
+    """
+    return SPEED_OF_LIGHT / (2.0 * float(freq_hz))
+
+
+def check_unambiguous_range(freq_hz: float, max_m: float, where: str,
+                            option: str = "mod_freq_hz", scale: float = 1e6,
+                            unit: str = "MHz") -> None:
+    """Refuse a modulation frequency whose unambiguous range ``c/(2f)`` is shorter than the
+    camera rules' ``max_m`` (a target beyond it would wrap to a near depth instead of being
+    clipped to ``max_m``). The paper's 30 MHz for 5 m takes c as 3·10^8 m/s: the check allows
+    ``f ≤ 3·10^8 / (2 max_m)`` (30 MHz for 5 m).
+
+    Raises:
+        ValueError: naming ``where`` and ``option`` (its value shown as ``freq_hz / scale``
+            ``unit``), the range, ``max_m`` and the highest frequency allowed.
+
+    Example:
+        >>> check_unambiguous_range(30e6, 5.0, "f")  # 4.9965 m: the paper's "5 m"
+        >>> check_unambiguous_range(40e6, 3.7, "f")  # TI's band: 3.747 m
+    """
+    top = PAPER_C / (2.0 * float(max_m))
+    if float(freq_hz) > top * (1 + 1e-12):
+        raise ValueError(
+            f"{where}: {option} = {float(freq_hz) / scale:g} {unit} gives an unambiguous range "
+            f"c/(2f) = {unambiguous_range_m(freq_hz):.3f} m, shorter than the camera rules' "
+            f"max_m = {float(max_m):g} m (a target beyond {unambiguous_range_m(freq_hz):.3f} m "
+            f"would wrap to a near depth, not be clipped to {float(max_m):g} m): choose at most "
+            f"{top / scale:g} {unit} (c rounded to 3e8 m/s, as the paper's 5 m at 30 MHz), or "
+            f"lower max_m")
+
+
 def pll_frequency_hz(mod_m1: int, mod_m_frac1: int, mod_n1: int, mod_ps1: int,
                      quad_cnt_max: int) -> float:
-    """Modulation frequency of PLL 1 in Hz (DML description of ``mod_m1``):
-    ``48 MHz · (M + M_frac/2^16) / (N · (1 + PS) · quad_cnt_max)``."""
-    if mod_n1 == 0 or quad_cnt_max == 0:
+    """Modulation frequency of a PLL in Hz as the SDK reads it back: ``f_vco = 2 · 48 MHz ·
+    (M + M_frac/2^16) / 2^N`` (``TintinVCOFrequency::get``, ToFTintinCamera.cpp), ``f_mod =
+    f_vco / (quad_cnt_max · (1 + PS))`` (``TintinModulationFrequencyParameter::get``).
+
+    The DML description of ``mod_m1`` gives ``f_vco = 48 MHz · (M + M_frac/2^16) / N``; the two
+    agree only for ``N`` = 1 and 2 (the SDK always writes 2, ``TintinVCOFrequency::set``), so
+    another ``N`` is refused rather than read with either formula.
+
+    Raises:
+        ProtocolError: ``mod_n1`` not 1 or 2, or ``quad_cnt_max`` 0 (the PLL was not set up
+            as the SDK sets it).
+    """
+    if mod_n1 not in (1, 2) or quad_cnt_max == 0:
         raise ProtocolError("read modulation frequency",
-                            f"mod_n1={mod_n1}, quad_cnt_max={quad_cnt_max}: PLL not configured")
-    vco_mhz = SYSCLK_MHZ * (mod_m1 + mod_m_frac1 / 65536.0) / mod_n1
+                            f"mod_n1={mod_n1}, quad_cnt_max={quad_cnt_max}: the SDK's read-back "
+                            "(TintinVCOFrequency::get, 2·48 MHz·M/2^N) and the DML's (48 MHz·M/N) "
+                            "agree only for mod_n1 = 1 or 2, and the SDK writes 2; program the "
+                            "PLL with set_modulation_frequency (OPT8241.configure does)")
+    vco_mhz = 2 * SYSCLK_MHZ * (mod_m1 + mod_m_frac1 / 65536.0) / (1 << mod_n1)
     return vco_mhz / ((1 + mod_ps1) * quad_cnt_max) * 1e6
 
 
@@ -479,11 +590,15 @@ def sdk_quad_iq(words: np.ndarray, quads: int) -> tuple[np.ndarray, np.ndarray, 
     return d, d @ np.cos(phi), d @ np.sin(phi)
 
 
-def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None, quads: int = 4) -> bytes:
+def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None, quads: int = 4,
+                 phase_corr: int = 0) -> bytes:
     """Encode one frame in ``mode`` from integer taps ``(4, H, W)`` (Fig. 1 order), as the
     camera would send it: phase and amplitude of Eqs. 7-8 rounded to 12 bits for the depth
     modes, ``I = c₁ − c₂``, ``Q = c₄ − c₃`` for ``"iq"``, ``quads`` signed SDK-order samples
-    per pixel for ``"quad"`` (:func:`quads_from_taps`)."""
+    per pixel for ``"quad"`` (:func:`quads_from_taps`). ``phase_corr`` (the simulator's
+    model of an active ``phase_corr_1``: DML id 2091, "This value is subtracted from the
+    obtained phase", taken in 12-bit phase units) is subtracted modulo 4096 from the depth
+    modes' phase; the raw ``"quad"`` and ``"iq"`` words are left alone."""
     t = np.asarray(taps)
     if t.ndim != 3 or t.shape[0] != 4:
         raise ValueError(f"encode_frame: expected taps (4, H, W), got {t.shape}")
@@ -496,7 +611,7 @@ def encode_frame(mode: str, taps: np.ndarray, ambient=None, flags=None, quads: i
     tt = torch.from_numpy(t.astype(np.float32))[None]
     phase = tap_phase(tt)[0, 0].double().numpy()  # Eq. 7
     amp = tap_amplitude(tt)[0, 0].double().numpy()  # Eq. 8
-    p12 = np.rint(phase * (4096 / _TWO_PI)).astype(np.int64) % 4096
+    p12 = (np.rint(phase * (4096 / _TWO_PI)).astype(np.int64) - int(phase_corr)) % 4096
     a12 = np.clip(np.rint(amp), 0, 4095).astype(np.int64)
     if mode in ("depth", "depth8"):
         return pack_depth(p12, a12, ambient, flags, FRAME_MODES[mode][2])
@@ -646,6 +761,10 @@ class OPT8241:
         queue_frames: frames the reader thread may hold before it drops the oldest
             (``USBBulkStreamer::putBuffer`` does the same); each drop is counted in
             :attr:`stats` and reported by :meth:`grab` as a lost frame.
+        mod_freq_hz: the modulation frequency :meth:`configure` programs into PLL 1 and PLL 2
+            (default 30 MHz, the paper's; TI's profiles leave 40 or 48 MHz). :meth:`configure`
+            refuses one whose unambiguous range ``c/(2f)`` is shorter than ``rules.max_m``
+            (:func:`check_unambiguous_range`).
     """
 
     what = "TI OPT8241 ToF camera"
@@ -654,7 +773,7 @@ class OPT8241:
                  rules: CameraRules = CameraRules(), mode: str = "depth",
                  slave: bool = True, timeout_s: float = 2.0, clock=time.time,
                  frame_ids: bool = False, quads: int = 4, sub_frames: int = 1,
-                 queue_frames: int = 64) -> None:
+                 queue_frames: int = 64, mod_freq_hz: float = DEFAULT_MOD_FREQ_HZ) -> None:
         if mode not in FRAME_MODES:
             raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
                              f"{list(FRAME_MODES)}")
@@ -667,6 +786,14 @@ class OPT8241:
                 queue_frames < 1:
             raise ValueError(f"OPT8241: expected queue_frames a positive int, got "
                              f"{queue_frames!r}")
+        if isinstance(mod_freq_hz, bool) or not isinstance(mod_freq_hz, (int, float)):
+            raise TypeError(f"OPT8241: expected mod_freq_hz a number (Hz), got {mod_freq_hz!r}")
+        try:
+            pll_settings(mod_freq_hz, _check_quads(quads, "OPT8241"))
+        except ValueError as exc:
+            raise ValueError(f"OPT8241: mod_freq_hz {mod_freq_hz!r} cannot be programmed: "
+                             f"{exc}") from None
+        self.mod_freq_hz = float(mod_freq_hz)
         self.dev, self.width, self.height = dev, int(width), int(height)
         self.rules, self.mode = rules, mode
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
@@ -785,15 +912,27 @@ class OPT8241:
     # -- modulation frequency, frame time and integration time -------------------------------
     @property
     def freq_hz(self) -> float:
-        """Modulation frequency in Hz from the PLL registers (module docstring)."""
+        """Modulation frequency in Hz from the PLL 1 registers (:func:`pll_frequency_hz`)."""
         return pll_frequency_hz(*(self.read_field(k) for k in (
             "mod_m1", "mod_m_frac1", "mod_n1", "mod_ps1", "quad_cnt_max")))
 
+    @property
+    def pll2_freq_hz(self) -> float:
+        """The frequency PLL 2 makes, from its registers (``mod_m2``, ``mod_m_frac2``,
+        ``mod_n2``, ``mod_ps2``; :func:`pll_frequency_hz`)."""
+        return pll_frequency_hz(*(self.read_field(k) for k in (
+            "mod_m2", "mod_m_frac2", "mod_n2", "mod_ps2", "quad_cnt_max")))
+
     def set_modulation_frequency(self, freq_hz: float) -> float:
-        """Program PLL 1 for ``freq_hz`` as the Voxel SDK does, then the illumination-delay
-        coefficient ``delay_fb_coeff_1 = ⌊f[MHz] · 1024 / 24⌋`` (DML description of
-        ``delay_fb_coeff_1``; ``TintinUnambiguousRangeParameter::set``, ToFTintinCamera.cpp,
-        writes it after each frequency change); returns the frequency the registers now give.
+        """Program PLL 1 and PLL 2 for ``freq_hz`` as the Voxel SDK programs one PLL
+        (``TintinModulationFrequencyParameter::set``, ``TintinVCOFrequency::set``: module
+        docstring), PLL 2 with PLL 1's values as TI's one-frequency profile asks
+        (TintinCDKCameraNoCalibration.conf: ``mod_freq2 = mod_freq1``, ``dealias_en = 0``;
+        TI's CDK profiles leave PLL 2 at 60 MHz for de-aliasing), all inside one
+        ``mod_pll_update`` 1 … 0; then the illumination-delay coefficient ``delay_fb_coeff_1 =
+        ⌊f[MHz] · 1024 / 24⌋`` (DML description of ``delay_fb_coeff_1``;
+        ``TintinUnambiguousRangeParameter::set``, ToFTintinCamera.cpp, writes it after each
+        frequency change); returns the frequency PLL 1 now gives.
 
         Raises:
             ValueError: a frequency the PLL or the 12-bit delay coefficient cannot take.
@@ -805,13 +944,38 @@ class OPT8241:
                              "4095 (12 bits, OPT9221.dml)")
         self.write_field("mod_pll_update", 1)
         try:
-            for k in ("mod_m1", "mod_n1", "mod_m_frac1", "mod_ps1"):
-                self.write_field(k, s[k])
+            for pll in ("1", "2"):
+                for k in ("mod_m", "mod_n", "mod_m_frac", "mod_ps"):
+                    self.write_field(k + pll, s[k + "1"])
             time.sleep(VCO_SETTLE_S)  # TintinVCOFrequency::set waits here before the release
         finally:
             self.write_field("mod_pll_update", 0)
         self.write_field("delay_fb_coeff_1", coeff)
         return self.freq_hz
+
+    @property
+    def unambiguous_range_m(self) -> float:
+        """``c / (2 f)`` of the programmed PLL 1 frequency (:func:`unambiguous_range_m`)."""
+        return unambiguous_range_m(self.freq_hz)
+
+    #: What ``ToFTintinCamera::_applyCalibrationParams`` (ToFTintinCamera.cpp) writes when the
+    #: profile's calibration is disabled, in its order: common phase offset off
+    #: (``DISABLE_OFFSET_CORR`` true, ``PHASE_CORR_1``/``_2`` 0), temperature correction off
+    #: (``DISABLE_TEMP_CORR`` true), cross-talk filter off (``CROSS_TALK_EN`` = ``filt_en``
+    #: false), phase non-linearity correction off (``NONLINEARITY_ENABLE`` =
+    #: ``phase_lin_corr_en`` false).
+    CALIBRATION_OFF = (("disable_offset_corr", 1), ("phase_corr_1", 0), ("phase_corr_2", 0),
+                       ("disable_temp_corr", 1), ("filt_en", 0), ("phase_lin_corr_en", 0))
+
+    def disable_phase_calibration(self) -> None:
+        """Switch TI's on-chip phase calibration off (:attr:`CALIBRATION_OFF`). TI calibrates
+        for the profile's defining parameters — ``unambiguous_range``, ``frame_rate``,
+        ``sub_frame_cnt_max``, ``quad_cnt_max``, ``mix_volt``, ``intg_time``
+        (``ToFCamera::_init``, common phase offset and temperature sections) and
+        ``op_clk_freq`` (``ToFTintinCamera::_init``, non-linearity) — all of which
+        :meth:`configure` may change, so a profile's calibration would no longer hold."""
+        for name, value in self.CALIBRATION_OFF:
+            self.write_field(name, value)
 
     def _frame_cycles(self) -> int:
         return (self.read_field("pix_cnt_max") * self.read_field("quad_cnt_max")
@@ -1014,24 +1178,29 @@ class OPT8241:
 
     def configure(self, period_us: float | None = None, margin_us: float = 500.0,
                   spacing_us: float | None = None) -> None:
-        """Output format of :attr:`mode` with no frame header, trailer or block header (bulk
-        device), de-aliasing off and ``quad_cnt_max`` = :attr:`quads` with the modulation
-        frequency kept (``TintinUnambiguousRangeParameter::set`` for one frequency), slave
-        mode with ``sync_mode`` off, device frame numbers on/off (:attr:`frame_ids`) — each
-        written whatever an earlier program left (module docstring) — and the frame size
-        checked (:meth:`check_frame_size`). With ``period_us`` (a pattern's period) the
-        frame time is set to fit one period less ``margin_us`` (:meth:`set_frame_time`),
-        after checking that the output interface can send a frame before the next trigger,
-        ``spacing_us`` after this one (default ``period_us``; on the VSYNC trigger the
-        patterns may be further apart than their period).
+        """Output format of :attr:`mode` with no frame header, trailer, block header or zero
+        padding (bulk device), de-aliasing off, ``quad_cnt_max`` = :attr:`quads`, PLL 1 and
+        PLL 2 at :attr:`mod_freq_hz` (:meth:`set_modulation_frequency`), TI's phase
+        calibration off (:meth:`disable_phase_calibration`), ``hdr_scale`` 0 (no alternate-
+        frame integration scaling), slave mode with ``sync_mode`` off, device frame numbers
+        on/off (:attr:`frame_ids`) — each written whatever an earlier program left (module
+        docstring) — and the frame size checked (:meth:`check_frame_size`). With
+        ``period_us`` (a pattern's period) the frame time is set to fit one period less
+        ``margin_us`` (:meth:`set_frame_time`), after checking that the output interface can
+        send a frame before the next trigger, ``spacing_us`` after this one (default
+        ``period_us``; on the VSYNC trigger the patterns may be further apart than their
+        period).
 
         Raises:
-            ValueError: a frame takes longer than ``spacing_us`` to send
-                (:meth:`output_time_us`).
+            ValueError: :attr:`mod_freq_hz` gives an unambiguous range ``c/(2f)`` shorter than
+                ``rules.max_m`` (:func:`check_unambiguous_range`), or a frame takes longer than
+                ``spacing_us`` to send (:meth:`output_time_us`); both before any write.
             HardwareError: the frame size differs (:meth:`check_frame_size`), or a flag of
                 :meth:`set_frame_time`.
         """
         out, size, arrange = FRAME_MODES[self.mode]
+        check_unambiguous_range(self.mod_freq_hz, self.rules.max_m, "OPT8241.configure",
+                                "mod_freq_hz")
         self.check_frame_size()
         spacing = period_us if spacing_us is None else spacing_us
         if spacing is not None:
@@ -1051,18 +1220,20 @@ class OPT8241:
                        if fewer else ""))
         self.write_field("tg_dis", 1)
         if self.read_field("quad_cnt_max") != self.quads:
-            freq = self.freq_hz
             self.write_field("quad_cnt_max", self.quads)
-            self.set_modulation_frequency(freq)
+        self.set_modulation_frequency(self.mod_freq_hz)  # PLL 1 and PLL 2, delay coefficient
         self.write_field("dealias_en", 0)
         self.write_field("dealias_16bit_op_enable", 0)
         self.write_field("dealiased_ph_mask", 0)
+        self.disable_phase_calibration()
+        self.write_field("hdr_scale", 0)  # alternate frames would integrate >> hdr_scale
         self.write_field("output_mode", out)
         self.write_field("pixel_data_size", size)  # 4 in quad mode: the default (FRAME_MODES)
         self.write_field("op_data_arrange_mode", arrange)
         self.write_field("blk_header_en", 0)
         self.write_field("frm_header_en", 0)  # frames are raw pixels (and byte 0 the number)
         self.write_field("frm_trailer_en", 0)
+        self.write_field("padding_en", 0)  # zeros after the last packet would resize frames
         self.write_field("debug_frame_number_en", int(self.frame_ids))
         self.write_field("sync_mode", 0)  # it would override slave_mode (OPT9221.dml)
         self.write_field("slave_mode", int(self.slave))

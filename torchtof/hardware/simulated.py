@@ -3,8 +3,10 @@
 :class:`FakeLightCrafter` (``write``/``read`` of 64-byte HID reports) parses the real
 DLPC350 byte protocol (:mod:`~torchtof.hardware.dlpc350`): it reassembles multi-report
 messages, NACKs malformed ones (unknown command, wrong payload length, out-of-range values),
-keeps the display/trigger/timing/mailbox/LUT state, answers LUT_VALID (with its error bits),
-status and version reads, and when a sequence starts it shows each LUT entry's bit plane of
+keeps the display/trigger/timing/mailbox/LUT/TRIG_OUT1/input-source state, answers LUT_VALID
+(with its error bits), status, version, SOURCE_SEL and VID_SIG_STAT reads (a locked 912 × 1140
+input at the bench's ``video_hz``; :attr:`FakeLightCrafter.video_signal` changes it), and
+when a sequence starts it shows each LUT entry's bit plane of
 the current video frame (or flash image) and raises TRIG_OUT1. :class:`FakeOPT8241`
 (``ctrl_transfer``/``read``) keeps its registers behind the vendor control transfers of
 :mod:`~torchtof.hardware.opt8241`; on each trigger it renders one frame of the chosen scene
@@ -93,6 +95,8 @@ class Faults:
             first): every earlier frame has reached the host.
         no_seq_echo: the LightCrafter answers with sequence byte 0 instead of the request's
             (whether a DLPC350 echoes it is device-only; pyCrafter4500 always sends 0).
+        empty_reply: ``{command: {occurrence}}``: the LightCrafter answers these reads with
+            no data (length 0), which TI's ``DLPC350_Read`` counts as a NACK.
     """
 
     frame_timeout: set[int] = field(default_factory=set)
@@ -113,12 +117,13 @@ class Faults:
     hang_file: str | None = None
     hang_s: float = 60.0
     no_seq_echo: bool = False
+    empty_reply: dict[str, set[int]] = field(default_factory=dict)
 
     #: fields holding frame or control-transfer ordinals (lists of non-negative ints)
     _ORDINALS = ("frame_timeout", "drop", "duplicate", "extra", "corrupt", "split", "stall",
                  "ctrl_fail")
     #: fields ``{command: [occurrence, ...]}``, commands of :data:`~.dlpc350.COMMANDS`
-    _COMMANDS = ("nack", "reply_timeout", "late_reply")
+    _COMMANDS = ("nack", "reply_timeout", "late_reply", "empty_reply")
     #: fields holding one ordinal or ``None``
     _ORDINAL = ("vanish_after_frames", "hang_at_frame", "hang_at_read")
 
@@ -126,7 +131,8 @@ class Faults:
     def from_dict(cls, d: dict) -> Faults:
         """A fault plan from a JSON object (``torchtof acquire --sim-faults``): ordinal sets as
         lists of non-negative ints, ``{command: [occurrence, ...]}`` for ``nack``,
-        ``reply_timeout`` and ``late_reply`` (commands of :data:`~.dlpc350.COMMANDS`),
+        ``reply_timeout``, ``late_reply`` and ``empty_reply`` (commands of
+        :data:`~.dlpc350.COMMANDS`),
         ``set_failed`` a list of the two OPT9221 failure flags, ``vanish_after_frames``,
         ``hang_at_frame`` and ``hang_at_read`` a non-negative int or null, ``hang_file`` a
         path or null, ``hang_s`` a non-negative number of seconds, ``no_seq_echo`` a bool.
@@ -232,7 +238,23 @@ class FakeLightCrafter(_Gone):
         self.flash: dict[int, np.ndarray] = {}
         self.state = {"standby": False, "pattern_mode": False, "source": None, "config": None,
                       "trigger": None, "exposure_us": None, "period_us": None, "running": False,
-                      "mbox": 0, "mbox_addr": 0, "validated": False}
+                      "mbox": 0, "mbox_addr": 0, "validated": False,
+                      # TRIG_OUT1_CTL as written (invert, rising, falling); None: never written
+                      "trig_out1": None,
+                      # SOURCE_SEL: parallel port, 24 bits (source 0 | width 1 << 3)
+                      "source_sel": 0x08}
+        #: what VID_SIG_STAT reports (dlpc350.decode_video_status fields): a locked 912 x 1140
+        #: input at the bench's video rate; the units of the clock and frequency words are
+        #: simulator choices (v_freq in 0.01 Hz, h_freq in 10 Hz, pix_clock in Hz)
+        rows, cols = dlp.DMD_SHAPE
+        tot_pix, tot_lines = cols + 160, rows + 45
+        self.video_signal = {
+            "status": dlp.SOURCE_LOCKED, "h_res": cols, "v_res": rows, "hsync_pol": 1,
+            "vsync_pol": 1, "pix_clock": round(tot_pix * tot_lines * bench.video_hz),
+            "h_freq": round(tot_lines * bench.video_hz / 10),
+            "v_freq": round(bench.video_hz * 100), "total_pixels_per_line": tot_pix,
+            "total_lines_per_frame": tot_lines, "active_pixels_per_line": cols,
+            "active_lines_per_frame": rows, "first_active_pixel": 0, "first_active_line": 0}
         self.pattern_lut: list[int] = []
         self.image_lut: list[int] = []
         self.lut_status = 0
@@ -294,6 +316,8 @@ class FakeLightCrafter(_Gone):
         size = dlp.COMMANDS[name][2]
         if msg.read:
             data = self._read(name) if not msg.payload else None
+            if data is not None and occ in self.bench.faults.empty_reply.get(name, ()):
+                data = b""  # an answer without data (length 0)
             self._replies.append(dlp.encode_reply(msg, data or b"", nack=data is None))
             return
         ok = (size is None and len(msg.payload) > 0) or len(msg.payload) == size
@@ -318,6 +342,13 @@ class FakeLightCrafter(_Gone):
             return bytes([int(self.state["pattern_mode"] if switched else self._prev_mode)])
         if name == "GET_VERSION":
             return struct.pack("<IIII", 0x03000000, 0x00010000, 0, 0)
+        if name == "SOURCE_SEL":
+            return bytes([self.state["source_sel"]])
+        if name == "VID_SIG_STAT":
+            return dlp.encode_video_status(**self.video_signal)
+        if name == "TRIG_OUT1_CTL":  # DLPC350_GetTrigOutConfig: invert, rising, falling
+            return bytes(self.state["trig_out1"] or (0, dlp.TRIG_OUT_ZERO_DELAY,
+                                                     dlp.TRIG_OUT_ZERO_DELAY))
         return None
 
     def _apply(self, name: str, p: bytes) -> bool:
@@ -345,6 +376,17 @@ class FakeLightCrafter(_Gone):
             s["trigger"] = p[0]
         elif name == "PAT_EXPO_PRD":
             s["exposure_us"], s["period_us"] = struct.unpack("<II", p)
+        elif name == "TRIG_OUT1_CTL":  # DLPC350_SetTrigOutConfig: invert 0/1, delays <= 0xD5
+            if p[0] > 1 or max(p[1], p[2]) > dlp.TRIG_OUT_MAX_DELAY:
+                return False
+            s["trig_out1"] = tuple(p)
+            s["validated"] = False  # TI: validate again after it
+        elif name == "SOURCE_SEL":  # DLPC350_SetInputSource: source 0-3, width 0-5
+            if p[0] & 0x07 > 3 or p[0] >> 3 > 5:
+                return False
+            s["source_sel"] = p[0]
+        elif name == "VID_SIG_STAT":  # a status: read only
+            return False
         elif name == "PAT_CONFIG":
             s["config"] = tuple(p)
         elif name == "MBOX_CONTROL":
@@ -503,12 +545,23 @@ class FakeOPT8241(_Gone):
     (:meth:`crop`); and, with ``bench.realtime``, delivers each frame only once its frame
     time has passed on the wall clock and holds at most ``bench.fifo_frames`` undelivered
     frames (a full FIFO drops the newest frame after numbering it: a frame-id gap).
+
+    It also models what TI's profile may leave and :meth:`.OPT8241.configure` now clears: an
+    active ``phase_corr_1`` shifts the depth modes' phase (:meth:`phase_correction`),
+    ``hdr_scale`` divides the taps of every other frame by ``2^hdr_scale``, ``padding_en``
+    pads each transfer with zeros to a multiple of ``blk_size`` (1024, the DML default); with
+    ``bench.sdk_initialised`` PLL 2 and ``sscg_en`` start as TI's default profile leaves them.
+    Every register write is logged in :attr:`writes`.
     """
 
     _VALID = {"quad_cnt_max": (4, 6), "sub_frame_cnt_max": (1, 2, 4, 8),
               "pixel_data_size": (2, 4)}
     _READ_ONLY = ("pix_cnt_max_set_failed", "intg_duty_cycle_set_failed")
     _ROI_ADDRESSES = {opt.REGISTERS[k].address for k in ("row_start", "col_start", "col_end")}
+    #: ``blk_size`` (OPT9221.dml id 6133, bank 3 reg 60 bits 4-23, default 1024: "Each frame is
+    #: sent to the host in blocks of this size in terms of the number of output clock cycles"),
+    #: the packet size ``padding_en`` pads to; torchtof neither reads nor writes it
+    BLK_SIZE = opt.Field(0x5C3C, 4, 23)
 
     def __init__(self, bench: SimulatedBench) -> None:
         self.bench = bench
@@ -519,8 +572,18 @@ class FakeOPT8241(_Gone):
                     "delay_fb_coeff_1": 2048, "op_clk_freq": 0,
                     "tillum_slv_addr": 0x72 if bench.sdk_initialised else 0x71}
         defaults.update(opt.pll_settings(bench.config.freq_hz, 4))
+        if bench.sdk_initialised:  # what TI's default profile (Long Range, id 130) leaves:
+            # PLL 2 at vco 360 MHz with mod_ps2 = 0 (60 MHz at its quad_cnt_max 6) for
+            # de-aliasing (TintinUnambiguousRangeParameter::set), sscg_en = true (its .conf)
+            defaults.update(mod_m2=15, mod_m_frac2=0, mod_n2=2, mod_ps2=0, sscg_en=1)
+        else:  # OPT9221.dml defaults of PLL 2 (48 MHz at quad_cnt_max 4)
+            defaults.update(mod_m2=16, mod_m_frac2=0, mod_n2=2, mod_ps2=1)
         for name, value in defaults.items():
             self._set(name, value)
+        self.regs[self.BLK_SIZE.address] = self.BLK_SIZE.put(
+            self.regs.get(self.BLK_SIZE.address, 0), 1024)
+        #: every register write as ``(address, 24-bit value)``, oldest first (for tests)
+        self.writes: list[tuple[int, int]] = []
         #: (rows, columns) of the simulated sensor: the guard row and the ROI of the render
         self.sensor = (bench.config.roi_px + 1, bench.config.roi_px)
         self.select_whole_sensor()
@@ -600,6 +663,7 @@ class FakeOPT8241(_Gone):
                 if f.address == address:
                     value = f.put(value, f.get(old))
             self.regs[address] = value
+            self.writes.append((address, value))
             if address in self._ROI_ADDRESSES:
                 self.roi_set = True
             self._update_flags()
@@ -672,6 +736,16 @@ class FakeOPT8241(_Gone):
         self.time_s = stamp
         return bytearray(packet)
 
+    def phase_correction(self) -> int:
+        """The phase the depth engine subtracts (12-bit units; :func:`.opt8241.encode_frame`):
+        ``phase_corr_1`` (signed 12 bits, OPT9221.dml id 2091) unless ``disable_offset_corr``
+        (id 2098: "Disables phase calibration completely"). The temperature, cross-talk and
+        non-linearity corrections are not simulated (no temperatures, no optics)."""
+        if self.field("disable_offset_corr"):
+            return 0
+        v = self.field("phase_corr_1")
+        return v - 4096 if v & 0x800 else v
+
     def _halted(self) -> bool:
         """Streaming halted (``tg_dis``) with nothing queued or being taken, on the instant
         bench: no frame can arrive before the next register write."""
@@ -725,16 +799,23 @@ class FakeOPT8241(_Gone):
         frame = self.bench.render(pattern, self.freq_hz)
         taps = frame.taps[0].numpy()
         taps = self.crop(np.concatenate([np.zeros_like(taps[:, :1]), taps], axis=1))  # guard row 0
+        hdr = self.field("hdr_scale")
+        if hdr and self.frame_number % 2:  # OPT9221.dml id 6377: alternate frames integrate
+            taps = np.floor(taps / (1 << hdr))  # >> hdr_scale (which ones: a simulator choice)
         # ambient / flags nibbles: simulator choices (TI does not document their meaning)
         sat = (taps >= 2 ** (self.bench.config.adc_bits or 12) - 1).any(axis=0)
         ambient = np.clip(0.5 * (taps[0] + taps[1]) / 256, 0, 15).astype(np.uint32)
         packet = opt.encode_frame(self.mode, taps.astype(np.int64), ambient=ambient,
-                                  flags=sat.astype(np.uint32), quads=self.field("quad_cnt_max"))
+                                  flags=sat.astype(np.uint32), quads=self.field("quad_cnt_max"),
+                                  phase_corr=self.phase_correction())
         packet = self._numbered(packet)
         # the 12-byte frame header and debug trailer (OPT9221.dml ids 6145, 6360; contents
         # here: a simulator choice) when a register left them on
         packet = (HEADER_BYTES * self.field("frm_header_en") + packet
                   + TRAILER_BYTES * self.field("frm_trailer_en"))
+        blk = self.BLK_SIZE.get(self.regs.get(self.BLK_SIZE.address, 0))
+        if self.field("padding_en") and blk and len(packet) % blk:  # OPT9221.dml id 6146
+            packet += bytes(blk - len(packet) % blk)
         cap = self.bench.fifo_frames if self.bench.realtime else None
         if cap is not None and len(self._fifo) >= cap:
             self.fifo_dropped += 1  # numbered, then lost: a frame-id gap
@@ -904,8 +985,9 @@ class SimulatedBench:
     def camera(self, **kwargs) -> OPT8241:
         """An :class:`OPT8241` driver on the fake camera (``roi_px`` wide, ``roi_px + 1``
         high with the guard row 0, raw-quad mode so that the per-tap buckets exist, the
-        simulated host clock)."""
+        simulated host clock, the configuration's modulation frequency)."""
         p = self.config.roi_px
         kw = {"width": p, "height": p + 1, "rules": rules_from_config(self.config), "mode": "quad",
-              "clock": lambda: self.camera_usb.time_s, **kwargs}
+              "clock": lambda: self.camera_usb.time_s, "mod_freq_hz": self.config.freq_hz,
+              **kwargs}
         return OPT8241(self.camera_usb, **kw)

@@ -21,13 +21,15 @@ import os
 
 import numpy as np
 
-from .dlpc350 import VideoPort
+from .dlpc350 import DMD_SHAPE, VideoPort
 from .errors import HardwareError
 
 __all__ = ["DMD_SHAPE", "embed_patterns", "WindowVideoPort"]
 
-#: (rows, columns) of the LightCrafter 4500's DMD and of its native video mode.
-DMD_SHAPE = (1140, 912)
+# DMD_SHAPE: (rows, columns) of the LightCrafter 4500's DMD and of its native video mode, 1140 x
+# 912: pattern display mode "Assumes a 1-bit through 8-bit image with a pixel resolution of
+# 912 x 1140" (TI's DLPC350 API, dlpc350_api.cpp, documentation of DLPC350_SetMode); defined in
+# .dlpc350, whose check_video_input compares the video signal with it.
 
 
 def embed_patterns(frame: np.ndarray, shape: tuple[int, int] = DMD_SHAPE,
