@@ -283,6 +283,10 @@ GAUSS_GAMMAS = tuple(4.0**-j for j in range(1, 13))
 GAUSS_MIN_N = 32
 GAUSS_MAX_M = 1024
 _CONSTRAINED_MU = 2.0**8
+#: The TGV fits run this many pixels (rows × columns × image) per call at most on the CPU:
+#: their primal-dual state then stays in the caches (1.3–1.5× faster at n = 64 and 128 than
+#: the 21 columns of a fold at once).
+_TGV_CHUNK_PIXELS = 1 << 15
 #: Solvers of the TV-L2 candidates (:func:`auto`'s ``tv_solver``).
 TV_SOLVERS = ("tval3", "split")
 _INF = float("inf")
@@ -367,16 +371,20 @@ def _fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: i
         n_iter = torch.zeros(r_, k_, dtype=torch.int64, device=y.device)
         conv = torch.zeros(r_, k_, dtype=torch.bool, device=y.device)
         codes = torch.zeros(r_, k_, dtype=torch.int64, device=y.device)
-        sub = (lambda op, cols: MaskedRows(op.inner, op.mask[cols])) \
-            if isinstance(A, MaskedRows) else (lambda op, cols: op)
         for flag, iters in ((False, max_iter), (True, l2_iter)):
             cols = [j for j, v in enumerate(l2) if bool(v) == flag]
             if cols:
-                out = _fit1(group, y[:, cols], sub(A, cols), mu_t[:, cols], flag, iters,
+                out = _fit1(group, y[:, cols], _columns(A, cols), mu_t[:, cols], flag, iters,
                             use_split)
                 x[:, cols], n_iter[:, cols], conv[:, cols], codes[:, cols] = out
         return x, n_iter, conv, codes
     return _fit1(group, y, A, mu, tvl2, l2_iter if tvl2 is True else max_iter, use_split)
+
+
+def _columns(A: LinearOperator, cols) -> LinearOperator:
+    """``A`` for the columns ``cols`` (a list or a slice) of a batch: a :class:`MaskedRows`
+    keeps their row masks."""
+    return MaskedRows(A.inner, A.mask[cols]) if isinstance(A, MaskedRows) else A
 
 
 def _fit1(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int,
@@ -384,15 +392,37 @@ def _fit1(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: 
     """:func:`_fit` with one solver and one budget for every column."""
     prior, tv, bd, box = group
     if prior == "tgv":
-        r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
-                return_result=True)
-        to = torch.tensor([STOP_REASONS.index(k) for k in TGV_STOP_REASONS], device=y.device)
-        return r.x, r.n_iter, r.converged, to[r.stop_code]
+        return _tgv_fit(group, y, A, mu, tvl2, max_iter)
     if use_split and tvl2 is True:
         return _split_fit(group, y, A, mu, max_iter)
     r = tval3(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
               return_result=True)
     return r.x, r.n_iter, r.converged, r.stop_code
+
+
+def _tgv_fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, tvl2, max_iter: int):
+    """The TGV fits of :func:`_fit1`, at most :data:`_TGV_CHUNK_PIXELS` pixels per call on the
+    CPU: the columns are independent solves, so a few at a time run the same iterates, bit
+    for bit, with their state in the caches."""
+    _, tv, bd, box = group
+    to = torch.tensor([STOP_REASONS.index(k) for k in TGV_STOP_REASONS], device=y.device)
+
+    def solve(y, A, mu, tvl2):
+        r = tgv(y, A, mu=mu, tvl2=tvl2, max_iter=max_iter, tv=tv, boundary=bd, bounds=box,
+                return_result=True)
+        return r.x, r.n_iter, r.converged, to[r.stop_code]
+
+    r_, k_ = y.shape[0], y.shape[1]
+    step = max(1, _TGV_CHUNK_PIXELS // max(1, r_ * A.n * A.n))
+    if y.device.type != "cpu" or k_ <= step:
+        return solve(y, A, mu, tvl2)
+
+    def cols_of(v, cols):
+        return torch.broadcast_to(v, (r_, k_))[:, cols] if isinstance(v, torch.Tensor) else v
+
+    outs = [solve(y[:, c], _columns(A, c), cols_of(mu, c), cols_of(tvl2, c))
+            for c in (slice(j, j + step) for j in range(0, k_, step))]
+    return tuple(torch.cat(t, dim=1) for t in zip(*outs))
 
 
 def _split_fit(group: tuple, y: torch.Tensor, A: LinearOperator, mu, max_iter: int):

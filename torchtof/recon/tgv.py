@@ -83,6 +83,7 @@ form exports to ONNX, ``torchtof export tgv``).
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import NamedTuple
 
 import torch
@@ -96,12 +97,11 @@ from .tv import (
     box_bounds,
     bucket_spread,
     grad2,
-    grad2_adjoint,
     largest_eig_normal,
+    loop_differences,
     project_box,
     scaled_loop_pair,
     sym_grad2,
-    sym_grad2_adjoint,
 )
 from .tval3 import B_SPREAD, B_SPREAD_MIN, check_buckets
 
@@ -153,6 +153,17 @@ def _support(w: torch.Tensor, boundary: str) -> torch.Tensor:
     wx = torch.nn.functional.pad(w[..., 0, :, :-1], (0, 1))
     wy = torch.nn.functional.pad(w[..., 1, :-1, :], (0, 0, 0, 1))
     return torch.stack((wx, wy), dim=-3)
+
+
+def _support_nb(w: torch.Tensor) -> torch.Tensor:
+    """``_support(w, "neumann")`` bit for bit, written into one copy (no ``pad``/``stack``;
+    the in-place twin of :func:`~torchtof.recon.tv.grad2_nb`, with its autograd fallback)."""
+    if w.requires_grad:
+        return _support(w, "neumann")
+    out = w.clone()
+    out[..., 0, :, -1] = 0.0
+    out[..., 1, -1, :] = 0.0
+    return out
 
 
 def _proj_ball(v: torch.Tensor, radius: float, isotropic: bool) -> torch.Tensor:
@@ -416,26 +427,26 @@ def _pdhg(b, A, sq, mu, constrained, alpha, iso, boundary, box, max_iter, tol, a
     sf = sigma[..., None]
     tf = tau[..., None]
     vn = torch.linalg.vector_norm
+    D, Dt, E, Et, in_place = loop_differences(boundary, b, A.n)
+    P = _support_nb if in_place else partial(_support, boundary=boundary)
     for k in range(max_iter):
-        p_n = _proj_ball(p + sf * (grad2(xb, boundary) - _support(wb, boundary)), a1, iso)
-        q_n = _proj_ball(q + sf * sym_grad2(wb, boundary), a0, iso)
-        v = x - tau * grad2_adjoint(p_n, boundary)
+        p_n = _proj_ball(p + sf * (D(xb) - P(wb)), a1, iso)
+        q_n = _proj_ball(q + sf * E(wb), a0, iso)
+        v = x - tau * Dt(p_n)
         if prox:
             x_n = v + adj(theta * (b - fwd(v)))
             r_n = r
         else:
             r_n = (r + sig_r * (fwd(xb) - b)) / r_den
             x_n = project_box(v - tau * adj(r_n), lo, hi)
-        w_n = w + tf * (_support(p_n, boundary) - sym_grad2_adjoint(q_n, boundary))
+        w_n = w + tf * (P(p_n) - Et(q_n))
         change = vn(x_n - x, dim=(-2, -1)) / vn(x, dim=(-2, -1)).clamp_min(tiny)
+        # a frozen sample keeps its x and w (the outputs); its other variables feed only its
+        # own next iterates, which these masks discard, so they go unmasked
         keep = done[..., None, None]
-        xb = torch.where(keep, x, 2 * x_n - x)
-        wb = torch.where(keep[..., None], w, 2 * w_n - w)
+        xb, wb, p, q, r = 2 * x_n - x, 2 * w_n - w, p_n, q_n, r_n
         x = torch.where(keep, x, x_n)
         w = torch.where(keep[..., None], w, w_n)
-        p = torch.where(keep[..., None], p, p_n)
-        q = torch.where(keep[..., None], q, q_n)
-        r = torch.where(keep[..., 0], r, r_n)
         n_iter = n_iter + (~done).to(torch.int64)
         if adaptive:
             done = done | (change <= tol)

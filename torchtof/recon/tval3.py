@@ -50,9 +50,8 @@ from .tv import (
     check_exact_memory,
     exact_factors,
     exact_solve,
-    grad2,
-    grad2_adjoint,
     largest_eig_normal,
+    loop_differences,
     scaled_loop_pair,
     shrink,
 )
@@ -757,9 +756,18 @@ def _solve(
     gam0: float = 0.9995,
     rate_gam: float = 0.9,
     disc_bound: torch.Tensor | None = None,
+    _eager: bool = False,
 ) -> _Out:
-    """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`)."""
+    """The ``ftvcs_alp`` iteration on scaled buckets ``b`` (see :func:`tval3`).
+
+    With ``adaptive``, a step leaves out its fallback branch (a steepest-descent step after
+    five failed backtracks) and is redone whole, from the state it started from, when the next
+    host read finds that some sample needed it: the same arithmetic, without the branch's extra
+    ``A``, ``Aᵀ`` and ``D`` on the steps that need none; and the steepest-descent length is
+    computed only when some active sample is on a first step. ``_eager`` (the reference for
+    tests): every step computes both lengths and takes its branch in place."""
     fwd, adj = scaled_loop_pair(A, b, math.sqrt(inv_s2))
+    D, Dt = loop_differences(boundary, b, A.n)[:2]
     exact = u_step == "exact"
     lo_s, hi_s = box  # per-sample bounds in the scaled units of u, (B, C) tensors or None
     bounded = lo_s is not None or hi_s is not None
@@ -787,7 +795,7 @@ def _solve(
     mu_dlt = torch.where(constrained, torch.ones_like(mu_f), zeros)  # 0: TV-L2 (δ ≡ 0)
     atb = adj(b)
     u = atb
-    du = grad2(u, boundary)
+    du = D(u)
     sig = torch.zeros_like(du)
     dlt = torch.zeros_like(b)
     w = shrink_w(du, sig, bet)
@@ -795,7 +803,7 @@ def _solve(
     au = fwd(u)
     g = adj(au) - atb
     v = du - w
-    g2 = grad2_adjoint(v, boundary)
+    g2 = Dt(v)
     f = objective(lam1, v, au - b, sig, dlt, bet, mu)
     st = dict(
         u=u,
@@ -827,68 +835,102 @@ def _solve(
         p_lam1=lam1,
         p_v=v,
         p_r=au - b,
+        # the samples whose last step needs the fallback branch it left out (see ``step``)
+        p_fb=torch.zeros_like(zero),
     )
 
     def sd_length(d, rho):
-        dd_ = grad2(d, boundary)
+        dd_ = D(d)
         ad = fwd(d)
         return _dot_i(d, d) / (_dot_f(dd_, dd_) + rho * _dot_v(ad, ad)).clamp_min(tiny)
 
-    def step(st: dict) -> dict:
-        active = ~st["done"]
+    def line_search(st: dict, tau_sd: torch.Tensor | None) -> tuple:
+        """Steps 1–3 of a BB step: ``(u, du, au, g, gam, fallback)``. ``tau_sd`` ``None``: no
+        active sample is on a first step, so every length that can be taken is a BB one."""
         first, bet, mu, gam = st["first"], st["bet"], st["mu"], st["gam"]
-        sig, dlt, dts, w, d, f = st["sig"], st["dlt"], st["dts"], st["w"], st["d"], st["f"]
-        up, gp, g2p, aup, dup = st["u"], st["g"], st["g2"], st["au"], st["du"]
-        rho = mu / bet
+        sig, dlt, w, d, f = st["sig"], st["dlt"], st["w"], st["d"], st["f"]
+        up, gp, aup, dup = st["u"], st["g"], st["au"], st["du"]
+        # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
+        # (both lengths computed where needed: choosing by mask needs no host read)
+        tau = st["tau_bb"] if tau_sd is None else torch.where(first, tau_sd, st["tau_bb"])
+        # 2. trial step
+        u1 = up - _i(tau) * d
+        if bounded:
+            u1 = _project(u1)
+        du1 = D(u1)
+        au1 = fwd(u1)
+        g1 = adj(au1) - atb
+        # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
+        dU, dDU, dAu = u1 - up, du1 - dup, au1 - aup
+        vp, rp = dup - w, aup - b
+        a1 = bet * _dot_f(vp, dDU) + mu * _dot_v(rp, dAu) - _dot_f(sig, dDU) - _dot_v(dlt, dAu)
+        a2 = bet / 2 * _dot_f(dDU, dDU) + mu / 2 * _dot_v(dAu, dAu)
+        const = c * bet * tau * _dot_i(d, d)
+        al = alphas.reshape(-1, *([1] * f.ndim))
+        ok = f + al * a1 + al * al * a2 <= st["cref"] - al * const
+        fallback = ~ok.any(dim=0)
+        alpha = torch.where(fallback, zeros, alphas[torch.argmax(ok.to(f.dtype), dim=0)])
+        u = up + _i(alpha) * dU
+        du = dup + _f(alpha) * dDU
+        au = aup + alpha[..., None] * dAu
+        g = gp + _i(alpha) * (g1 - gp)
+        gam = torch.where(fallback, gam * rate_gam, gam)
+        return u, du, au, g, gam, fallback
+
+    def sd_fallback(st: dict, fallback: torch.Tensor, tau_sd, u, du, au, g) -> tuple:
+        """Five failed backtracks: the steepest-descent step from the last iterate where
+        ``fallback`` (``ftvcs_alp``), ``(u, du, au, g)`` elsewhere (``tau_sd`` ``None``: its
+        length is computed here)."""
+        if tau_sd is None:
+            tau_sd = sd_length(st["d"], st["mu"] / st["bet"])
+        usd = st["u"] - _i(tau_sd) * st["d"]
+        if bounded:
+            usd = _project(usd)
+        ausd = fwd(usd)
+        return (_where(fallback, usd, u), _where(fallback, D(usd), du),
+                _where(fallback, ausd, au), _where(fallback, adj(ausd) - atb, g))
+
+    def step(st: dict, first_any: bool = True, defer: bool = False) -> dict:
+        """One inner iteration from ``st``. ``first_any`` ``False``: no active sample is on a
+        first step (its steepest-descent length is skipped). ``defer``: the fallback branch is
+        left out and the samples that needed it are marked ``p_fb``, for ``redo`` to complete
+        the step (few steps need the branch; computing it costs an ``A``, an ``Aᵀ`` and a
+        ``D`` on every step)."""
         if exact:
-            rhs = grad2_adjoint(w, boundary) + _i(rho) * atb + dts
+            rho = st["mu"] / st["bet"]
+            rhs = Dt(st["w"]) + _i(rho) * atb + st["dts"]
             u, au = exact_solve(rhs, rho, fwd, adj, factors, inv_s2)
             if bounded:
                 u = _project(u)
                 au = fwd(u)
-            du = grad2(u, boundary)
-            g = gp  # AᵀAu − Aᵀb is only needed at a multiplier update (computed there)
-        else:
-            # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
-            # (both lengths always computed: choosing by mask needs no host read)
-            tau_sd = sd_length(d, rho)
-            tau = torch.where(first, tau_sd, st["tau_bb"])
-            # 2. trial step
-            u1 = up - _i(tau) * d
-            if bounded:
-                u1 = _project(u1)
-            du1 = grad2(u1, boundary)
-            au1 = fwd(u1)
-            g1 = adj(au1) - atb
-            # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
-            dU, dDU, dAu = u1 - up, du1 - dup, au1 - aup
-            vp, rp = dup - w, aup - b
-            a1 = bet * _dot_f(vp, dDU) + mu * _dot_v(rp, dAu) - _dot_f(sig, dDU) - _dot_v(dlt, dAu)
-            a2 = bet / 2 * _dot_f(dDU, dDU) + mu / 2 * _dot_v(dAu, dAu)
-            const = c * bet * tau * _dot_i(d, d)
-            al = alphas.reshape(-1, *([1] * f.ndim))
-            ok = f + al * a1 + al * al * a2 <= st["cref"] - al * const
-            fallback = ~ok.any(dim=0)
-            alpha = torch.where(fallback, zeros, alphas[torch.argmax(ok.to(f.dtype), dim=0)])
-            u = up + _i(alpha) * dU
-            du = dup + _f(alpha) * dDU
-            au = aup + alpha[..., None] * dAu
-            g = gp + _i(alpha) * (g1 - gp)
-            gam = torch.where(fallback, gam * rate_gam, gam)
-            # five failed backtracks: steepest-descent step from up (ftvcs_alp)
-            usd = up - _i(tau_sd) * d
-            if bounded:
-                usd = _project(usd)
-            ausd = fwd(usd)
-            u = _where(fallback, usd, u)
-            du = _where(fallback, grad2(usd, boundary), du)
-            au = _where(fallback, ausd, au)
-            g = _where(fallback, adj(ausd) - atb, g)
+            # AᵀAu − Aᵀb is only needed at a multiplier update (computed there)
+            return finish(st, u, D(u), au, st["g"], st["gam"])
+        tau_sd = sd_length(st["d"], st["mu"] / st["bet"]) if first_any else None
+        u, du, au, g, gam, fallback = line_search(st, tau_sd)
+        if defer:
+            return dict(finish(st, u, du, au, g, gam), p_fb=fallback & ~st["done"])
+        return finish(st, *sd_fallback(st, fallback, tau_sd, u, du, au, g), gam)
+
+    def redo(st: dict, deferred: dict) -> dict:
+        """The step from ``st`` that ``deferred`` took without its fallback branch, completed:
+        its line search's result with the branch applied, then steps 4–6 again (the same
+        arithmetic as the step with the branch, bit for bit)."""
+        new = sd_fallback(st, deferred["p_fb"], None, deferred["u"], deferred["du"],
+                          deferred["au"], deferred["g"])
+        return dict(finish(st, *new, deferred["gam"]), p_fb=torch.zeros_like(zero))
+
+    def finish(st: dict, u, du, au, g, gam) -> dict:
+        """Steps 4–6 of an inner iteration at the new ``u`` (``du = Du``, ``au = Au``, ``g``
+        the data gradient)."""
+        active, first, bet, mu = ~st["done"], st["first"], st["bet"], st["mu"]
+        sig, dlt, dts = st["sig"], st["dlt"], st["dts"]
+        up, gp, g2p = st["u"], st["g"], st["g2"]
+        rho = mu / bet
         # 4. shrinkage w-step at the new u
         w = shrink_w(du, sig, bet)
         lam1 = _tv_of_w(w, isotropic)
         v = du - w
-        g2 = grad2_adjoint(v, boundary)
+        g2 = Dt(v)
         r = au - b
         s = u - up
         ss = _dot_i(s, s)
@@ -966,27 +1008,45 @@ def _solve(
             )
         return out
 
+    def merge(old: dict, new: dict, n_done: int) -> dict:
+        """The state after a step: ``new`` where the sample was active, ``old`` where it is
+        frozen (``n_done`` 0: ``new`` whole); entries the step left as they were (the same
+        tensor) need no mask."""
+        if n_done == 0:
+            return new
+        active = ~old["done"]
+        return {k: v if new[k] is v else _where(active, new[k], v) for k, v in old.items()}
+
     n_samples = st["done"].numel() if adaptive else 0  # (no shape read while tracing)
+    defer = adaptive and not exact and not _eager
+    prev = (st, 0)  # the state before the last step and its n_done (for redo)
     for _ in range(max_iter):
         if adaptive:
-            # the one host read per iteration: whether another iteration can change anything
-            # (converged samples are frozen), whether any sample is frozen at all (if none
-            # is, the new state is taken whole, unmasked) and whether any has a multiplier
-            # update pending
-            n_done, n_outer = torch.stack((st["done"].sum(), st["p_outer"].sum())).tolist()
-            if n_done == n_samples:
+            # the one host read per iteration: whether the last step skipped a fallback branch
+            # that some sample needed (then it is redone first, and the other flags describe
+            # the state it replaces), whether another iteration can change anything (converged
+            # samples are frozen), whether any sample is frozen at all (if none is, the new
+            # state is taken whole, unmasked), whether any has a multiplier update pending and
+            # whether any active sample is on a first step (needs the steepest-descent length)
+            n_fb, n_done, n_outer, n_first = torch.stack((
+                st["p_fb"].sum(), st["done"].sum(), st["p_outer"].sum(),
+                (st["first"] & ~st["done"]).sum(),
+            )).tolist()
+            if n_fb:
+                st = merge(prev[0], redo(prev[0], st), prev[1])
+                n_done, n_outer, n_first = -1, 1, 1  # unread: every mask and branch
+            elif n_done == n_samples:
                 break
             if n_outer:
                 st = multipliers(st)
         else:
-            n_done = -1
+            n_done, n_first = -1, 1
             st = multipliers(st)
-        new = step(st)
-        if n_done == 0:
-            st = new
-        else:
-            active = ~st["done"]
-            st = {k: _where(active, new[k], st[k]) for k in st}
+        prev = (st, n_done)
+        st = merge(st, step(st, first_any=_eager or n_first > 0, defer=defer), n_done)
+    else:  # max_iter steps: the last one's deferred fallback is still unread
+        if defer and bool(st["p_fb"].any()):
+            st = merge(prev[0], redo(prev[0], st), prev[1])
     return _Out(st["u"], st["n_iter"], st["done"], st["count"], st["disc"])
 
 
