@@ -164,7 +164,7 @@ def _on_edge(best, params: list) -> bool:
 
 
 #: Split-Bregman penalties scanned with the TV weight (pylops SB-TV).
-SB_RHOS = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2)
+SB_RHOS = (1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
 
 
 def refine2(best):
