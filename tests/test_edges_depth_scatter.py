@@ -98,16 +98,21 @@ def test_empty_scene_passes_the_mask_with_the_rayleigh_rate(rec):
 # -- 2. I/Q input without a noise level ----------------------------------------------------------
 
 
+def _noisy_square_iq(sigma: float):
+    """The square scene's I/Q buckets at n = 16, SR 25 %, with Gaussian noise of std sigma on
+    the taps (seed 0)."""
+    torch.manual_seed(0)
+    A = Hadamard(16, sr=0.25)
+    _, taps = _square_scene(16, 100.0, 1.5, torch.float64)
+    y = A(taps)
+    return A, iq_buckets(y + sigma * torch.randn_like(y))
+
+
 def test_iq_input_without_noise_sigma_lets_jointtv_estimate_it():
     """With no measured noise the reconstructor estimates its own (a zero σ made JointTV fit
     the noise exactly: residual 1.8e-7). A TV-L2 fit leaves a residual of the order of the
     noise, ‖n‖/‖y‖ ≈ σ√M/‖y‖."""
-    torch.manual_seed(0)
-    A = Hadamard(16, sr=0.25)
-    amp, taps = _square_scene(16, 100.0, 1.5, torch.float64)
-    y = A(taps)
-    y = y + 6.0 * torch.randn_like(y)
-    iq = iq_buckets(y)
+    A, iq = _noisy_square_iq(6.0)
     res = depth_resolved(iq, JointTV(A))
     torch.testing.assert_close(res.images, JointTV(A)(iq), rtol=0, atol=0)
     noise_rel = 6.0 * math.sqrt(2) * math.sqrt(A.m) / iq.norm(dim=-1)
@@ -118,12 +123,7 @@ def test_iq_input_without_noise_sigma_lets_jointtv_estimate_it():
 
 
 def test_joint_tv_auto_commutes_with_a_global_phase():
-    torch.manual_seed(0)
-    A = Hadamard(16, sr=0.25)
-    _, taps = _square_scene(16, 100.0, 1.5, torch.float64)
-    y = A(taps)
-    y = y + 2.0 * torch.randn_like(y)
-    iq = iq_buckets(y)
+    A, iq = _noisy_square_iq(2.0)
     x = joint_tv(iq, A, adaptive=False, n_iter=100)
     for phi in (0.3, 0.7, 1.2, 2.0):
         xr = joint_tv(_rot(iq, phi), A, adaptive=False, n_iter=100)
