@@ -22,7 +22,8 @@ def test_duplicate_srs_rejected():
 
 def test_seed_out_of_generator_range():
     exp = PaperExperiment(sr=0.125, n=16, roi_px=32, srs=(0.125,))
-    with pytest.raises(ValueError, match="expected seed in"):
+    with pytest.raises(ValueError, match=rf"PaperExperiment.run: expected seed <= {2**64 - 1}, "
+                                         rf"got {2**70}"):
         exp.run(seed=2**70)
 
 

@@ -463,3 +463,30 @@ def test_cw_tof_sensor_refuses_intensity_below_half_the_phasor():
     assert (f.taps >= -1e-3).all()
     f = cw_tof_sensor(p, torch.full((1, 1, 2, 2), 50.0), shot=None, adc_bits=None)
     assert f.amplitude.flatten().tolist() == [50.0] * 4
+
+
+def test_integer_arguments_accept_numpy_integers_everywhere():
+    """One rule for integer arguments (``check_int``, ``check_power_of_two``): a Python or
+    numpy integer is an int and comes back as a Python int; a bool, a float or a numpy bool
+    is not; the bound is checked after the conversion."""
+    from torchtof._checks import check_int, check_power_of_two
+    from torchtof.experiment import ExperimentConfig
+
+    for v in (np.int64(5), np.uint8(5), np.int32(5), 5):
+        got = check_int(v, "k", "f", lo=1, hi=8)
+        assert got == 5 and type(got) is int
+    for bad in (True, np.bool_(True), 5.0, np.float64(5), "5", None):
+        with pytest.raises(TypeError, match="f: expected k to be an int"):
+            check_int(bad, "k", "f")
+    with pytest.raises(ValueError, match=r"f: expected k <= 4, got 5"):
+        check_int(np.int64(5), "k", "f", hi=4)
+    got = check_power_of_two(np.int64(32), "n", "f")
+    assert got == 32 and type(got) is int
+    with pytest.raises(ValueError, match="power of two"):
+        check_power_of_two(np.int64(24), "n", "f")
+    # the experiment's integer fields follow the same rule (they had their own copy)
+    ExperimentConfig(n=np.int64(16), roi_px=np.int32(32), stray_seed=np.int64(3)).validate()
+    with pytest.raises(TypeError, match="ExperimentConfig: expected roi_px to be an int"):
+        ExperimentConfig(n=16, roi_px=32.0).validate()
+    with pytest.raises(ValueError, match=r"ExperimentConfig: expected adc_bits <= 32, got 33"):
+        ExperimentConfig(n=16, adc_bits=33).validate()

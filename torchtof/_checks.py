@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import numbers
 import threading
 from collections.abc import Sequence
 
@@ -98,10 +99,12 @@ def check_bool(value: object, name: str, func: str) -> bool:
 
 def check_int(value: object, name: str, func: str, lo: int | None = None,
               hi: int | None = None) -> int:
-    """Raise ``TypeError`` unless ``value`` is an int (not a bool), ``ValueError`` unless
-    ``lo <= value <= hi`` (either bound ``None``: open)."""
-    if isinstance(value, bool) or not isinstance(value, int):
+    """``value`` as a Python int: ``TypeError`` unless it is an integer (a Python or numpy
+    integer, not a bool), ``ValueError`` unless ``lo <= value <= hi`` (either bound ``None``:
+    open)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{func}: expected {name} to be an int, got {type(value).__name__}")
+    value = int(value)
     if lo is not None and value < lo:
         raise ValueError(f"{func}: expected {name} >= {lo}, got {value}")
     if hi is not None and value > hi:
@@ -229,9 +232,11 @@ def check_float_dtype(dtype: object, name: str, func: str) -> torch.dtype:
 
 
 def check_power_of_two(n: int, name: str, func: str, lo: int = 1, hi: int | None = None) -> int:
-    """Raise unless ``n`` is an int power of two within ``[lo, hi]``."""
-    if isinstance(n, bool) or not isinstance(n, int):
+    """``n`` as a Python int; raise unless it is an integer (as :func:`check_int`) and a power
+    of two within ``[lo, hi]``."""
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral):
         raise TypeError(f"{func}: expected {name} to be an int, got {type(n).__name__}")
+    n = int(n)
     if n < lo or (hi is not None and n > hi) or n & (n - 1) != 0:
         rng = f" in [{lo}, {hi}]" if hi is not None else f" >= {lo}"
         raise ValueError(f"{func}: expected {name} to be a power of two{rng}, got {n}")

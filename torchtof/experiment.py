@@ -46,7 +46,6 @@ simulation at ``max(srs)`` serves every SR.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import asdict, dataclass, field, replace
 
 import torch
@@ -54,6 +53,7 @@ import torch
 from ._checks import (
     check_finite,
     check_in_range,
+    check_int,
     check_positive,
     check_power_of_two,
     unchecked,
@@ -166,11 +166,11 @@ class ExperimentConfig:
         if self.order not in ORDERS:
             raise ValueError(f"{func}: expected order in {ORDERS}, got {self.order!r}")
         for name in ("roi_px", "chunk_frames"):
-            _check_int(getattr(self, name), name, func, lo=1)
+            check_int(getattr(self, name), name, func, lo=1)
         for name in ("stray_seed", "dust_seed"):
-            _check_int(getattr(self, name), name, func)
+            check_int(getattr(self, name), name, func)
         if self.adc_bits is not None:
-            _check_int(self.adc_bits, "adc_bits", func, lo=1, hi=32)
+            check_int(self.adc_bits, "adc_bits", func, lo=1, hi=32)
         if self.gain_e_per_dn is not None:
             check_positive(self.gain_e_per_dn, "gain_e_per_dn", func)
         if self.step_m is not None:
@@ -215,16 +215,6 @@ class ExperimentConfig:
         if self.roi_px < self.n:
             raise ValueError(f"{func}: expected roi_px >= n ({self.n}), got {self.roi_px}")
         return self
-
-
-def _check_int(value: object, name: str, func: str, lo: int | None = None,
-               hi: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{func}: expected {name} to be an int, got {type(value).__name__}")
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        rng = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
-        raise ValueError(f"{func}: expected {name} {rng}, got {value}")
-    return value
 
 
 #: Peak bytes per (frame × sensor pixel × byte of the real dtype) of one chunk of
@@ -476,8 +466,8 @@ class PaperExperiment:
 
         cfg = self.config
         func = "PaperExperiment.run"
-        _check_int(realisations, "realisations", func, lo=1)
-        _check_int(seed, "seed", func, lo=-(2**63), hi=2**64 - 1)  # torch.Generator's range
+        check_int(realisations, "realisations", func, lo=1)
+        check_int(seed, "seed", func, lo=-(2**63), hi=2**64 - 1)  # torch.Generator's range
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"{func}: expected dtype torch.float32 or torch.float64, got {dtype}")
         t0 = time.perf_counter()

@@ -278,10 +278,9 @@ def _finite_once(t: torch.Tensor) -> bool:
 
 def _check_seed(seed: object, name: str, func: str, lo: int = -(2**63),
                 hi: int | None = 2**64 - 1) -> int:
-    """:func:`~torchtof._checks.check_int` accepting ``numpy`` integers too (not a bool, nor a
-    float: 1.5 was truncated to 1), by default in what ``torch.Generator.manual_seed``
-    accepts."""
-    return check_int(int(seed) if isinstance(seed, np.integer) else seed, name, func, lo, hi)
+    """:func:`~torchtof._checks.check_int` (a Python or numpy integer, not a bool nor a float:
+    1.5 was truncated to 1), by default in what ``torch.Generator.manual_seed`` accepts."""
+    return check_int(seed, name, func, lo, hi)
 
 
 class _Draw:
