@@ -482,9 +482,22 @@ class NormalizeImage(nn.Module):
 
 
 def _pearson(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Per-image Pearson correlation of two ``(B, ...)`` tensors (0 if either is constant)."""
-    a = a.flatten(1) - a.flatten(1).mean(1, keepdim=True)
-    b = b.flatten(1) - b.flatten(1).mean(1, keepdim=True)
+    """Per-image Pearson correlation of two ``(B, ...)`` tensors (0 if either is constant).
+
+    Each image, and then each centred image, is first multiplied by the power of two that
+    brings its ``max |·|`` into ``[0.5, 1)`` (:func:`~torchtof.recon.base.pow2_scale`): the
+    correlation is scale-free, so this changes nothing (exact scaling, bit for bit the same
+    value), but ``Σa²·Σb²`` then neither overflows nor underflows (float32 images of
+    ``1e±20``)."""
+    from .recon.base import pow2_scale  # here: importing the metrics does not load the solvers
+
+    def centred(v: torch.Tensor) -> torch.Tensor:
+        v = v.flatten(1)
+        v = v * pow2_scale(v, dim=1, band=0)
+        v = v - v.mean(1, keepdim=True)
+        return v * pow2_scale(v, dim=1, band=0)
+
+    a, b = centred(a), centred(b)
     den = (a.pow(2).sum(1) * b.pow(2).sum(1)).sqrt()
     return (a * b).sum(1) / torch.where(den > 0, den, torch.ones_like(den))
 

@@ -38,7 +38,10 @@ projected iterate: ``Ax = y`` to rounding.
   ``ε = √M·σ̂`` with the robust noise estimate ``σ̂ = median|y_tail| / 0.6745`` (Donoho &
   Johnstone 1994) over the last quarter of the measurements: valid for orthonormal rows in a
   low-frequency-first order (Hadamard cake-cutting, sequency, Russian-doll), whose last rows
-  see little signal; it over-estimates ``σ`` when they do.
+  see little signal; it over-estimates ``σ`` when they do. With fewer than
+  :data:`AUTO_EPS_MIN_TAIL` tail buckets (``M < 13``) there is no noise estimate and the exact
+  constraint is solved; the radius is capped at :data:`AUTO_EPS_CAP` ``·‖y‖`` (a radius
+  ``≥ ‖y‖`` admits ``x = 0``), with a warning when the cap binds.
 - ``lam``: the Lagrangian form ``min ½‖Ax − y‖² + λ‖Ψᵀx‖₁`` by FISTA (Beck & Teboulle 2009)
   with step ``1/L``, ``L = max s²`` (1 for ``AAᵀ = I``), stopped when
   ``‖z^{k+1} − z^k‖ ≤ tol·‖z^{k+1}‖``.
@@ -87,6 +90,17 @@ _CHECK_EVERY = 10
 _NEWTON_STEPS = 20
 _BALANCE_EVERY, _MU, _TAU = 10, 10.0, 2.0
 _GRAM_NAMES = ("gram_u", "gram_s2", "gram_s2inv")
+#: ``eps="auto"`` needs at least this many tail buckets (``⌈M/4⌉``, so ``M >= 13``); with fewer,
+#: the lower median of one to three magnitudes is one of the buckets itself, no noise estimate
+#: (with ``M = 1`` the radius ``|y|/0.6745`` always exceeds ``‖y‖``), and the exact constraint
+#: (``eps=None``) is solved instead.
+AUTO_EPS_MIN_TAIL = 4
+#: ``eps="auto"`` radius cap, as a fraction of ``‖y‖₂``: a radius ``ε ≥ ‖y‖`` makes ``x = 0``
+#: feasible and so the ℓ1 minimiser, whatever the buckets hold. The MAD estimate gets there when
+#: the tail is no noise sample (buckets of equal magnitude, signal in the tail) or the buckets
+#: are noise-dominated; the cap keeps the fit to at least 1 % of ``‖y‖`` and
+#: :func:`basis_pursuit` warns.
+AUTO_EPS_CAP = 0.99
 
 
 class BPResult(NamedTuple):
@@ -244,7 +258,9 @@ def _fista(x, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive):
 
 
 def _auto_eps(y: torch.Tensor) -> torch.Tensor:
-    """``√M · median|y_tail| / 0.6745`` over the last ``⌈M/4⌉`` measurements ``(B, C, 1)``."""
+    """``√M · median|y_tail| / 0.6745`` over the last ``⌈M/4⌉`` measurements ``(B, C, 1)``
+    (uncapped; :func:`basis_pursuit` applies :data:`AUTO_EPS_CAP` and
+    :data:`AUTO_EPS_MIN_TAIL`)."""
     m = int(y.shape[-1])
     # the plain MAD rule over the last quarter: the package's one tail estimator
     sigma = abs_quantile_sigma(y[..., m - (m + 3) // 4 :], 0.5, interpolation="lower")
@@ -310,7 +326,8 @@ def basis_pursuit(
         alpha: over-relaxation ``α ∈ (0, 2)`` (Boyd et al. 2011, §3.4.3).
         tol: relative tolerance ``>= 0`` of the stopping tests.
         eps: ``None`` (exact constraint), a noise radius ``ε > 0`` (``‖Ax − y‖ ≤ ε``, units
-            of ``y``) or ``"auto"`` (``√M·σ̂``, orthonormal rows only).
+            of ``y``) or ``"auto"`` (``√M·σ̂``, orthonormal rows only; the exact constraint
+            when ``M < 13``, at most :data:`AUTO_EPS_CAP` ``·‖y‖``, module docstring).
         lam: weight ``λ > 0`` of the Lagrangian form (FISTA) instead of the constraint.
         adaptive: per-sample early stopping (``True``) or exactly ``n_iter`` iterations; a
             bool.
@@ -363,10 +380,16 @@ def basis_pursuit(
     s = peak * torch.linalg.vector_norm(y / peak, dim=-1, keepdim=True)  # (B, C, 1)
     s = torch.where(s > 0, s, torch.ones_like(s))
     yn = y / s
-    eps_n = None
+    auto = isinstance(eps, str)
+    if auto and (A.m + 3) // 4 < AUTO_EPS_MIN_TAIL:  # M is static: no sync, traces the same
+        eps = auto = None  # too few tail buckets for a noise estimate: the exact constraint
+    eps_n = capped = None
     if eps is not None:
-        e = _auto_eps(y) if isinstance(eps, str) else torch.full_like(s, float(eps))
+        e = _auto_eps(y) if auto else torch.full_like(s, float(eps))
         eps_n = (e / s).clamp_min(torch.finfo(y.dtype).eps)
+        if auto:  # ε/‖y‖ ≤ AUTO_EPS_CAP (bit for bit the estimate below it)
+            capped = eps_n > AUTO_EPS_CAP
+            eps_n = eps_n.clamp_max(AUTO_EPS_CAP)
     project = _projector(A, yn, gram, eps_n)
 
     with unchecked():  # y was validated above: operator calls in the loop skip check_finite
@@ -387,6 +410,13 @@ def basis_pursuit(
             f"({n_iter}) without converging; raise n_iter, or, if the buckets are noisy (the "
             "exact fit then fits the noise, slowly), pass eps='auto' (noise from the buckets' "
             "tail) or eps=<noise radius>", UserWarning, stacklevel=2)
+    if capped is not None and not is_tracing() and y.device.type != "meta" and bool(
+            capped.any()):  # one check per call, after the loop
+        warnings.warn(
+            f"basis_pursuit: eps='auto' estimated a noise radius above {AUTO_EPS_CAP}·‖y‖ "
+            f"for {int(capped.sum())} sample(s) (the buckets' tail is about as large as the "
+            "whole signal: noise-dominated, or no noise sample) and capped it there; pass "
+            "eps=None for the exact fit or eps=<noise radius>", UserWarning, stacklevel=2)
     res = BPResult(x, iters, residual, done, names)
     return res if return_result else res.x
 

@@ -86,6 +86,7 @@ from .._checks import (
 from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
+from .base import relative_residual
 from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, largest_eig_normal
 from .tval3 import B_SPREAD, NOISE_QUANTILE, auto_weights, bucket_noise_sigma, check_buckets
 
@@ -401,8 +402,7 @@ def joint_tv(
     x = out.u * (sq / gain).reshape(-1, 1, 1, 1)
     if not return_result:
         return x
-    ynorm = y.norm(dim=-1)
-    residual = (A(x) - y).norm(dim=-1) / torch.where(ynorm > 0, ynorm, torch.ones_like(ynorm))
+    residual = relative_residual(x, y, A)
     names = () if is_tracing() else tuple(
         tuple("tol" if d else "max_iter" for d in row) for row in out.converged.tolist())
     return JointTVResult(x, out.n_iter, residual, out.converged, names)

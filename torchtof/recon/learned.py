@@ -83,6 +83,7 @@ from .._checks import check_finite, check_real, check_shape, check_tensor, is_tr
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
+from .base import relative_residual
 from .gauss import markov_completion
 from .tval3 import bucket_noise_sigma
 from .unrolled import check_n_layers
@@ -684,10 +685,7 @@ class Learned(nn.Module):
         x = self.forward(y)
         B, C = y.shape[0], y.shape[1]
         with torch.no_grad():
-            r = self.A(x) - y if B else y
-            num = r.norm(dim=-1)
-            den = y.norm(dim=-1)
-            residual = torch.where(den > 0, num / den.clamp_min(torch.finfo(y.dtype).tiny), 0.0)
+            residual = relative_residual(x, y, self.A) if B else y.new_zeros(B, C)
         return LearnedResult(
             x=x,
             n_iter=torch.full((B, C), self.n_layers, dtype=torch.int64, device=y.device),
@@ -734,6 +732,7 @@ def learned(
         >>> learned(A(torch.rand(1, 1, 32, 32)), A, pretrained=False).shape
         torch.Size([1, 1, 32, 32])
     """
+    check_real(y, "y", "learned")  # before y.device below (Learned.forward checks the rest)
     net = Learned(A, n_layers=n_layers, noise_sigma=noise_sigma, pretrained=pretrained,
                   width=width, shuffle=shuffle, flips=flips, x0=x0, scales=scales)
     # the weights are constants here: the output carries a graph only through ``y``

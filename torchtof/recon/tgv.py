@@ -89,8 +89,9 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_positive, is_tracing, unchecked
+from .._checks import check_bool, check_positive, is_tracing, unchecked
 from ..operators.base import LinearOperator
+from .base import relative_residual
 from .tv import (
     BOUNDARIES,
     TV_NORMS,
@@ -345,6 +346,8 @@ def tgv(
     check_buckets(y, A, fn)
     opts = _check_options(fn, mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bounds,
                           check_every, A)
+    check_bool(adaptive, "adaptive", fn)
+    check_bool(return_result, "return_result", fn)
     (a1, a0), (lo, hi) = opts["alpha"], opts["box"]
     b_, c_, _ = y.shape
     shape = (b_, c_)
@@ -383,8 +386,7 @@ def tgv(
     unscale = (sq / gain)[..., None, None]
     x = torch.where(zero[..., None, None], torch.zeros_like(u), u * unscale)
     w = torch.where(zero[..., None, None, None], torch.zeros_like(w), w * unscale[..., None])
-    ynorm = y.norm(dim=-1)
-    residual = (A(x) - y).norm(dim=-1) / torch.where(zero, torch.ones_like(ynorm), ynorm)
+    residual = relative_residual(x, y, A)
     code = torch.where(done, 0, 1)
     names = () if is_tracing() or y.device.type == "meta" else tuple(
         tuple(TGV_STOP_REASONS[k] for k in row) for row in code.tolist())
@@ -480,6 +482,7 @@ class TGV(nn.Module):
             raise TypeError(f"TGV: expected A to be a LinearOperator, got {type(A).__name__}")
         _check_options("TGV", mu, alpha, tvl2, max_iter, tol, tv, boundary, nonneg, bounds,
                        check_every)
+        check_bool(adaptive, "adaptive", "TGV")
         if not A.orthonormal_rows:  # s₂ cached now (one power iteration per operator)
             largest_eig_normal(A, torch.zeros(1))
         self.A = A

@@ -42,6 +42,8 @@ from .._checks import (
 )
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
+from .base import pow2_scale as pow2_scale  # re-exported: dip, auto and tests import it here
+from .base import relative_residual
 from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (
     BOUNDARIES,
@@ -171,38 +173,6 @@ def _tail_sigma(y: torch.Tensor, m: int, tail: float, quantile: float) -> torch.
     :func:`~torchtof.recon.noise.abs_quantile_sigma`."""
     k = min(m, max(8, int(math.ceil(tail * m))))
     return abs_quantile_sigma(y[..., m - k :], quantile)
-
-
-#: IEEE layout of the dtypes :func:`pow2_scale` builds powers of two in: (bits as an int dtype,
-#: mantissa bits, exponent bias).
-_IEEE = {torch.float32: (torch.int32, 23, 127), torch.float64: (torch.int64, 52, 1023)}
-
-
-def pow2_scale(v: torch.Tensor, dim: int = -1, band: int | None = None) -> torch.Tensor:
-    """A power of two ``2^-k`` per slice of ``v`` along ``dim`` (kept as a size-1 dim) that
-    brings the slice's ``max |v|`` to about 1, or exactly ``1`` where ``max |v|`` already lies
-    within ``2^±band`` (default: a quarter of the exponent range, ``2^±32`` in float32,
-    ``2^±256`` in float64; 1 for an all-zero slice).
-
-    Multiplying by a power of two is exact, so a sum of squares of ``v · 2^-k`` neither
-    overflows nor underflows, ratios of such sums equal the unscaled ones bit for bit wherever
-    those do neither, and at ordinary scales (the factor is 1) nothing changes at all. The
-    factor is built from its IEEE bits (no ``exp2`` rounding on any device); float32 and
-    float64 (other dtypes: 1).
-
-    Example:
-        >>> pow2_scale(torch.tensor([[2.0**40, -3.0], [2.0, 0.5]])).flatten().tolist() == [
-        ...     2.0**-41, 1.0]
-        True
-    """
-    peak = v.abs().amax(dim=dim, keepdim=True)
-    if v.dtype not in _IEEE:  # other dtypes: no rescaling
-        return torch.ones_like(peak)
-    ibits, nmant, bias = _IEEE[v.dtype]
-    band = (bias + 1) // 4 if band is None else band
-    e = torch.frexp(peak).exponent.to(ibits)  # peak ∈ [2^(e−1), 2^e)
-    k = torch.where(e.abs() > band, e, torch.zeros_like(e)).clamp(1 - bias, bias - 1)
-    return ((bias - k) << nmant).view(v.dtype)  # 2^-k, a normal number
 
 
 # -- the solver --------------------------------------------------------------------------------
@@ -575,9 +545,7 @@ def tval3(
         u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
                    boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
-    ax = A(x)
-    ynorm = y.norm(dim=-1)
-    residual = (ax - y).norm(dim=-1) / torch.where(zero, torch.ones_like(ynorm), ynorm)
+    residual = relative_residual(x, y, A)
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
     code = torch.where(u.converged, code, 3)

@@ -297,6 +297,25 @@ def _read_weights(path: str | os.PathLike) -> dict:
     return _read_cached(os.fspath(p), st.st_mtime_ns, st.st_size)
 
 
+def _read_weights_file(path: str | os.PathLike, func: str, name: str) -> dict:
+    """:func:`_read_weights` of a given file, a ``ValueError`` naming argument ``name`` when
+    the file is missing, unreadable or no :meth:`UnrolledTVAL3.save_weights` file."""
+    if not Path(path).is_file():
+        raise ValueError(f"{func}: expected {name} to be an existing weights file, got "
+                         f"{os.fspath(path)!r} (no such file)")
+    try:
+        blob = _read_weights(path)
+    except Exception as exc:  # noqa: BLE001 - every read or unpickling failure means "not one"
+        raise ValueError(f"{func}: expected {name} to be an UnrolledTVAL3 weights file "
+                         f"(UnrolledTVAL3.save_weights), got {os.fspath(path)!r}: "
+                         f"{type(exc).__name__}") from None
+    if not isinstance(blob, dict):
+        raise ValueError(f"{func}: expected {name} to be an UnrolledTVAL3 weights file "
+                         f"(UnrolledTVAL3.save_weights), got {os.fspath(path)!r}: it holds a "
+                         f"{type(blob).__name__}, not a dict")
+    return blob
+
+
 class UnrolledTVAL3(nn.Module):
     """Unrolled TVAL3 with learned per-iteration scalars (:func:`unrolled_tval3`).
 
@@ -325,9 +344,10 @@ class UnrolledTVAL3(nn.Module):
 
     Raises:
         TypeError: if ``A`` is not a :class:`~torchtof.operators.LinearOperator`,
-            ``n_layers`` not an int or ``isotropic`` not a bool.
+            ``n_layers`` not an int, ``isotropic`` not a bool or ``pretrained`` neither a bool
+            nor a path (``str``, ``os.PathLike``).
         ValueError: if ``A`` has no orthonormal rows, ``n_layers < 1``, or a given weight file
-            does not match.
+            is missing, unreadable or does not match.
 
     Shape:
         ``(B, C, M) -> (B, C, n, n)``.
@@ -356,6 +376,9 @@ class UnrolledTVAL3(nn.Module):
         self.A = A
         self.n_layers = n_layers
         self.isotropic = check_bool(isotropic, "isotropic", func)
+        if not isinstance(pretrained, (bool, str, os.PathLike)):
+            raise TypeError(f"{func}: expected pretrained to be a bool or a weights file path "
+                            f"(str or os.PathLike), got {type(pretrained).__name__}")
         for name, v in _raw_init(n_layers).items():
             setattr(self, name, nn.Parameter(v))
         self.weights_file: str | None = None
@@ -371,6 +394,7 @@ class UnrolledTVAL3(nn.Module):
                     stacklevel=2,
                 )
         elif pretrained is not False:
+            _read_weights_file(pretrained, func, "pretrained")  # missing/unreadable: names it
             self.load_weights(pretrained)
 
     def _describe(self) -> str:
@@ -398,12 +422,15 @@ class UnrolledTVAL3(nn.Module):
         """Load a file written by :meth:`save_weights` (read with ``weights_only=True``).
 
         Raises:
-            ValueError: if its metadata (operator, n, m, order, K, TV norm) or its parameter
-                shapes do not match this network.
+            ValueError: if the file is missing or unreadable, or its metadata (operator, n, m,
+                order, K, TV norm) or its parameter shapes do not match this network.
         """
         func = "UnrolledTVAL3.load_weights"
-        blob = _read_weights(path)
+        blob = _read_weights_file(path, func, "path")
         meta, state = blob.get("meta", {}), blob.get("state_dict", {})
+        meta = meta if isinstance(meta, dict) else {}
+        state = state if isinstance(state, dict) and all(
+            isinstance(v, torch.Tensor) for v in state.values()) else {}
         if not self._meta_matches(meta):
             raise ValueError(
                 f"{func}: weights file {os.fspath(path)!r} was trained for {meta}, "
