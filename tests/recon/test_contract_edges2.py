@@ -142,3 +142,29 @@ def test_pearson_and_oracle_sign_are_scale_free(scale):
                        resolve_sign(5.0 - x, "auto", reference=x))
     torch.testing.assert_close(_pearson(5.0 - x, scale * x), _pearson(5.0 - x, x))
     assert float(_pearson(5.0 - x, x)) == -1.0
+
+
+def test_cgi_mean_bucket_at_rounding_level_is_zero_at_every_scale():
+    """On a signed (±1) operator the mean bucket of this scene is zero up to rounding; g2 is
+    scale-free, so the image must not depend on the buckets' scale (it was 1e18 at 1e-30:
+    rounding noise of the mean divided into the correlation)."""
+    import warnings
+
+    from torchtof.operators import DMDSplit, Hadamard
+    from torchtof.recon import cgi
+
+    A = Hadamard(16, sr=0.5)
+    x0 = torch.zeros(1, 1, 16, 16, dtype=torch.float64)
+    x0[..., 4:11, 5:12] = 1
+    y = A(x0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # g2 on signed patterns (warned)
+        ref = cgi(y, A)
+        for s in (1e-30, 1e-150, 1e30):
+            assert torch.equal(cgi(y * s, A), ref)
+    D = DMDSplit(A)  # light patterns: a mean bucket far from zero keeps its exact quotient
+    yd = D(x0)
+    ref = cgi(yd, D)
+    assert float(ref.abs().max()) > 0.5
+    for s in (1e-30, 1e30):
+        torch.testing.assert_close(cgi(yd * s, D), ref, rtol=1e-12, atol=0)

@@ -29,6 +29,7 @@ in float64 and round the result once (output dtype = input dtype).
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import torch
@@ -129,7 +130,13 @@ def cgi(y: torch.Tensor, A: LinearOperator) -> torch.Tensor:
                 f"raw interleaved buckets — or PseudoInverse(A) on the differential buckets.",
                 UserWarning, stacklevel=2)
     num = A.adjoint(y) / A.m
-    den = y.mean(dim=-1, keepdim=True)[..., None] * mean_phi
+    ybar = y.mean(dim=-1, keepdim=True)
+    # a mean bucket within the rounding of its sum (√M·eps·⟨|y|⟩, the spread of M rounding
+    # errors; Higham 2002, Accuracy and Stability of Numerical Algorithms, §4.2) is zero: its
+    # sign and size are rounding noise, which the quotient would amplify without bound
+    floor = math.sqrt(A.m) * torch.finfo(y.dtype).eps * y.abs().mean(dim=-1, keepdim=True)
+    ybar = torch.where(ybar.abs() > floor, ybar, torch.zeros_like(ybar))
+    den = ybar[..., None] * mean_phi
     return _safe_div(num, den)
 
 
