@@ -9,8 +9,8 @@ Usage (from the repository root)::
 
 Each model is written as ``{out}/{name}.onnx`` (batch axis dynamic, opset 18, validated by
 ``onnx.checker``), compared with eager PyTorch under onnxruntime at batch 1 and 3 (skip with
-``--no-check``), and described in ``{out}/manifest.json`` (inputs, outputs and their shapes
-as stored in the file, opset, exporter). ``.onnx`` files are build outputs, never committed.
+``--no-check``), and described in ``{out}/manifest.json`` (inputs, outputs and their shapes,
+opset and exporter, all as stored in the file). ``.onnx`` files are build outputs, never committed.
 The same export is ``torchtof export MODEL --n 32 --sr 0.25 -o out.onnx``.
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import onnx
 
 from torchtof.apps.onnx_models import MODELS, export_model
-from torchtof.onnx import DEFAULT_OPSET, check
+from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, check
 
 
 def readme_table() -> str:
@@ -93,7 +93,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
             "exporter": args.exporter or spec.exporter,
             "export_s": round(time.perf_counter() - t0, 2),
         }
-        graph = onnx.load(path).graph
+        model = onnx.load(path)
+        # as stored in the file: an opset-17 export the dynamo exporter cannot down-convert
+        # is written by the tracer (torchtof.onnx.export)
+        entry["opset"] = next(o.version for o in model.opset_import if o.domain in ("", "ai.onnx"))
+        meta = {p.key: p.value for p in model.metadata_props}
+        entry["exporter"] = meta.get(EXPORTER_KEY, entry["exporter"])
+        graph = model.graph
         entry["inputs"] = {v.name: _dims(v) for v in graph.input}
         entry["outputs"] = {v.name: _dims(v) for v in graph.output}
         if not args.no_check:

@@ -25,6 +25,11 @@ unless told (``exporter=None``):
   tracer: 1.6 s) for the same onnxruntime result. ``exporter="dynamo"`` works for them
   too, only slower to export.
 
+**Opset 17.** The dynamo exporter implements opset 18 only and down-converts; when the
+conversion fails (torch logs it and keeps 18), :func:`export` writes the file with the
+tracer instead, or refuses the opset. The exporter that wrote a file is in its
+``metadata_props`` (:data:`EXPORTER_KEY`).
+
 **Fixed iterations.** Exported graphs hold no data-dependent control flow, so a solver that
 stops each sample at a tolerance (``adaptive=True``, the default of TVAL3 and basis pursuit)
 is refused with a one-line error: construct it with ``adaptive=False`` and the fixed
@@ -58,6 +63,7 @@ onnx = require("onnx", "torchtof.onnx")
 __all__ = [
     "DEFAULT_OPSET",
     "EXPORTERS",
+    "EXPORTER_KEY",
     "EXPORT_BATCH",
     "DepthAmplitude",
     "OperatorMethod",
@@ -73,6 +79,8 @@ DEFAULT_OPSET = 18
 EXPORTERS = ("dynamo", "torchscript")
 #: Example batch of the exports; :func:`check` compares at other batch sizes.
 EXPORT_BATCH = 2
+#: ``metadata_props`` key of every exported file naming the back end that wrote it.
+EXPORTER_KEY = "torchtof.exporter"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -237,21 +245,27 @@ def export(
             ``dynamic_batch``: a batch of 1 would be specialised).
         path: the ``.onnx`` file to write (parent folders are created).
         dynamic_batch: make axis 0 of every input and output dynamic (name ``"batch"``).
-        opset: ONNX opset, 17 or 18 (``None``: :data:`DEFAULT_OPSET`).
+        opset: ONNX opset, 17 or 18 (``None``: :data:`DEFAULT_OPSET`); the file holds
+            exactly this opset. The dynamo exporter writes 18 and down-converts to 17; where
+            that conversion fails (it only logs it) the tracer (``"torchscript"``) writes the
+            file instead, and if it fails too the export is refused.
         input_names, output_names: graph names (default ``input_0 …``/``output_0 …``).
         exporter: ``"dynamo"``, ``"torchscript"`` or ``None``: :func:`default_exporter`
             (the faster one for this module, see the module docstring).
 
     Returns:
-        The path written.
+        The path written. Its ``metadata_props`` name the exporter that wrote it (key
+        :data:`EXPORTER_KEY`); every output axis but the batch is declared with its size
+        (the tracer's symbolic axes are replaced by the sizes of the eager outputs).
 
     Raises:
         TypeError: ``module`` is not an ``nn.Module``, inputs are not tensors, ``path`` is
             not path-like, ``dynamic_batch`` is not a bool or names are not strings.
         ValueError: ``path`` is a folder, example inputs of different batch sizes with
             ``dynamic_batch``, an adaptive solver inside ``module`` (the message says what to pass),
-            unknown ``exporter``, an opset other than 17/18, a batch of 1 with
-            ``dynamic_batch``, or names of the wrong length.
+            unknown ``exporter``, an opset other than 17/18 (or one neither exporter writes
+            for this model: no file is left), a batch of 1 with ``dynamic_batch``, or names of
+            the wrong length.
         onnx.checker.ValidationError: the written file is not valid ONNX.
 
     Example:
@@ -306,36 +320,93 @@ def export(
             warnings.simplefilter("ignore", FutureWarning)
             # the tracer flags the static shape checks; check() verifies other batch sizes
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
-            if exporter == "dynamo":
-                kw = {}
-                if dynamic_batch:
-                    batch = torch.export.Dim("batch")
-                    kw["dynamic_shapes"] = tuple({0: batch} for _ in inputs)
-                program = torch.onnx.export(
-                    module,
-                    inputs,
-                    dynamo=True,
-                    opset_version=opset,
-                    input_names=in_names,
-                    output_names=out_names,
-                    verbose=False,
-                    **kw,
-                )
-                program.save(path)
-            else:
-                axes = {name: {0: "batch"} for name in in_names + out_names}
-                torch.onnx.export(
-                    module,
-                    inputs,
-                    path,
-                    dynamo=False,
-                    opset_version=opset,
-                    input_names=in_names,
-                    output_names=out_names,
-                    dynamic_axes=axes if dynamic_batch else None,
-                )
+            args = (module, inputs, path, opset, in_names, out_names, dynamic_batch)
+            _run_exporter(exporter, *args)
+            got = _default_opset(path)
+            if got != opset and exporter == "dynamo":
+                # torch's dynamo exporter writes its native opset 18 and down-converts; where
+                # the conversion fails it only logs and keeps 18: the tracer writes 17 itself
+                try:
+                    _run_exporter("torchscript", *args)
+                except Exception as e:  # any failure of the tracer: the opset cannot be met
+                    path.unlink(missing_ok=True)
+                    reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
+                    raise ValueError(
+                        f"{func}: expected an opset this model exports at, got opset={opset}: "
+                        f"the dynamo exporter wrote opset {got} (its down-conversion failed) "
+                        f"and the torchscript exporter failed ({reason}); export at opset "
+                        f"{DEFAULT_OPSET}") from e
+                exporter, got = "torchscript", _default_opset(path)
+            if got != opset:
+                path.unlink(missing_ok=True)
+                raise ValueError(f"{func}: expected an opset this model exports at, got "
+                                 f"opset={opset}: the {exporter} exporter wrote opset {got}")
+    model = onnx.load(path)
+    if exporter == "torchscript":  # the tracer names the non-batch output axes symbolically
+        _fix_output_dims(model, outs, dynamic_batch)
+    model.metadata_props.add(key=EXPORTER_KEY, value=exporter)
+    onnx.save(model, path)
     onnx.checker.check_model(onnx.load(path), full_check=True)
     return path
+
+
+def _run_exporter(exporter: str, module: nn.Module, inputs: tuple[torch.Tensor, ...],
+                  path: Path, opset: int, in_names: list[str], out_names: list[str],
+                  dynamic_batch: bool) -> None:
+    """Write ``module`` to ``path`` with one back end of ``torch.onnx.export``."""
+    if exporter == "dynamo":
+        kw = {}
+        if dynamic_batch:
+            batch = torch.export.Dim("batch")
+            kw["dynamic_shapes"] = tuple({0: batch} for _ in inputs)
+        program = torch.onnx.export(
+            module,
+            inputs,
+            dynamo=True,
+            opset_version=opset,
+            input_names=in_names,
+            output_names=out_names,
+            verbose=False,
+            **kw,
+        )
+        program.save(path)
+    else:
+        axes = {name: {0: "batch"} for name in in_names + out_names}
+        torch.onnx.export(
+            module,
+            inputs,
+            path,
+            dynamo=False,
+            opset_version=opset,
+            input_names=in_names,
+            output_names=out_names,
+            dynamic_axes=axes if dynamic_batch else None,
+        )
+
+
+def _default_opset(path: Path) -> int | None:
+    """The version of the default (``ai.onnx``) domain the file at ``path`` imports."""
+    for o in onnx.load(path, load_external_data=False).opset_import:
+        if o.domain in ("", "ai.onnx"):
+            return int(o.version)
+    return None
+
+
+def _fix_output_dims(model, outs: tuple[torch.Tensor, ...], dynamic_batch: bool) -> None:
+    """Declare every output axis but the batch (``dynamic_batch``) with its size from the
+    eager outputs ``outs``: fixed by the export (``n`` and ``M``), which the tracer leaves as
+    symbols (``"Castx_dim_1"``)."""
+    if len(model.graph.output) != len(outs):  # (not expected: left as the tracer wrote it)
+        return
+    for value, t in zip(model.graph.output, outs, strict=True):
+        shape = value.type.tensor_type.shape
+        shape.ClearField("dim")
+        for axis, size in enumerate(t.shape):
+            d = shape.dim.add()
+            if dynamic_batch and axis == 0:
+                d.dim_param = "batch"
+            else:
+                d.dim_value = int(size)
 
 
 class _NoTorchvisionNote(logging.Filter):

@@ -23,6 +23,11 @@ transmittance of the pattern-independent light: exact for the phasor model when 
 backscatter adds little amplitude; for the depth-domain Eq. 15 alone (which leaves the
 amplitudes alone) ``α̂ = 1`` and ``D̂ˢ`` carries the whole depth shift.
 
+A clear set-up whose dark frame holds no light at all (``s̄_ref = 0``: no stray light, a
+noise-free reading) gives no intensity to compare with, so ``α`` cannot be estimated from
+the intensities: ``α̂ = 1`` (the depth-domain reading of Eq. 15 above) and the veil is
+decided from the depth shift alone.
+
 **Far returns** (:func:`detect_far_background`). The gate matters when light that *does*
 depend on the pattern comes from beyond ``gate_m`` (a far background, multipath). A pixel
 that lights up at depth ``z`` from the dark value ``d₀`` changes the ungated bucket by
@@ -49,6 +54,8 @@ __all__ = ["DarkReference", "VeilEstimate", "FarEstimate", "GateTest", "dark_ref
            "detect_veil", "detect_far_background", "gate_changes_image"]
 
 RAW_KINDS = ("depth", "depth_gated", "intensity")
+#: fewest signed buckets :func:`gate_changes_image` tests (``K = m − 1 >= 7`` non-DC ones).
+GATE_MIN_BUCKETS = 8
 
 
 @dataclass(frozen=True)
@@ -57,9 +64,13 @@ class DarkReference:
     gated depth ``m`` and intensity (amplitude units of the buckets).
 
     Fields are stored as Python floats (a NumPy scalar or a one-element tensor is converted).
+    ``intensity`` is an amplitude, ``>= 0``: ``0`` is a real reading (a clear set-up with
+    no stray light and no noise), with which :func:`detect_veil` cannot estimate ``α`` from
+    the intensities and takes ``α̂ = 1`` (module docstring).
 
     Raises:
-        TypeError, ValueError: a field that is not a finite real number.
+        TypeError, ValueError: a field that is not a finite real number, a negative
+            ``intensity``.
     """
 
     depth_m: float
@@ -74,6 +85,9 @@ class DarkReference:
             elif isinstance(v, numbers.Real) and not isinstance(v, bool):
                 v = float(v)
             object.__setattr__(self, name, check_number(v, name, "DarkReference"))
+        if self.intensity < 0:
+            raise ValueError(f"DarkReference: expected intensity >= 0 (an amplitude), got "
+                             f"{self.intensity}")
 
 
 @dataclass(frozen=True)
@@ -171,7 +185,11 @@ def detect_veil(raw: dict[str, torch.Tensor], reference: DarkReference, roi_pixe
         alpha_max: ``α̂`` below this counts as a veil (in ``[0, 1]``).
 
     Returns:
-        :class:`VeilEstimate`.
+        :class:`VeilEstimate`. With ``reference.intensity == 0`` (a dark clear set-up) ``α``
+        cannot be estimated from the intensities: ``alpha`` is 1 and ``present`` depends on
+        the depth shift alone (module docstring). ``alpha`` is ``<= 0`` only when the dark
+        frame holds no light (or a negative reading) against a reference that does: a veil
+        (``present``) whose Eq. 15 compensation ``y/α̂`` is undefined.
 
     Raises:
         TypeError, ValueError: bad buckets (missing keys, shape, NaN), ``reference`` not a
@@ -189,7 +207,10 @@ def detect_veil(raw: dict[str, torch.Tensor], reference: DarkReference, roi_pixe
     b = _pair(raw, fn)
     d_dark = float(b["depth"][..., 1].mean()) / roi_pixels
     s_dark = float(b["intensity"][..., 1].mean()) / roi_pixels
-    alpha = min(1.0, s_dark / max(reference.intensity, 1e-12))
+    if reference.intensity > 0:
+        alpha = min(1.0, s_dark / max(reference.intensity, 1e-12))
+    else:  # no light in the clear dark frame: no intensity ratio, the depth shift decides
+        alpha = 1.0
     ds = d_dark - alpha * reference.depth_m  # Eq. 15 on the dark frame
     shift = reference.depth_m - d_dark
     return VeilEstimate(present=bool(shift > shift_m or alpha < alpha_max), alpha=alpha,
@@ -295,13 +316,14 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
         :class:`GateTest`.
 
     Raises:
-        TypeError: an input not a floating-point tensor.
+        TypeError: an input not a floating-point tensor, ``dof`` not an int (a Python or
+            NumPy integer) or ``None``.
         ValueError: not one sample ``(1, 1, ·)``, fewer than 8 coefficients, no differences,
             mismatched shapes, NaN/Inf, ``level`` outside ``(0, 1)``, ``dof < 1``.
     """
     fn = "gate_changes_image"
-    if dof is not None and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
-        raise ValueError(f"{fn}: expected dof to be an int >= 1 or None, got {dof!r}")
+    if dof is not None:
+        dof = check_int(dof, "dof", fn, lo=1)
     if not 0.0 < check_number(level, "level", fn) < 1.0:
         raise ValueError(f"{fn}: expected level in (0, 1), got {level}")
     for name, v in (("y_depth", y_depth), ("y_gated", y_gated), ("d_depth", d_depth),
@@ -310,8 +332,9 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
         if v.ndim != 3 or v.shape[:2] != (1, 1):
             raise ValueError(f"{fn}: expected {name} of one sample, shape (1, 1, *), got "
                              f"{tuple(v.shape)} (test each sample on its own)")
-    if y_depth.shape != y_gated.shape or y_depth.shape[-1] < 8:
-        raise ValueError(f"{fn}: expected y_depth and y_gated of one shape with >= 8 buckets, "
+    if y_depth.shape != y_gated.shape or y_depth.shape[-1] < GATE_MIN_BUCKETS:
+        raise ValueError(f"{fn}: expected y_depth and y_gated of one shape with >= "
+                         f"{GATE_MIN_BUCKETS} buckets, "
                          f"got {tuple(y_depth.shape)} and {tuple(y_gated.shape)}")
     if d_depth.shape != d_gated.shape or d_depth.shape[-1] < 1:
         raise ValueError(f"{fn}: expected d_depth and d_gated of one shape with >= 1 "
@@ -325,7 +348,7 @@ def gate_changes_image(y_depth: torch.Tensor, y_gated: torch.Tensor, d_depth: to
     s2 = float(((du - a * dg) ** 2).sum() / (2 * du.numel()))
     k = yu.numel()
     rho = float(((yu - a * yg) ** 2).sum()) / max(k * s2, 1e-300)
-    from scipy.stats import f as fisher
+    from scipy.stats import f as fisher  # lazy: import torchtof.adaptive stays light
 
     return GateTest(present=bool(rho > fisher.ppf(level, k, dof or du.numel())), rho=rho,
                     slope=a)

@@ -24,7 +24,10 @@ and the reconstructor run to its own convergence.
    successive differences stand in for repeats, on their ``ν ≈ 0.67 K`` degrees of freedom)
    finds on the first 128 patterns that it changes the image beyond the noise; skipped
    otherwise (ungated buckets,
-   negative images, §3.1); the veil compensation runs only with a veil;
+   negative images, §3.1). A record of fewer than 8 patterns is too short for the F test
+   (:data:`~torchtof.adaptive.detect.GATE_MIN_BUCKETS`): the test is skipped (``skipped``
+   says so) and the gate kept, as in the fixed pipeline. The veil compensation runs only
+   with a veil, and is refused (``ValueError``) for ``α̂ <= 0``;
 4. progressive acquisition with :class:`~torchtof.adaptive.progressive.ProgressiveStop`
    (innovation rule at ``σ̂``) on the chosen buckets (``stop_kind="auto"``). With a fixed
    ``stop_kind`` (e.g. ``"depth"``) the stop no longer depends on the gate, which is then
@@ -58,6 +61,7 @@ import torch
 from .._checks import check_bool, check_int, check_number, check_positive
 from .budget import MethodChoice, choose_method
 from .detect import (
+    GATE_MIN_BUCKETS,
     DarkReference,
     FarEstimate,
     VeilEstimate,
@@ -210,6 +214,17 @@ def _reference(data) -> DarkReference:
     return _REF_CACHE[key]
 
 
+def _check_alpha(veil: VeilEstimate, ref: DarkReference, fn: str) -> None:
+    """Refuse the Eq. 15 compensation ``y/α̂`` with ``α̂ <= 0``: the dark frame holds no light
+    (or a negative reading) against a reference that does (:func:`detect_veil`)."""
+    if not veil.alpha > 0:  # (with the default alpha_max such a veil is always present)
+        raise ValueError(
+            f"{fn}: expected data whose dark frame keeps some of the reference's light "
+            f"(alpha^ = dark-frame intensity / reference.intensity > 0, paper Eq. 15: the "
+            f"image is divided by alpha^), got alpha^ = {veil.alpha} against "
+            f"reference.intensity = {ref.intensity}; check the reference and the record")
+
+
 def _frames_s(patterns: int, fps: float) -> float:
     return 2 * patterns / fps  # one ToF frame per DMD pattern, two patterns per ±1 row
 
@@ -232,14 +247,17 @@ def run_fixed(data, r: int = 0, method: str = "TVAL3", fps: float = DEFAULT_FPS,
 
     Raises:
         TypeError, ValueError: as :func:`run_adaptive` for ``data``, ``r``, ``method``
-            (``None`` not allowed), ``fps`` and ``reference``.
+            (``None`` not allowed), ``fps`` and ``reference``, and a dark frame without
+            light against a reference with some (``α̂ <= 0``: no Eq. 15 compensation).
     """
     _check_common(data, r, method, fps, reference, "run_fixed")
     if method is None:
         raise ValueError(f"run_fixed: expected method in {SOLVERS}, got None")
     sr = max(data.config.srs)
     t0 = time.perf_counter()
-    veil = detect_veil(_raw(data, r), reference or _reference(data), data.config.roi_px**2)
+    ref = reference or _reference(data)
+    veil = detect_veil(_raw(data, r), ref, data.config.roi_px**2)
+    _check_alpha(veil, ref, "run_fixed")  # the fixed pipeline always compensates
     A, y = data.measurements(sr, "depth", True)
     sol = solve_at_noise(method, y[r : r + 1], A, None, sign=1.0)
     image = sol.x / veil.alpha  # Eq. 15 compensation (always run in the fixed pipeline)
@@ -271,7 +289,7 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
             same patterns).
         r: realisation (an int in ``[0, R)``).
         block: patterns per block (an int ``>= 4``; with the repeats at least 4 patterns
-            must follow the first block: ``block <= M − 4``).
+            must follow the first block: ``block <= M − 4``, so ``M >= 8``).
         method: reconstructor, one of :data:`~torchtof.adaptive.SOLVERS` (``None``: TVAL3,
             or :func:`choose_method` with a budget; a budget is ignored when ``method`` is
             given).
@@ -308,15 +326,18 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         TypeError: ``data`` not an ``ExperimentData``, ``reference`` not a
             :class:`DarkReference`, ``stop`` not a :class:`ProgressiveStop`, ``r`` or
             ``block`` not an int, a flag not a bool, a number that is not one.
-        ValueError: ``r`` out of range, ``block < 4`` (or too large for the repeats), unknown
-            ``method``, ``stop_kind`` or ``noise``, a level outside ``(0, 1)``, ``fps`` or
-            ``time_budget_s`` not ``> 0``, a NaN/Inf target, a ``stop`` for another ``n`` or
-            order. All checked before any work.
+        ValueError: ``r`` out of range, ``block < 4`` (or too large for the repeats; a
+            record of fewer than 8 patterns with ``noise="repeat"`` and ``repeat=True``),
+            unknown ``method``, ``stop_kind`` or ``noise``, a level outside ``(0, 1)``,
+            ``fps`` or ``time_budget_s`` not ``> 0``, a NaN/Inf target, a ``stop`` for another
+            ``n`` or order. All checked before any work. Then, from the data: a dark frame
+            without light against a reference with some (``α̂ <= 0``, no Eq. 15
+            compensation), raised after the veil detection, before the reconstruction.
     """
     fn = "run_adaptive"
     n_real = _check_common(data, r, method, fps, reference, fn)
     cfg = data.config
-    check_int(block, "block", fn, lo=4)
+    block = check_int(block, "block", fn, lo=4)
     if time_budget_s is not None:
         if isinstance(time_budget_s, bool) or not isinstance(time_budget_s, (int, float)):
             raise TypeError(f"{fn}: expected time_budget_s to be a number or None, got "
@@ -349,15 +370,26 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
     rep_end = min(2 * block, big_m)  # the second block, cut by the end of the record
     n_rep = max(rep_end - block, 0) if rep is not None else 0  # repeated patterns measured
     if rep is not None and n_rep < MIN_REPEATS:
+        if big_m < 2 * MIN_REPEATS:  # no block >= 4 leaves 4 patterns to repeat
+            raise ValueError(f"{fn}: expected a record of at least {2 * MIN_REPEATS} patterns "
+                             f"for noise='repeat' (a first block of >= {MIN_REPEATS} and "
+                             f">= {MIN_REPEATS} repeats of the second), got {big_m}; use "
+                             f"noise='pairs' or repeat=False")
         raise ValueError(f"{fn}: noise='repeat' measures the second block (patterns block "
                          f"to 2*block - 1) twice, but with block={block} and {big_m} patterns "
                          f"{n_rep} are left to repeat; expected block <= {big_m - MIN_REPEATS} "
                          f"(at least {MIN_REPEATS} repeats), or repeat=False")
     sr = max(cfg.srs)
+    # scipy.stats (the F quantile of the gate test, the χ² one of the discrepancy bound) is
+    # imported lazily by both: import it before the clock starts, so that a first call's
+    # compute_s does not hold the import (~0.5 s)
+    import scipy.stats  # noqa: F401
+
     t0 = time.perf_counter()
     ref = reference or _reference(data)
     raw = _raw(data, r)
     veil = detect_veil(raw, ref, cfg.roi_px**2)
+    _check_alpha(veil, ref, fn)
     sb = signed_buckets(data, r, sr)
     # noise of the second block: repeated (independent realisation) or from the blocks
     sb_rep = signed_buckets(data, rep, sr) if rep is not None else None
@@ -399,7 +431,12 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
                                   d["depth"], d["gated"], level=gate_level, dof=g_dof)
 
     has_noise = pairs or sb_rep is not None
-    if auto and has_noise:  # decided before the stop, which reads the chosen kind
+    # the F test needs GATE_MIN_BUCKETS coefficients: a shorter record keeps the gate untested
+    too_short = big_m < GATE_MIN_BUCKETS
+    if too_short and has_noise:
+        skipped.append(f"gate test (only {big_m} patterns: its F test needs >= "
+                       f"{GATE_MIN_BUCKETS})")
+    if auto and has_noise and not too_short:  # decided before the stop, which reads the kind
         gate_test = test_gate(min(max(2 * block, 128), sb["depth"].shape[-1]))
     early_gate = veil.present or far.present or gate_test is None or gate_test.present
     s_kind = (("gated" if early_gate else "depth") if auto else
@@ -415,11 +452,12 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
             stopper.noise_sigma = s_sigma
     prog = run_progressive(sb, stopper)
     m = prog.m
-    if not auto and has_noise:  # the stop did not depend on it: test all m patterns
+    if not auto and has_noise and not too_short:  # the stop did not depend on it: all m
         gate_test = test_gate(m)
     gate = veil.present or far.present or (gate_test is None or gate_test.present)
     if gate:
         why = ("veil" if veil.present else "far background" if far.present else
+               "too few patterns to test it" if gate_test is None and has_noise else
                "no repeat to test it" if gate_test is None else
                f"it changes the image: rho {gate_test.rho:.2f}")
         stages.append(f"depth gate ({why})")

@@ -72,6 +72,7 @@ import torch
 from .._checks import (
     check_broadcast,
     check_finite,
+    check_in_range,
     check_int,
     check_nonnegative,
     check_positive,
@@ -188,18 +189,21 @@ class ProgressiveStop:
     Args:
         n: image side (DMD grid ``n × n``), a power of two in ``[4, 256]``: the ``n`` of the
             record (the rule's operators are ``Hadamard(n, m, order)``).
-        block: patterns per block (the caller's block).
+        block: patterns per block (the caller's block), an int ``>= 4`` (a Python or NumPy
+            integer, as ``patience`` and ``min_patterns``).
         rule: ``"innovation"`` (default), ``"change"`` or ``"energy"``.
         kind: which buckets the rule reads (``"gated"``, ``"depth"`` or ``"intensity"``).
         snr: ``"innovation"``: ``κ``, a block is explained when ``ρ_b ≤ 1 + κ + z√(2/B)``.
         z: ``"innovation"``: margin for the χ² spread of ``ρ_b``.
         tol: ``"change"``: stop when ``r_b < tol``.
-        patience: consecutive explained (``"innovation"``) or small (``"change"``) blocks.
+        patience: consecutive explained (``"innovation"``) or small (``"change"``) blocks
+            (an int ``>= 1``).
         target: ``"energy"``: captured fraction of the energy bound, in ``(0, 1]``.
         noise_sigma: known noise std of the buckets (a number, or a tensor broadcastable to
             the buckets' ``(B, C)``; ``>= 0``, finite); ``"pairs"``: estimated from the pair
             sums ``buckets[kind + "_sum"]`` after every block; ``None``: from the blocks.
-        min_patterns: never stop before this many patterns (at least two blocks).
+        min_patterns: never stop before this many patterns (an int ``>= 0``; at least two
+            blocks).
         recon: cheap reconstruction of ``"innovation"``: ``"tv"`` (TVAL3) or ``"pinv"``.
         order: Hadamard order of the patterns.
 
@@ -230,8 +234,7 @@ class ProgressiveStop:
                  recon: str = "tv", order: str = "cake_cutting") -> None:
         fn = "ProgressiveStop"
         check_n_order(n, order, fn)
-        if isinstance(block, bool) or not isinstance(block, int) or block < 4:
-            raise ValueError(f"{fn}: expected block to be an int >= 4, got {block!r}")
+        block = check_int(block, "block", fn, lo=4)
         if rule not in PROGRESSIVE_RULES:
             raise ValueError(f"{fn}: expected rule in {PROGRESSIVE_RULES}, got {rule!r}")
         if kind not in BUCKET_KINDS:
@@ -241,12 +244,9 @@ class ProgressiveStop:
         check_positive(tol, "tol", fn)
         check_positive(z, "z", fn, strict=False)
         check_positive(snr, "snr", fn, strict=False)
-        if isinstance(patience, bool) or not isinstance(patience, int) or patience < 1:
-            raise ValueError(f"{fn}: expected patience to be an int >= 1, got {patience!r}")
-        if not 0.0 < float(target) <= 1.0:
-            raise ValueError(f"{fn}: expected target in (0, 1], got {target}")
-        if isinstance(min_patterns, bool) or not isinstance(min_patterns, int) or min_patterns < 0:
-            raise ValueError(f"{fn}: expected min_patterns to be an int >= 0, got {min_patterns!r}")
+        patience = check_int(patience, "patience", fn, lo=1)
+        target = check_in_range(target, 0.0, 1.0, "target", fn, lo_open=True)
+        min_patterns = check_int(min_patterns, "min_patterns", fn, lo=0)
         self.n, self.block, self.rule, self.kind, self.recon = n, block, rule, kind, recon
         self.z, self.tol, self.patience, self.target = float(z), float(tol), patience, float(target)
         self.snr = float(snr)
@@ -409,7 +409,7 @@ def run_progressive(buckets: dict[str, torch.Tensor], stop: ProgressiveStop,
     if not isinstance(stop, ProgressiveStop):
         raise TypeError(f"{fn}: expected stop to be a ProgressiveStop, got {type(stop).__name__}")
     if block is not None:
-        check_int(block, "block", fn, lo=1)
+        block = check_int(block, "block", fn, lo=1)
     lens = {v.shape[-1] for v in buckets.values()}
     if len(lens) != 1 or any(v.ndim != 3 for v in buckets.values()):
         raise ValueError(f"{fn}: expected buckets of shape (B, C, M) with one M, got "
