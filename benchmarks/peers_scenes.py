@@ -8,6 +8,14 @@ the scoring are tested on their own (``tests/test_peers_bench.py``).
   with scikit-image (``camera``, ``coins``), and a procedurally generated piecewise-planar
   depth map (``planes``: a seeded Voronoi partition, one random plane per cell, depth mapped
   to ``[0.1, 0.9]``).
+- Held-out scenes (:data:`HELD_OUT_SCENES`), for a re-run on images that neither chose
+  ``auto``'s rules nor trained the learned network: the grey ``astronaut`` and
+  ``phantom`` (Shepp–Logan), both kept out of :data:`torchtof.data.TRAIN_IMAGES`, and four
+  procedural scenes of :func:`torchtof.data.draw_scene` at seeds no training run and no other
+  benchmark draws (``EVAL_SEED_BASE + 9000 + k``): a character-like ``glyph``, a binary
+  ``blobs`` silhouette (``k = 9``: the first ``k >= 4`` whose bright part covers 20–80 % of
+  the image at ``n = 128``; the draw at ``k = 1`` was 1.7 % foreground, almost empty), and the depth maps ``objects`` (objects at several depths, each on
+  its own plane) and ``smooth`` (curved surfaces).
 - Rows: the first ``M = round(SR · n²)`` rows of the orthonormal 2-D Hadamard operator
   :class:`torchtof.operators.Hadamard` in the lowest-sequency (``"sequency"``) or
   cake-cutting order.
@@ -25,6 +33,14 @@ import torch
 import torchtof as tt
 
 SCENES: tuple[str, ...] = ("sky", "horse", "camera", "coins", "planes")
+#: Scenes held out from every choice made on :data:`SCENES` and from the learned network's
+#: training (see the module docstring).
+HELD_OUT_SCENES: tuple[str, ...] = ("astronaut", "phantom", "glyph", "blobs", "objects", "smooth")
+#: ``draw_scene`` family and seed offset (from ``EVAL_SEED_BASE + 9000``) of the procedural
+#: held-out scenes.
+_DRAWN: dict[str, tuple[str, int]] = {
+    "glyph": ("strokes", 0), "blobs": ("silhouette", 9), "objects": ("planar", 2),
+    "smooth": ("smooth", 3)}
 ORDERS: tuple[str, ...] = ("sequency", "cake_cutting")
 
 
@@ -64,8 +80,18 @@ def make_scene(name: str, n: int) -> torch.Tensor:
         x = tt.scenes.skimage_scene(name, n)
     elif name == "planes":
         x = planes_depth(n)
+    elif name == "astronaut":
+        x = tt.scenes.skimage_scene("astronaut", n)
+    elif name == "phantom":
+        x = tt.scenes.skimage_scene("shepp_logan_phantom", n)
+    elif name in _DRAWN:
+        from torchtof.data import EVAL_SEED_BASE, draw_scene
+
+        family, k = _DRAWN[name]
+        x = draw_scene(n, EVAL_SEED_BASE + 9000 + k, family, dtype=torch.float32)
     else:
-        raise ValueError(f"make_scene: expected name in {SCENES}, got {name!r}")
+        raise ValueError(f"make_scene: expected name in {SCENES + HELD_OUT_SCENES}, "
+                         f"got {name!r}")
     return x.to(torch.float32).clamp(0.0, 1.0)
 
 
@@ -100,6 +126,6 @@ def cell_parser(description: str):
     p.add_argument("--n", type=int, default=32)
     p.add_argument("--sr", type=float, nargs="+", default=[0.0625, 0.125, 0.25, 0.375])
     p.add_argument("--orders", nargs="+", default=["cake_cutting"], choices=ORDERS)
-    p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES)
+    p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES + HELD_OUT_SCENES)
     p.add_argument("--noise", type=float, default=0.01)
     return p
