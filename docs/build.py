@@ -669,6 +669,54 @@ def render_peers(res: dict) -> str:
             "docs/peers.json`).")
 
 
+#: Classes of the held-out peers scenes (``benchmarks/peers_scenes.py``, ``HELD_OUT_SCENES``).
+HELD_OUT_CLASSES = {"binary": ("glyph", "blobs"), "grey": ("astronaut", "phantom"),
+                    "depth": ("objects", "smooth")}
+
+
+def render_peers_heldout(res: dict) -> str:
+    """The same comparison on scenes that chose none of ``auto``'s rules and trained no
+    network (``docs/peers_heldout.json``): the mean gaps overall and per class, and every
+    cell ``auto`` loses by more than 0.5 dB."""
+    cells = [c for c in res["cells"] if c["headline"]["best_peer"]]
+
+    def gap(c, k="torchtof auto"):
+        return c["results"][k]["psnr"] - c["headline"]["best_peer_psnr"]
+
+    ours = [k for k in ("torchtof auto", "torchtof auto [0,1]", "torchtof learned",
+                        "torchtof tval3") if all(k in c["results"] for c in cells)]
+    overall = ", ".join(
+        f"`{k.replace('torchtof ', '')}` {statistics.mean(gap(c, k) for c in cells):+.2f} dB "
+        f"(≥ 0 in {sum(gap(c, k) >= 0 for c in cells)})" for k in ours)
+    by_class = []
+    for cls, names in HELD_OUT_CLASSES.items():
+        sub = [c for c in cells if c["scene"] in names]
+        if sub:
+            by_class.append(f"{cls} ({', '.join(names)}) {statistics.mean(map(gap, sub)):+.2f} dB, "
+                            f"{sum(gap(c) >= 0 for c in sub)} of {len(sub)}")
+    def run_of(c):
+        return c["n"], c["order"].replace("_", "-"), c["level"]
+
+    runs = sorted({run_of(c) for c in cells})
+    spans = "; ".join(f"n = {n}, {o}, {100 * lv:g} % noise: "
+                      f"{sum(run_of(c) == (n, o, lv) for c in cells)} cells" for n, o, lv in runs)
+    lose = sorted((c for c in cells if gap(c) < -0.5), key=gap)
+    worst = "; ".join(f"{c['scene']} n = {c['n']} SR {_sr(c['sr'])} "
+                      f"{c['order'].replace('_', '-')} {100 * c['level']:g} %: {gap(c):+.2f} dB "
+                      f"({c['headline']['best_peer']})" for c in lose)
+    best_peer = {}
+    for c in cells:
+        best_peer[c["headline"]["best_peer"]] = best_peer.get(c["headline"]["best_peer"], 0) + 1
+    peers = ", ".join(f"{k} {v}" for k, v in sorted(best_peer.items(), key=lambda kv: -kv[1]))
+    return (f"On {len(cells)} held-out cells ({spans}), the mean gap to the best tuned peer of "
+            f"the same cell: {overall} of {len(cells)}. `auto` by class: {'; '.join(by_class)}. "
+            f"Best tuned peer per cell: {peers}. "
+            + (f"`auto` loses by more than 0.5 dB in {len(lose)} cells: {worst} " if lose else
+               "`auto` loses by more than 0.5 dB in no cell ")
+            + "(generated from `docs/peers_heldout.json`; `python benchmarks/peers.py --report "
+            "docs/peers_heldout.json`).")
+
+
 def render_memory(res: dict) -> str:
     """Peak memory (growth of the maximum resident set) and time of the dense entry points,
     each in a fresh process (``tests/reliability/measure_memory.py``)."""
@@ -821,6 +869,13 @@ SECTIONS: dict[str, Section] = {
         "docs/peers.json", render_peers,
         (sys.executable, "benchmarks/peers.py", "--out", "docs/peers_run.json"),
         "torchtof's one-call reconstructors against the oracle-tuned peer libraries",
+        render_only="hours: the runs listed in docs/peers.md, merged with --report",
+    ),
+    "peers_heldout": Section(
+        "docs/peers_heldout.json", render_peers_heldout,
+        (sys.executable, "benchmarks/peers.py", "--scenes", "astronaut", "phantom", "glyph",
+         "blobs", "objects", "smooth", "--seed", "1", "--out", "docs/peers_heldout_run.json"),
+        "the peers comparison on held-out scenes (new images, seeds and noise draw)",
         render_only="hours: the runs listed in docs/peers.md, merged with --report",
     ),
     "memory": Section(
