@@ -272,7 +272,7 @@ def problems(args) -> list[tuple]:
         def many(a, b):
             return [ps.score(a[i : i + 1], b[i : i + 1]) for i in range(a.shape[0])]
 
-        return [(k, *ps.make_problem(*k, 0)[:3], many)
+        return [(k, *ps.make_problem(*k, args.seed)[:3], many)
                 for k in peer_best(args.peers_cells) if k[1] in args.n and k[2] in args.sr]
     probs = []
     for n in args.n:
@@ -359,6 +359,9 @@ def main(argv=None) -> list[dict]:
                     help="the cells of this peers JSON (problems of peers_scenes.py, its PSNR) "
                          "at the sizes --n instead of the grid; with --fold-rules: their best "
                          "peer")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="with --peers-cells: the cells' noise draw (peers.py --seed; the "
+                         "held-out runs of docs/peers_heldout.json used 1)")
     ap.add_argument("--shard", default="0/1", type=_shard, metavar="I/K",
                     help="run every K-th cell from the I-th (two processes: 0/2 and 1/2)")
     ap.add_argument("--reuse", default=None, metavar="AUTO_EVAL_JSON",
