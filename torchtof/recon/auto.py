@@ -128,9 +128,9 @@ not two-level by this test and do not change. It costs one more solve of one can
 (the chosen prior and norm with the box; stage 1 solves 8), its stage 2 and, if the choice
 changes, a refit: only for two-level images.
 The inferred box is the fragile part of the choice: on scenes held out from its design (a
-thin-stroked character and a sparse silhouette at SR 12.5 %, ``docs/peers.md``, "Held-out
+thin-stroked character and a binary silhouette at SR 12.5 %, ``docs/peers.md``, "Held-out
 scenes") the refit's dark level came out biased (0.14 instead of 0) or the refinement kept
-isotropic TV where TGV² with the same box was 11 dB better, and the call lost 4–7 dB to a
+isotropic TV where TGV² with the same box was 11 dB better, and the call lost 6–7 dB to a
 box-projected gradient given the true box; three other rules for the box were measured and
 were worse elsewhere (``docs/auto.md``). When the levels are known (an image normalised by a
 calibration frame), pass ``bounds``.
