@@ -546,3 +546,48 @@ def test_every_bench_option_is_either_common_or_assigned():
     dests = {a.dest for a in sub._actions} - {"help", "which", "out", "json"}
     assert dests == set(BENCH_OPTIONS)
     assert all(set(w) <= set(BENCHES) for w in BENCH_OPTIONS.values())
+
+
+@pytest.mark.parametrize(("argv", "flag"), [
+    (["demo", "--n", "8", "--out", "{f}/sub"], "--out"),
+    (["bench", "operators", "--n", "4", "--batch", "1", "--json", "{f}/x.json"], "--json"),
+    (["export", "g2", "--n", "4", "-o", "{f}/x.onnx"], "-o/--output"),
+    (["acquire", "--simulated", "--n", "16", "-o", "{f}/run.zarr"], "-o/--output"),
+])
+def test_destination_under_a_file_is_refused_before_any_work(argv, flag, tmp_path, capsys):
+    """A destination whose parent is a file failed only after the whole run (mkdir), with a
+    traceback or an error that did not name the option."""
+    f = tmp_path / "a_file"
+    f.write_text("keep me")
+    with pytest.raises(SystemExit) as exc:
+        main([a.format(f=f) for a in argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {flag}: expected a path under a folder, {f} is a file" \
+        in err[0], err
+    assert f.read_text() == "keep me"
+
+
+def test_file_destination_that_is_a_folder_is_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "operators", "--n", "4", "--batch", "1", "--json", str(tmp_path)])
+    assert exc.value.code == 2
+    assert f"argument --json: expected a file path, {tmp_path} is a folder" in \
+        capsys.readouterr().err
+
+
+def test_bench_operators_at_a_tiny_sampling_rate_reports_the_rows_used(tmp_path):
+    """round(sr·n²) was 0 where the operator takes one row, and the benchmark crashed."""
+    import json
+
+    out = tmp_path / "b.json"
+    assert main(["bench", "operators", "--n", "4", "--sr", "0.01", "--batch", "1",
+                 "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["rows"][0]["M"] == 1
+
+
+def test_bench_seed_with_seeds_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "adaptive", "--seed", "7", "--seeds", "0-1"])
+    assert exc.value.code == 2
+    assert "argument --seed: not used with --seeds" in capsys.readouterr().err

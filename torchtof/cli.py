@@ -465,6 +465,8 @@ def _check_bench(args: argparse.Namespace) -> None:
         for n in args.n or (32,):
             check_patterns(n, args.sr)
     if args.which == "adaptive" and args.seeds is not None:
+        if args.seed != args.parser.get_default("seed"):  # --seeds replaces it
+            raise ValueError("argument --seed: not used with --seeds (give the seeds there)")
         from .apps.bench.adaptive import parse_seeds
 
         try:
@@ -492,6 +494,36 @@ def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> N
         i += 2 if name in takes_value and "=" not in argv[i] else 1
 
 
+def _check_destination(parser, flag: str, path: str, folder: bool | None) -> None:
+    """Before any work: ``path`` (a folder to write into, a file to write, ``None``: the
+    command checks the path itself) must not be the other kind, and its nearest existing
+    ancestor must be a folder (``mkdir`` would fail after the whole run otherwise)."""
+    p = Path(path)
+    if folder is not None and p.exists() and p.is_dir() != folder:
+        parser.error(f"argument {flag}: expected {'a folder' if folder else 'a file path'}, "
+                     f"{path} is {'a file' if p.is_file() else 'a folder'}")
+    for up in p.parents:
+        if up.exists():
+            if not up.is_dir():
+                parser.error(f"argument {flag}: expected a path under a folder, {up} is a file")
+            break
+
+
+def _check_destinations(args: argparse.Namespace) -> None:
+    """Every command's ``--out`` is a folder it writes into, unless a file option replaces it
+    (``export -o``, ``bench --json``: files); ``acquire -o`` is a zarr store (a folder)."""
+    out, output = getattr(args, "out", None), getattr(args, "output", None)
+    store = getattr(args, "cmd", None) == "acquire"
+    files = {"-o/--output": None if store else output, "--json": getattr(args, "json", None)}
+    if isinstance(out, str) and not any(files.values()):
+        _check_destination(args.parser, "--out", out, folder=True)
+    if store and isinstance(output, str):  # acquire names an existing non-store itself
+        _check_destination(args.parser, "-o/--output", output, folder=None)
+    for flag, path in files.items():
+        if isinstance(path, str):
+            _check_destination(args.parser, flag, path, folder=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``torchtof ARGV``; returns the exit status (2 for a usage mistake)."""
     parser = build_parser()
@@ -499,10 +531,7 @@ def main(argv: list[str] | None = None) -> int:
     OneLineParser.debug = "--debug" in given
     _check_global_options(parser, given)
     args = parser.parse_args(argv)
-    out = getattr(args, "out", None)  # every command's --out is a folder it writes into
-    unused = getattr(args, "output", None) or getattr(args, "json", None)  # export -o, bench --json
-    if isinstance(out, str) and not unused and Path(out).exists() and not Path(out).is_dir():
-        args.parser.error(f"argument --out: expected a folder, {out} is a file")
+    _check_destinations(args)
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work
         try:
