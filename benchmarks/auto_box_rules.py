@@ -59,10 +59,7 @@ def problem(name: str, n: int, sr: float, order: str, level: float):
         family, k = name[4:].rsplit("_", 1)
         x = draw_scene(n, EVAL_SEED_BASE + 9100 + int(k), family, dtype=torch.float32)
         A = tt.operators.Hadamard(n, sr=sr, order=order)
-        y0 = A(x)
-        sigma = level * float(y0.norm()) / y0.shape[-1] ** 0.5
-        g = torch.Generator().manual_seed(1)
-        return x, A, y0 + sigma * torch.randn(y0.shape, generator=g, dtype=y0.dtype)
+        return x, A, ps.noisy_buckets(x, A, level, seed=1)[0]
     x, A, y, _ = ps.make_problem(name, n, sr, order, level,
                                  seed=0 if name in ps.SCENES else 1)
     return x, A, y

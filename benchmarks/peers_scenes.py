@@ -103,11 +103,16 @@ def make_problem(name: str, n: int, sr: float, order: str, level: float, seed: i
         raise ValueError(f"make_problem: expected level >= 0, got {level!r}")
     x = make_scene(name, n)
     A = tt.operators.Hadamard(n, sr=sr, order=order)
+    return (x, A, *noisy_buckets(x, A, level, seed))
+
+
+def noisy_buckets(x: torch.Tensor, A, level: float, seed: int = 0):
+    """``(y, sigma)``: the buckets ``A x`` plus one seeded Gaussian draw of relative level
+    ``level`` (``‖e‖₂ ≈ level · ‖A x‖₂``) and its per-bucket standard deviation."""
     y0 = A(x)
     sigma = level * float(y0.norm()) / y0.shape[-1] ** 0.5
     g = torch.Generator().manual_seed(seed)
-    y = y0 + sigma * torch.randn(y0.shape, generator=g, dtype=y0.dtype)
-    return x, A, y, sigma
+    return y0 + sigma * torch.randn(y0.shape, generator=g, dtype=y0.dtype), sigma
 
 
 def score(x_hat: torch.Tensor, x: torch.Tensor) -> float:

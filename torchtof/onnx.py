@@ -346,7 +346,7 @@ def export(
         _fix_output_dims(model, outs, dynamic_batch)
     model.metadata_props.add(key=EXPORTER_KEY, value=exporter)
     onnx.save(model, path)
-    onnx.checker.check_model(onnx.load(path), full_check=True)
+    onnx.checker.check_model(model, full_check=True)
     return path
 
 
