@@ -591,3 +591,48 @@ def test_bench_seed_with_seeds_is_a_usage_error(capsys):
         main(["bench", "adaptive", "--seed", "7", "--seeds", "0-1"])
     assert exc.value.code == 2
     assert "argument --seed: not used with --seeds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("opts, flag", [
+    (["--steps", "5"], "--steps"), (["--lr", "0.1"], "--lr"), (["--resume"], "--resume"),
+    (["--no-calibrate"], "--no-calibrate"), (["--max-minutes", "1"], "--max-minutes"),
+    (["--init", "shipped"], "--init"), (["--workers", "1"], "--workers")])
+def test_calibrate_only_refuses_a_training_option(opts, flag, tmp_path, capsys):
+    """A training option beside --calibrate-only would be ignored: a one-line usage error
+    that names it, before the run is read (no checkpoint here)."""
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--calibrate-only", *opts, "--out", str(tmp_path / "run")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}: a training option, not used with --calibrate-only" in err, err
+
+
+@pytest.mark.parametrize("opts, step, bad", [
+    (["--sizes", "8", "32", "--shuffle", "8"], 16, "8"),
+    (["--sizes", "16", "32", "--scales", "6"], 32, "16")])
+def test_train_sizes_the_prior_cannot_take_are_a_usage_error(opts, step, bad, tmp_path,
+                                                             capsys):
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", *opts, "--out", str(out)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --sizes: with --scales" in err and f"= {step}, got {bad} " in err, err
+    assert not out.exists()  # refused before any work
+
+
+def test_bench_tradeoff_json_is_the_only_json(tmp_path, capsys, monkeypatch):
+    """--json names the tradeoff's JSON: no second OUT/tradeoff.json beside it."""
+    import torchtof.apps.bench.tradeoff as tradeoff
+
+    row = {"n": 8, "sr": 0.25, "label": "PINV", "method": "PINV", "budget": None,
+           "time_s": 1e-4, "psnr": 10.0, "ssim": 0.5, "rmse": 0.1, "rmse_unit": "m"}
+    monkeypatch.setattr(tradeoff, "sweep", lambda *a: [row])
+    monkeypatch.setattr(tradeoff, "plot_sweep", lambda pts, path, title="": None)
+    out, js = tmp_path / "out", tmp_path / "elsewhere" / "t.json"
+    assert main(["bench", "tradeoff", "--quick", "--out", str(out), "--json", str(js)]) == 0
+    assert not (out / "tradeoff.json").exists()
+    saved = json.loads(js.read_text())
+    assert saved["json"] == str(js) and saved["points"][0]["label"] == "PINV"
+    assert set(saved["machine"]) == {"start", "end"}
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(f"wrote {js}")

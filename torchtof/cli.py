@@ -144,7 +144,7 @@ def _bench_result(args: argparse.Namespace):
     if name == "tradeoff":
         from .apps.bench.tradeoff import bench_tradeoff, print_tradeoff
 
-        return bench_tradeoff(quick=args.quick, out=args.out), print_tradeoff
+        return bench_tradeoff(quick=args.quick, out=args.out, json_path=args.json), print_tradeoff
     if name == "adaptive":
         from .apps.bench.adaptive import (
             bench_adaptive,
@@ -331,7 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--plot", action="store_true", help="recon: also write recon.png")
     b.add_argument("--out", default="bench_out", help="folder for the JSON and PNGs")
     b.add_argument("--json", default=None,
-                   help="write the result to this JSON file instead of OUT/bench_WHICH.json")
+                   help="write the result to this JSON file instead of OUT/bench_WHICH.json "
+                        "(tradeoff: OUT/tradeoff.json)")
     models = _export_models()
     b.add_argument("--models", type=csv_list(models) if models else str, default=None,
                    help="onnx: comma-separated subset of the export models (default: all)")
@@ -354,9 +355,13 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Regenerate the paper's figures, PSNR table and claims.")
     r.add_argument("--out", default="reproduce_out", help="folder for the figures and tables")
     r.add_argument("--quick", action="store_true",
-                   help="2 realisations and 100 DIP steps instead of 5 and the full schedule")
+                   help="the PSNR table with 2 realisations and 100 DIP steps (instead of 5 "
+                        "and the full schedule); the depth curves with 1 realisation on one "
+                        "scene, SR 6.25-25 %%, multipath on (instead of 3, every scene and SR, "
+                        "multipath on and off)")
     r.add_argument("--realisations", type=positive_int, default=None,
-                   help="noise realisations per case (default 5, --quick 2)")
+                   help="noise realisations per case, for the PSNR table and the depth curves "
+                        "alike (default 5 and 3; --quick 2 and 1)")
     r.set_defaults(func=cmd_reproduce)
 
     e = sub.add_parser("export", help="export a model to ONNX (needs torchtof[onnx])",
@@ -398,6 +403,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: The options of ``train`` that only a training run uses: ``--calibrate-only`` refuses them.
+TRAIN_ONLY_OPTIONS = ("steps", "batch_size", "lr", "checkpoint_every", "resume", "init",
+                      "log_every", "max_minutes", "device", "workers", "no_calibrate")
+
+
 def _check_train(args: argparse.Namespace) -> None:
     lo, hi = args.sr_range
     if lo > hi:
@@ -412,6 +422,21 @@ def _check_train(args: argparse.Namespace) -> None:
             check_families(dict(args.families), "train")
         except ValueError as exc:
             raise ValueError(f"argument --families: {exc}") from None
+    if args.calibrate_only:  # a training option would be silently ignored
+        for dest in TRAIN_ONLY_OPTIONS:
+            if getattr(args, dest) != args.parser.get_default(dest):
+                flag = "--" + dest.replace("_", "-")
+                raise ValueError(f"argument {flag}: a training option, not used with "
+                                 "--calibrate-only (which calibrates a finished run)")
+    else:
+        from .recon.learned import prior_multiple
+
+        step = prior_multiple(args.scales, args.shuffle)
+        bad = [n for n in args.sizes if n % step]
+        if bad:
+            raise ValueError(f"argument --sizes: with --scales {args.scales} and --shuffle "
+                             f"{args.shuffle} every size must be divisible by "
+                             f"2^(scales-1)·shuffle = {step}, got {' '.join(map(str, bad))}")
     ckpt = Path(args.out) / "checkpoint.pt"
     if not args.calibrate_only and not args.resume and ckpt.is_file():
         raise ValueError(f"argument --out: {args.out} holds a training run ({ckpt.name}); pass "

@@ -155,6 +155,12 @@ class LearnedResult(NamedTuple):
 # -- the prior network ----------------------------------------------------------------------
 
 
+def prior_multiple(scales: int, shuffle: int) -> int:
+    """The image sides a prior of ``scales`` resolutions after a pixel unshuffle by
+    ``shuffle`` accepts are the multiples of ``2^(scales-1)·shuffle``."""
+    return 2 ** (scales - 1) * shuffle
+
+
 def check_prior_sizes(func: str, width, shuffle, scales, optional: bool = False) -> None:
     """``width`` and ``shuffle`` ints ``>= 1``, ``scales`` an int ``>= 2`` (each may be
     ``None`` if ``optional``: read from a weights file later)."""
@@ -595,7 +601,7 @@ class Learned(nn.Module):
             shuffle = int(file_meta.get("shuffle", 1 if file_meta else DEFAULT_SHUFFLE))
         if scales is None:
             scales = int(file_meta.get("scales", 2 if file_meta else DEFAULT_SCALES))
-        if A.n % (f := 2 ** (scales - 1) * shuffle):
+        if A.n % (f := prior_multiple(scales, shuffle)):
             raise ValueError(
                 f"{func}: expected A.n divisible by 2^(scales-1)·shuffle = {f}, got n={A.n}")
         self.A = A

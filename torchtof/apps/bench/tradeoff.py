@@ -42,7 +42,10 @@ def recommend(points: list[dict], budgets_s=(1e-3, 1e-2, 1e-1, 1.0, 10.0)) -> li
     return out
 
 
-def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out") -> dict:
+def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out",
+                   json_path: str | Path | None = None) -> dict:
+    """Sweep every reconstructor's work knob; write the JSON to ``json_path`` (default
+    ``OUT/tradeoff.json``) and the plot to ``OUT/tradeoff.png``."""
     t0 = time.perf_counter()
     ns = (32, 64) if quick else (32, 64, 128)
     srs = (0.0625, 0.125, 0.25) if quick else PAPER_SRS
@@ -57,8 +60,10 @@ def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out") -> dict:
     png = plot_sweep(pts, out / "tradeoff.png", "run time vs PSNR (bench tradeoff)")
     res["plot"] = None if png is None else str(png)
     res["total_s"] = time.perf_counter() - t0
-    (out / "tradeoff.json").write_text(json.dumps(res, indent=2, default=str))
-    res["json"] = str(out / "tradeoff.json")
+    path = Path(json_path) if json_path is not None else out / "tradeoff.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(res, indent=2, default=str))
+    res["json"] = str(path)
     return res
 
 
