@@ -81,6 +81,7 @@ FIELDS = [
     ("intg_duty_cycle", 20, 0x5C, 0x4C, b"\x14\x00\x00"),  # bank 3 reg 76 bits 0-5
     ("pix_cnt_max_set_failed", 1, 0x5C, 0x63, b"\x00\x00\x40"),  # bank 3 reg 99 bit 22
     ("intg_duty_cycle_set_failed", 1, 0x5C, 0x63, b"\x00\x00\x80"),  # bit 23
+    ("op_overflow", 1, 0x5C, 0x63, b"\x00\x00\x10"),  # DML id 6378: bank 3 reg 99 bit 20
     ("dealias_en", 1, 0x5C, 0x02, b"\x00\x00\x80"),  # bank 3 reg 2 bit 23
     ("dealias_16bit_op_enable", 1, 0x5C, 0x28, b"\x00\x00\x80"),  # bank 3 reg 40 bit 23
     ("delay_fb_coeff_1", 1280, 0x5C, 0xB3, b"\x00\x05\x00"),  # bank 3 reg 179 bits 0-11
@@ -183,8 +184,12 @@ def test_set_modulation_frequency_request_sequence():
         (0x0F, b"\x2a\x00\x00"),  # mod_n2 = 2 (reg 15 bits 2-3), PLL 1's bits kept
         (0x0D, b"\x00\x00\x0f"),  # mod_m_frac2 = 0 (reg 13 bits 0-15)
         (0x0F, b"\x2a\x01\x00"),  # mod_ps2 = 2 (reg 15 bits 7-9: 0x100)
+        (0x02, b"\x00\x00\x00"),  # mod_pll_update = 0 (TintinVCOFrequency::set's window)
+        # DML id 7984: "After updating the PLL registers, set this register to 1 and then back
+        # to 0" (the last two writes of ToFTintinCamera::_init)
+        (0x02, b"\x04\x00\x00"),  # mod_pll_update = 1
         (0x02, b"\x00\x00\x00"),  # mod_pll_update = 0
-        (0xB3, b"\x00\x05\x00"),  # delay_fb_coeff_1 = 30 · 1024 / 24 = 1280 (DML, SDK)
+        (0xB3, b"\x00\x05\x00"),  # delay_fb_coeff_1 = 30 · 1024 / 24 = 1280 (DML id 10019)
     ]
     assert cam.freq_hz == 30e6 and cam.pll2_freq_hz == 30e6
 

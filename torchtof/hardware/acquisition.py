@@ -12,11 +12,12 @@ per pattern; byte-identical duplicates dropped; with ``frame_ids="device"`` (the
 ``check_timing`` each frame's host arrival time on the pattern schedule (±40 % of the
 pattern spacing: a spurious frame arrives too early, a lost one leaves a gap — the check
 that sees a spurious *and* a lost frame in one sequence, whose device ids stay
-consecutive); and no frame after the last one. Any failed check, timeout, NACK or corrupt
-frame discards the whole sequence, stops the projector, flushes the camera and shows the
-sequence again (``retries`` times, then an error naming the pattern or command): no frame
-is ever recorded against the wrong pattern. A killed run loses at most the sequence in
-flight (≤ 24 frames).
+consecutive); no frame after the last one; and, from an OPT8241, ``op_overflow`` clear
+(the camera's output kept up, :meth:`~.opt8241.OPT8241.check_output_overflow`). Any failed
+check, timeout, NACK or corrupt frame discards the whole sequence, stops the projector,
+flushes the camera (and clears ``op_overflow``) and shows the sequence again (``retries``
+times, then an error naming the pattern or command): no frame is ever recorded against the
+wrong pattern. A killed run loses at most the sequence in flight (≤ 24 frames).
 
 Buckets per frame over the ROI ``roi`` (paper Eq. 10, §3.1; per-tap buckets as
 :func:`torchtof.bucket.tap_buckets`): depth ``Σ d``, gated depth ``Σ gate(d)``, intensity
@@ -602,6 +603,7 @@ class _Sequences:
         # later frames: a few pattern periods (at most the first frame's timeout)
         next_timeout = min(self.timeout_s, float(gaps.max()) * 4 + 0.5)
         tail = max(0.05, 1.5 * float(gaps.max()))  # no frame may follow within this
+        overflow = getattr(self.camera, "check_output_overflow", None)
         attempt = 0
         while True:
             frames: list = []
@@ -641,6 +643,10 @@ class _Sequences:
                         self.stats["duplicates"] += 1
                         continue
                     raise FrameSequenceError(k_total, k_total + 1, s0)
+                if overflow is not None:  # the camera's output kept up (OPT9221 op_overflow)
+                    self.camera.pattern_index = s0
+                    overflow()
+                    self.camera.pattern_index = None
                 return frames
             except DeviceLostError:
                 raise
@@ -654,6 +660,9 @@ class _Sequences:
                 except TransientError:
                     pass
                 self.camera.flush()
+                clear = getattr(self.camera, "clear_output_overflow", None)
+                if clear is not None:  # an overflow of the failed attempt: not the next one's
+                    clear()
 
 
 def _same_bytes(a, b) -> bool:

@@ -38,14 +38,20 @@ read-modify-write.
   (ToFTintinCamera.cpp): ``mod_ps1 = ⌊300 / quad_cnt_max / f_MHz⌋``, ``mod_n1 = 2``,
   ``mod_m1``/``mod_m_frac1`` from ``f_vco · 2 / 48``, framed by ``mod_pll_update`` 1 … 0 with
   10 ms between the last PLL write and releasing ``mod_pll_update`` (``TintinVCOFrequency::set``
-  sleeps 10 ms there); then
-  ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML; ``TintinUnambiguousRangeParameter::set``).
+  sleeps 10 ms there), then one more bare pulse ``mod_pll_update`` 1 → 0 after all the PLL
+  writes (DML id 7984: "After updating the PLL registers, set this register to 1 and then back
+  to 0 to update the PLL frequency"; ``ToFTintinCamera::_init`` ends with that pulse); then
+  ``delay_fb_coeff_1 = f·1024/24 MHz`` (DML id 10019; the one-frequency branch of
+  ``TintinUnambiguousRangeParameter::set`` writes it right after setting the frequency —
+  ``TintinModulationFrequencyParameter::set`` itself does not write it).
   :meth:`OPT8241.configure` programs :attr:`OPT8241.mod_freq_hz` (default 30 MHz, the
   paper's) into PLL 1 **and PLL 2** (``mod_m2``, ``mod_m_frac2``, ``mod_n2``, ``mod_ps2``), as
   TI's one-frequency profile asks (TintinCDKCameraNoCalibration.conf: ``mod_freq1 = mod_freq2
-  = 48``, ``dealias_en = 0``); TI's other CDK profiles (``unambiguous_range`` 4 or 8) leave
-  40 MHz in PLL 1 and 60 MHz in PLL 2 with de-aliasing on (``TintinUnambiguousRangeParameter::
-  set``, ``modPS1 = 1``, ``modPS2 = 0`` from ``TintinCDKUnambiguousRangeParameter``). It
+  = 48``, ``dealias_en = 0``); TI's Lens Only, Short Range, High Ambient (``unambiguous_range
+  = 4``) and Long Range (8, the default profile 130) profiles leave 40 MHz in PLL 1 and 60 MHz
+  in PLL 2 with de-aliasing on (``TintinUnambiguousRangeParameter::set``, ``modPS1 = 1``,
+  ``modPS2 = 0`` from ``TintinCDKUnambiguousRangeParameter``); Extra Long Range
+  (TintinCDKCameraExtraLongRange.conf) lists ``mod_freq1 = 25.5``, ``mod_freq2 = 34`` MHz. It
   refuses a frequency whose unambiguous range ``c/(2f)`` is shorter than the camera rules'
   ``max_m`` (:func:`check_unambiguous_range`). TI's optimal band is 39-60 MHz
   (``TintinCDKModulationFrequencyParameter``, TintinCDKCameraCommon.h): 30 MHz lies below it
@@ -80,9 +86,14 @@ read-modify-write.
   (4) although the transfer carries ``2 · quad_cnt_max`` bytes per pixel
   (``_setStreamerFrameSize``): torchtof counts the bytes actually sent (:func:`frame_bytes`),
   stricter than the SDK — a QVGA ``"quad"`` frame with N = 4 is 614 400 bytes, 32 ms at
-  24 MHz, at most 31 frames/s where the SDK's formula gives 62. Which is right is device-only
-  (README "Real hardware"). :meth:`OPT8241.configure` refuses a trigger spacing shorter than
-  a frame's output time (:meth:`OPT8241.output_time_us`); TI's profiles run 8–50 frames/s.
+  24 MHz, at most 31 frames/s where the SDK's formula gives 62. Which formula is right only a
+  device can say (README "Real hardware"). :meth:`OPT8241.configure` refuses a trigger spacing
+  shorter than a frame's output time (:meth:`OPT8241.output_time_us`); TI's profiles run 8–50
+  frames/s. At run time the camera reports it: ``op_overflow`` (DML id 6378, bank 3 reg 99 bit
+  20: "Indicates that the output data rate is too low. Write a '0' to reset the state") is
+  cleared by :meth:`OPT8241.start` and read after each pattern sequence
+  (:meth:`OPT8241.check_output_overflow`, called by ``acquire``): set, the sequence is
+  discarded and shown again (a :class:`FrameError`).
 * Frame size: ``bin_col_count`` × ``bin_row_count`` (DML ids 2012, 2011; read by
   ``ToFCamera::_getFrameSize``); :meth:`OPT8241.configure` checks that they match the
   ``width`` × ``height`` the frames are decoded with.
@@ -113,7 +124,9 @@ read-modify-write.
 **Frames** (``Voxel/USBBulkStreamer.cpp``, ``ToFFrameGenerator.cpp``,
 ``TintinCDKCamera::_setStreamerFrameSize``): one bulk IN transfer on endpoint 0x82 is one
 frame — no header, id, timestamp or checksum; the SDK asks for 255 extra bytes, drops a
-transfer of another size, reads on its own capture thread (200 ms transfer timeout), resets
+transfer of another size, reads on its own capture thread (200 ms transfer timeout,
+``USBBulkStreamerPrivate``; torchtof keeps it in master mode and waits longer in slave mode:
+:attr:`OPT8241.SLAVE_READ_TIMEOUT_S`), resets
 the endpoint at start and after three failed transfers, and drops the oldest buffer when the
 consumer is slow (``USBBulkStreamer::putBuffer``). :class:`OPT8241` does the same on a reader
 thread, but reports dropped and wrong-sized transfers instead of hiding them. Layouts,
@@ -251,12 +264,17 @@ REGISTERS: dict[str, Field] = {
     # by ToFCamera::_setFrameRate and IntegrationTimeParameter::set, ToFCamera.cpp)
     "pix_cnt_max_set_failed": Field(0x5C63, 22, 22),
     "intg_duty_cycle_set_failed": Field(0x5C63, 23, 23),
+    # output overflow, DML id 6378, bank 3 reg 99 bit 20: "Indicates that the output data rate
+    # is too low. Write a '0' to reset the state" (sticky): cleared by start(), read after each
+    # sequence (check_output_overflow)
+    "op_overflow": Field(0x5C63, 20, 20),
     # de-aliasing, switched off for one frequency (TintinUnambiguousRangeParameter::set,
     # ToFTintinCamera.cpp): dealias_en bank 3 reg 2 bit 23, dealias_16bit_op_enable reg 40 bit 23
     "dealias_en": Field(0x5C02, 23, 23),
     "dealias_16bit_op_enable": Field(0x5C28, 23, 23),
     # illumination-delay coefficient: DML id 10019 "delay_fb_coeff_1 = f1·1024/24MHz", bank 3
-    # reg 179 bits 0-11; written after each frequency change (ToFTintinCamera.cpp, same place)
+    # reg 179 bits 0-11; TI writes it only in TintinUnambiguousRangeParameter::set (right after
+    # the frequency in its one-frequency branch), torchtof after each frequency change it makes
     "delay_fb_coeff_1": Field(0x5CB3, 0, 11),
     # second temperature-sensor slave address, bank 3 reg 46 bits 0-6: DML default 113 (0x71);
     # TintinCDKCamera::_init writes 0x72 (TILLUM_SLAVE_ADDR): the board-initialised marker
@@ -762,9 +780,14 @@ class OPT8241:
             (``USBBulkStreamer::putBuffer`` does the same); each drop is counted in
             :attr:`stats` and reported by :meth:`grab` as a lost frame.
         mod_freq_hz: the modulation frequency :meth:`configure` programs into PLL 1 and PLL 2
-            (default 30 MHz, the paper's; TI's profiles leave 40 or 48 MHz). :meth:`configure`
+            (default 30 MHz, the paper's; TI's CDK profiles leave 40 MHz in PLL 1 and 60 MHz in
+            PLL 2, except No Calibration, 48/48, and Extra Long Range, 25.5/34: module
+            docstring). :meth:`configure`
             refuses one whose unambiguous range ``c/(2f)`` is shorter than ``rules.max_m``
             (:func:`check_unambiguous_range`).
+        check_overflow: read ``op_overflow`` after each sequence (:meth:`check_output_overflow`;
+            default ``True``). That the flag is set by an output overrun and only then is
+            device-only: ``False`` turns the check off (the flag is still cleared at start).
     """
 
     what = "TI OPT8241 ToF camera"
@@ -773,7 +796,8 @@ class OPT8241:
                  rules: CameraRules = CameraRules(), mode: str = "depth",
                  slave: bool = True, timeout_s: float = 2.0, clock=time.time,
                  frame_ids: bool = False, quads: int = 4, sub_frames: int = 1,
-                 queue_frames: int = 64, mod_freq_hz: float = DEFAULT_MOD_FREQ_HZ) -> None:
+                 queue_frames: int = 64, mod_freq_hz: float = DEFAULT_MOD_FREQ_HZ,
+                 check_overflow: bool = True) -> None:
         if mode not in FRAME_MODES:
             raise ValueError(f"OPT8241: unknown mode {mode!r}; expected one of "
                              f"{list(FRAME_MODES)}")
@@ -793,7 +817,10 @@ class OPT8241:
         except ValueError as exc:
             raise ValueError(f"OPT8241: mod_freq_hz {mod_freq_hz!r} cannot be programmed: "
                              f"{exc}") from None
+        if not isinstance(check_overflow, bool):
+            raise TypeError(f"OPT8241: expected check_overflow a bool, got {check_overflow!r}")
         self.mod_freq_hz = float(mod_freq_hz)
+        self.check_overflow = check_overflow
         self.dev, self.width, self.height = dev, int(width), int(height)
         self.rules, self.mode = rules, mode
         self.slave, self.timeout_s, self.clock = bool(slave), float(timeout_s), clock
@@ -807,7 +834,7 @@ class OPT8241:
         self._next_id = 0
         self._reader = None
         self.stats = {"frames": 0, "host_dropped": 0, "bad_size": 0, "endpoint_resets": 0,
-                      "max_queued": 0}
+                      "max_queued": 0, "op_overflow": 0}
 
     @classmethod
     def open(cls, **kwargs) -> OPT8241:
@@ -928,11 +955,18 @@ class OPT8241:
         (``TintinModulationFrequencyParameter::set``, ``TintinVCOFrequency::set``: module
         docstring), PLL 2 with PLL 1's values as TI's one-frequency profile asks
         (TintinCDKCameraNoCalibration.conf: ``mod_freq2 = mod_freq1``, ``dealias_en = 0``;
-        TI's CDK profiles leave PLL 2 at 60 MHz for de-aliasing), all inside one
-        ``mod_pll_update`` 1 … 0; then the illumination-delay coefficient ``delay_fb_coeff_1 =
-        ⌊f[MHz] · 1024 / 24⌋`` (DML description of ``delay_fb_coeff_1``;
-        ``TintinUnambiguousRangeParameter::set``, ToFTintinCamera.cpp, writes it after each
-        frequency change); returns the frequency PLL 1 now gives.
+        TI's de-aliasing profiles leave PLL 2 at 60 MHz), all inside one ``mod_pll_update``
+        1 … 0 (as ``TintinVCOFrequency::set`` and ``TintinModulationFrequencyParameter::set``
+        frame their writes), then one bare pulse ``mod_pll_update`` 1 → 0 after the last PLL
+        write: the DML (id 7984) asks for it "after updating the PLL registers", and
+        ``ToFTintinCamera::_init`` ends with it; then the illumination-delay coefficient
+        ``delay_fb_coeff_1 = ⌊f[MHz] · 1024 / 24⌋`` (DML id 10019). TI writes the coefficient
+        only in ``TintinUnambiguousRangeParameter::set`` (ToFTintinCamera.cpp) — in its
+        one-frequency branch right after ``TintinModulationFrequencyParameter::set``, which
+        does not write it — so torchtof, which changes the frequency without that parameter,
+        writes it here: the DML defines it from f1, and the delay correction scales with it
+        (DML id 10005), so a profile's value for 40/60 MHz would be wrong at another
+        frequency. Returns the frequency PLL 1 now gives.
 
         Raises:
             ValueError: a frequency the PLL or the 12-bit delay coefficient cannot take.
@@ -950,6 +984,10 @@ class OPT8241:
             time.sleep(VCO_SETTLE_S)  # TintinVCOFrequency::set waits here before the release
         finally:
             self.write_field("mod_pll_update", 0)
+        # OPT9221.dml id 7984: after the PLL registers are updated, 1 then back to 0 (as the
+        # last two writes of ToFTintinCamera::_init)
+        self.write_field("mod_pll_update", 1)
+        self.write_field("mod_pll_update", 0)
         self.write_field("delay_fb_coeff_1", coeff)
         return self.freq_hz
 
@@ -997,13 +1035,15 @@ class OPT8241:
         """Program the frame time to at most ``max_us``: ``sub_frame_cnt_max`` (default
         :attr:`sub_frames`) and ``pix_cnt_max = ⌊max_us · 48 / (quad_cnt_max ·
         sub_frame_cnt_max)⌋`` as ``ToFCamera::_setFrameRate`` computes it, then the
-        ``pix_cnt_max_set_failed`` flag is read back (as there) and the integration duty
-        cycle re-checked; returns the frame time (µs).
+        ``pix_cnt_max_set_failed`` flag is read back and ``intg_duty_cycle`` written again
+        with the value it holds (:meth:`_rewrite_duty_cycle`), as ``_setFrameRate`` does after
+        every ``pix_cnt_max`` write; returns the frame time (µs).
 
         Raises:
             ValueError: ``max_us`` needs ``pix_cnt_max`` below the board's limit 50000
                 (``TintinCDKCamera::_init``) or beyond its 22 bits.
-            HardwareError: the camera set ``pix_cnt_max_set_failed``.
+            HardwareError: the camera set ``pix_cnt_max_set_failed`` or
+                ``intg_duty_cycle_set_failed``.
         """
         sub = self.sub_frames if sub_frames is None else sub_frames
         if isinstance(sub, bool) or sub not in SUB_FRAME_COUNTS:
@@ -1024,8 +1064,28 @@ class OPT8241:
         self.write_field("sub_frame_cnt_max", sub)
         self.write_field("pix_cnt_max", pix)
         self._check_flag("pix_cnt_max_set_failed", f"pix_cnt_max = {pix}")
-        self._check_flag("intg_duty_cycle_set_failed", f"pix_cnt_max = {pix}")
+        self._rewrite_duty_cycle(f"pix_cnt_max = {pix}")
         return self.frame_time_us
+
+    def _rewrite_duty_cycle(self, what: str) -> None:
+        """Write ``intg_duty_cycle`` again with the value it holds, after a change of the
+        frame's cycle count (``pix_cnt_max``, ``quad_cnt_max``), as ``ToFCamera::_setFrameRate``
+        does (ToFCamera.cpp: it gets ``INTG_TIME`` and sets it back after setting
+        ``PIX_CNT_MAX``; ``TintinUnambiguousRangeParameter::set`` calls it after setting
+        ``QUAD_CNT_MAX``). ``INTG_TIME`` is ``intg_duty_cycle`` as a rounded percentage and
+        back (``IntegrationTimeParameter::get``/``set``), which returns every duty cycle 0-63
+        unchanged, so the value read is the value written. As there,
+        ``intg_duty_cycle_set_failed`` is read before (``IntegrationTimeParameter::get`` fails
+        on it) and after the write.
+
+        Raises:
+            HardwareError: ``intg_duty_cycle_set_failed`` set, naming ``what`` changed.
+        """
+        self._check_flag("intg_duty_cycle_set_failed", what)
+        duty = self.read_field("intg_duty_cycle")
+        self.write_field("intg_duty_cycle", duty)
+        self._check_flag("intg_duty_cycle_set_failed",
+                         f"{what} and intg_duty_cycle = {duty} written again")
 
     @property
     def integration_time_us(self) -> float:
@@ -1221,6 +1281,9 @@ class OPT8241:
         self.write_field("tg_dis", 1)
         if self.read_field("quad_cnt_max") != self.quads:
             self.write_field("quad_cnt_max", self.quads)
+            # a new cycle count per frame: the duty cycle written again, as
+            # TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate
+            self._rewrite_duty_cycle(f"quad_cnt_max = {self.quads}")
         self.set_modulation_frequency(self.mod_freq_hz)  # PLL 1 and PLL 2, delay coefficient
         self.write_field("dealias_en", 0)
         self.write_field("dealias_16bit_op_enable", 0)
@@ -1242,18 +1305,44 @@ class OPT8241:
 
     def start(self) -> None:
         """Check the precondition, configure (unless :meth:`configure` ran since the last
-        stop), reset the bulk endpoint and start the reader thread (``USBBulkStreamer``:
-        ``resetBulkEndPoint`` then a capture thread), then ``tg_dis = 0`` (OPT9221.dml: '0'
-        normal operation, '1' TFC stops all processing)."""
+        stop), clear ``op_overflow`` (:meth:`clear_output_overflow`), reset the bulk endpoint
+        and start the reader thread (``USBBulkStreamer``: ``resetBulkEndPoint`` then a capture
+        thread), then ``tg_dis = 0`` (OPT9221.dml: '0' normal operation, '1' TFC stops all
+        processing)."""
         self.check_initialised()
         if not getattr(self, "_configured", False):
             self.configure()
         self._freq = self.freq_hz
         self._next_id = 0
+        self.clear_output_overflow()
         self._reset_endpoint()
         self._start_reader()
         self.write_field("tg_dis", 0)
         self._configured = False
+
+    def clear_output_overflow(self) -> None:
+        """``op_overflow = 0`` (OPT9221.dml id 6378: "Write a '0' to reset the state")."""
+        self.write_field("op_overflow", 0)
+
+    def check_output_overflow(self) -> None:
+        """Read ``op_overflow`` (OPT9221.dml id 6378: "Indicates that the output data rate is
+        too low"), the camera's own report that its output did not keep up since it was last
+        cleared; ``acquire`` calls this after each pattern sequence. Set, it is cleared (so
+        that the next sequence starts clean), counted in :attr:`stats` and raised.
+
+        Raises:
+            FrameError: ``op_overflow`` was set: frames of the sequence may be incomplete or
+                lost; a transient fault, so ``acquire`` shows the sequence again.
+        """
+        if not self.check_overflow or not self.read_field("op_overflow"):
+            return
+        self.clear_output_overflow()
+        self.stats["op_overflow"] += 1
+        raise FrameError(
+            "the camera set op_overflow (OPT9221.dml: the output data rate is too low) during "
+            f"the sequence: its output could not keep up with {self.mode!r} frames of "
+            f"{self.width}x{self.height} at this trigger spacing (lengthen the pattern spacing, "
+            "choose a smaller ROI or fewer bytes per pixel)", self.pattern_index)
 
     def stop(self) -> None:
         """``tg_dis = 1`` (streaming halts), then the reader thread is stopped."""
@@ -1280,9 +1369,32 @@ class OPT8241:
         return self.dev.read(EP_FRAMES, self.frame_size + BULK_EXTRA,
                              max(1, int(timeout_s * 1000)))
 
+    #: Bulk-read timeout of the reader thread in master mode (free-running frames): TI's
+    #: ``USBBulkStreamerPrivate`` reads with 200 ms (Voxel/USBBulkStreamer.cpp).
+    MASTER_READ_TIMEOUT_S = 0.2
+    #: Bulk-read timeout in slave mode. There the camera idles until the projector triggers
+    #: it, so reads keep timing out between sequences, and a timed-out read loses what it
+    #: had received (pyusb raises instead of returning the partial transfer; TI's
+    #: ``USBIO::bulkTransfer`` keeps it but ``USBBulkStreamer`` then drops a transfer of the
+    #: wrong size): a frame that starts less than its transfer time before a timeout is lost
+    #: and its tail arrives as a short transfer (a retried sequence). The chance per sequence
+    #: is about the transfer time over this timeout: a 320×240 quad frame (N = 4, 614 400
+    #: bytes, 32 ms at 80 % of 24 MHz) straddles a 200 ms timeout 16 % of the time, a 1 s one
+    #: 3 %. A longer wait delays :meth:`stop` (the reader notices the halt only when its read
+    #: returns; pyusb cannot cancel a synchronous read), once per run; 1 s keeps that short.
+    SLAVE_READ_TIMEOUT_S = 1.0
+
+    @property
+    def read_timeout_s(self) -> float:
+        """The reader thread's bulk-read timeout: :attr:`SLAVE_READ_TIMEOUT_S` in slave mode,
+        else TI's :attr:`MASTER_READ_TIMEOUT_S`."""
+        return self.SLAVE_READ_TIMEOUT_S if self.slave else self.MASTER_READ_TIMEOUT_S
+
     # The reader thread: reads transfers continuously into a bounded queue (USBBulkStreamer:
-    # a capture thread, 200 ms transfer timeout, oldest buffer dropped when the consumer is
-    # slow). Items: (raw bytes, host time) or (exception, None); a drop puts a marker first.
+    # a capture thread, oldest buffer dropped when the consumer is slow; read timeout
+    # read_timeout_s). Items: (raw bytes, host time) or (exception, None); a drop puts a
+    # marker first. It checks the halt event after every read, so it ends within one read
+    # timeout of _stop_reader.
     def _start_reader(self) -> None:
         import threading
 
@@ -1297,10 +1409,11 @@ class OPT8241:
 
     def _read_loop(self) -> None:
         usb_timeout = usb_exceptions()[1]  # pyusb's, or the simulator's without pyusb
+        timeout = self.read_timeout_s
 
         while not self._halt.is_set():
             try:
-                item = (bytes(self._read(0.2)), float(self.clock()))
+                item = (bytes(self._read(timeout)), float(self.clock()))
             except usb_timeout:
                 continue
             except Exception as exc:  # noqa: BLE001 - handed to grab() to translate
@@ -1329,8 +1442,8 @@ class OPT8241:
         t = getattr(self, "_reader", None)
         if t is not None:
             self._halt.set()
-            if t is not threading_current():
-                t.join(timeout=5.0)
+            if t is not threading_current():  # it ends when its read returns
+                t.join(timeout=max(5.0, 2 * self.read_timeout_s))
         self._reader = None
 
     def _next_raw(self, timeout: float):

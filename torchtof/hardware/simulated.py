@@ -79,6 +79,9 @@ class Faults:
         split: frames delivered as two bulk transfers (each of the wrong size).
         stall: frames whose bulk read fails with a stalled endpoint (EPIPE); the frame is lost.
         ctrl_fail: control-transfer ordinals (from 0) that fail once with EPIPE.
+        op_overflow: frames during whose output the OPT9221 sets ``op_overflow`` (OPT9221.dml
+            id 6378: the output data rate is too low); the frame itself is delivered whole,
+            so only the flag shows it.
         late_reply: ``{command: {occurrence}}``: the LightCrafter answers too late: the first
             read times out and the reply is the next one read (stale, its sequence number the
             old command's).
@@ -118,10 +121,11 @@ class Faults:
     hang_s: float = 60.0
     no_seq_echo: bool = False
     empty_reply: dict[str, set[int]] = field(default_factory=dict)
+    op_overflow: set[int] = field(default_factory=set)
 
     #: fields holding frame or control-transfer ordinals (lists of non-negative ints)
     _ORDINALS = ("frame_timeout", "drop", "duplicate", "extra", "corrupt", "split", "stall",
-                 "ctrl_fail")
+                 "ctrl_fail", "op_overflow")
     #: fields ``{command: [occurrence, ...]}``, commands of :data:`~.dlpc350.COMMANDS`
     _COMMANDS = ("nack", "reply_timeout", "late_reply", "empty_reply")
     #: fields holding one ordinal or ``None``
@@ -539,8 +543,10 @@ class FakeOPT8241(_Gone):
     (``quad_cnt_max`` ∉ {4, 6}, ``sub_frame_cnt_max`` ∉ {1, 2, 4, 8}, ``pixel_data_size`` ∉
     {2, 4}) and keeps its read-only flags; sets ``pix_cnt_max_set_failed`` below
     ``pix_cnt_max`` 50000 and ``intg_duty_cycle_set_failed`` above duty cycle 20 (simulator
-    choices: the board's limits, TintinCDKCamera.cpp); takes one frame time per frame and
-    ignores a trigger that comes while a frame is still being taken (a missed trigger: no
+    choices: the board's limits, TintinCDKCamera.cpp); keeps ``op_overflow`` (OPT9221.dml id
+    6378, set by :attr:`Faults.op_overflow`) until a 0 is written to it ("Write a '0' to reset
+    the state"; a written 1 leaves it as it was: a simulator choice); takes one frame time per
+    frame and ignores a trigger that comes while a frame is still being taken (a missed trigger: no
     frame, no number); reads out the region the ROI registers select once they are written
     (:meth:`crop`); and, with ``bench.realtime``, delivers each frame only once its frame
     time has passed on the wall clock and holds at most ``bench.fifo_frames`` undelivered
@@ -662,6 +668,9 @@ class FakeOPT8241(_Gone):
                 f = opt.REGISTERS[name]
                 if f.address == address:
                     value = f.put(value, f.get(old))
+            f = opt.REGISTERS["op_overflow"]
+            if f.address == address:  # only a written 0 resets it (OPT9221.dml id 6378)
+                value = f.put(value, f.get(old) & f.get(value))
             self.regs[address] = value
             self.writes.append((address, value))
             if address in self._ROI_ADDRESSES:
@@ -792,6 +801,8 @@ class FakeOPT8241(_Gone):
         if ordinal in f.frame_timeout:  # a missed trigger: no frame, no number
             self.missed_triggers += 1
             return
+        if ordinal in f.op_overflow:  # the output fell behind (OPT9221.dml id 6378)
+            self._set("op_overflow", 1)
         if f.hang_at_frame is not None and ordinal == f.hang_at_frame:
             if f.hang_file:
                 Path(f.hang_file).write_text(str(ordinal))
