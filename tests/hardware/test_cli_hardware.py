@@ -340,12 +340,15 @@ def test_real_bench_sets_the_whole_sensor_without_camera_roi(monkeypatch):
     monkeypatch.setattr(op.OPT8241, "open", classmethod(lambda cls, **kw: opened.append(kw)
                                                         or Cam()))
     monkeypatch.setattr("torchtof.hardware.video.WindowVideoPort", lambda display: None)
-    for roi, want in ((None, (0, 0, 240, 320)), ([80, 96, 65, 128], (80, 96, 65, 128))):
+    for (roi, want), off in zip(((None, (0, 0, 240, 320)), ([80, 96, 65, 128], (80, 96, 65, 128))),
+                                (False, True)):
         args = type("A", (), {"camera_mode": "quad", "quads": 4, "simulated": False,
-                              "camera_roi": roi, "display": 1, "mod_freq_mhz": 30.0})()
+                              "camera_roi": roi, "display": 1, "mod_freq_mhz": 30.0,
+                              "no_overflow_check": off})()
         hcli._open_devices(args, {})
         assert seen[-1] == want
         assert opened[-1]["mod_freq_hz"] == 30e6  # --mod-freq-mhz reaches the camera
+        assert opened[-1]["check_overflow"] is (not off)  # so does --no-overflow-check
 
 
 def test_reconstruct_with_a_trained_weights_file(uninterrupted, tmp_path, capsys):

@@ -235,3 +235,19 @@ def test_the_fault_plan_accepts_op_overflow():
     with pytest.raises(ValueError, match="op_overflow"):
         Faults.from_dict({"op_overflow": [-1]})
 
+
+
+def test_acquire_no_overflow_check_records_what_the_flag_would_stop(tmp_path, capsys):
+    """An op_overflow set on every frame stops the run; with --no-overflow-check the same run
+    completes (the frames themselves are whole)."""
+    pytest.importorskip("zarr", minversion="3")
+    import json
+
+    from torchtof.cli import main
+
+    args = ["acquire", "--simulated", "--scene", "sky", "--sr", "0.25", "--n", "8",
+            "--roi-px", "16", "--noise-free", "--no-progress",
+            "--sim-faults", json.dumps({"op_overflow": list(range(400))})]
+    assert main([*args, "-o", str(tmp_path / "a.zarr")]) != 0
+    assert "op_overflow" in capsys.readouterr().err
+    assert main([*args, "--no-overflow-check", "-o", str(tmp_path / "b.zarr")]) == 0

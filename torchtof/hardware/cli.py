@@ -47,7 +47,8 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
     (USB 0451:6401) with a :class:`~torchtof.hardware.video.WindowVideoPort` on display
     ``--display``, OPT8241 (USB 0451:9105). Everything after this is the same code."""
     cam_kw = {"mode": args.camera_mode, "quads": args.quads,
-              "mod_freq_hz": args.mod_freq_mhz * 1e6}
+              "mod_freq_hz": args.mod_freq_mhz * 1e6,
+              "check_overflow": not args.no_overflow_check}
     if args.simulated:
         from .simulated import Faults, SimulatedBench
 
@@ -402,6 +403,10 @@ def add_parsers(sub) -> None:
                    "the board is 39-60 MHz (2.5-3.8 m): above 30 MHz the range is shorter "
                    "than the camera rules' 5 m and is refused (docs/hardware.md, 'Modulation "
                    "frequency')")
+    a.add_argument("--no-overflow-check", action="store_true",
+                   help="do not read the OPT9221's op_overflow flag after each sequence (a set "
+                   "flag discards and repeats the sequence; that it fires only on an output "
+                   "overrun is unconfirmed on a device: turn it off if it stops every run)")
     a.add_argument("--block", type=positive_int, default=None,
                    help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
     a.add_argument("--auto", action="store_true",
