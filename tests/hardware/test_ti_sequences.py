@@ -104,8 +104,10 @@ def test_a_duty_cycle_refused_after_the_new_frame_time_raises():
 
 def test_a_quad_count_change_is_followed_by_the_duty_cycle():
     """TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate, which
-    writes INTG_DUTY_CYCLE again: configure does the same after changing quad_cnt_max (6 -> 4),
-    before any other write."""
+    writes INTG_DUTY_CYCLE again: configure does the same after changing quad_cnt_max (6 -> 4).
+    TI writes PIX_CNT_MAX in between; torchtof rewrites the duty cycle at once and, given a
+    period, again after pix_cnt_max (the frame-time test above), so this pins only that a
+    quad-count change is followed by the rewrite."""
     dev = Recorder({**QVGA, QUAD_CNT_MAX: 0x16, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 100000})
     opt.OPT8241(dev, mode="quad", quads=4).configure()
     w = dev.writes()

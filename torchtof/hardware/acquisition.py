@@ -662,7 +662,10 @@ class _Sequences:
                 self.camera.flush()
                 clear = getattr(self.camera, "clear_output_overflow", None)
                 if clear is not None:  # an overflow of the failed attempt: not the next one's
-                    clear()
+                    try:
+                        clear()
+                    except TransientError:  # left set, it costs the next attempt one retry
+                        pass
 
 
 def _same_bytes(a, b) -> bool:

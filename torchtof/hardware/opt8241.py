@@ -1282,7 +1282,10 @@ class OPT8241:
         if self.read_field("quad_cnt_max") != self.quads:
             self.write_field("quad_cnt_max", self.quads)
             # a new cycle count per frame: the duty cycle written again, as
-            # TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate
+            # TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate.
+            # TI's order is QUAD_CNT_MAX, PIX_CNT_MAX, INTG_TIME; here the duty cycle follows
+            # at once (pix_cnt_max still the old one) and, with a period, set_frame_time below
+            # writes pix_cnt_max and the duty cycle again in TI's order
             self._rewrite_duty_cycle(f"quad_cnt_max = {self.quads}")
         self.set_modulation_frequency(self.mod_freq_hz)  # PLL 1 and PLL 2, delay coefficient
         self.write_field("dealias_en", 0)
@@ -1342,7 +1345,9 @@ class OPT8241:
             "the camera set op_overflow (OPT9221.dml: the output data rate is too low) during "
             f"the sequence: its output could not keep up with {self.mode!r} frames of "
             f"{self.width}x{self.height} at this trigger spacing (lengthen the pattern spacing, "
-            "choose a smaller ROI or fewer bytes per pixel)", self.pattern_index)
+            "choose a smaller ROI or fewer bytes per pixel; if the flag fires on a healthy run, "
+            "acquire --no-overflow-check / OPT8241(check_overflow=False) turns the check off)",
+            self.pattern_index)
 
     def stop(self) -> None:
         """``tg_dis = 1`` (streaming halts), then the reader thread is stopped."""
