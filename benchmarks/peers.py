@@ -696,6 +696,9 @@ def parse(argv=None):
                    help="pass cv_iter to auto (a study, as --auto-tv-solver)")
     p.add_argument("--auto-fit-iter", type=int, default=None,
                    help="pass fit_iter to auto (a study, as --auto-tv-solver)")
+    p.add_argument("--sb-rhos", type=float, nargs="+", default=None, metavar="RHO",
+                   help="pylops SB-TV's split penalties instead of SB_RHOS (a wider grid for the "
+                        "cells whose best point lay on the default grid's edge)")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
     p.add_argument("--report", type=Path, nargs="+", default=None,
                    help="print the markdown tables of these JSONs (merged) and write the PNG, "
@@ -719,6 +722,9 @@ def main(argv=None) -> int:
             a.out.write_text(json.dumps(data, indent=1))
         return 0
     torch.set_num_threads(1)
+    if a.sb_rhos is not None:
+        global SB_RHOS
+        SB_RHOS = tuple(sorted(a.sb_rhos))
     if a.auto_tv_solver is not None:
         AUTO_OPTIONS["tv_solver"] = a.auto_tv_solver
     if a.auto_cv_iter is not None:
