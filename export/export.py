@@ -24,7 +24,7 @@ from pathlib import Path
 import onnx
 
 from torchtof.apps.onnx_models import MODELS, export_model
-from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, check
+from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, check, model_opset
 
 
 def readme_table() -> str:
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         model = onnx.load(path)
         # as stored in the file: an opset-17 export the dynamo exporter cannot down-convert
         # is written by the tracer (torchtof.onnx.export)
-        entry["opset"] = next(o.version for o in model.opset_import if o.domain in ("", "ai.onnx"))
+        entry["opset"] = model_opset(model)
         meta = {p.key: p.value for p in model.metadata_props}
         entry["exporter"] = meta.get(EXPORTER_KEY, entry["exporter"])
         graph = model.graph

@@ -65,6 +65,7 @@ __all__ = [
     "EXPORTERS",
     "EXPORTER_KEY",
     "EXPORT_BATCH",
+    "model_opset",
     "DepthAmplitude",
     "OperatorMethod",
     "default_exporter",
@@ -322,7 +323,8 @@ def export(
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
             args = (module, inputs, path, opset, in_names, out_names, dynamic_batch)
             _run_exporter(exporter, *args)
-            got = _default_opset(path)
+            model = onnx.load(path)
+            got = model_opset(model)
             if got != opset and exporter == "dynamo":
                 # torch's dynamo exporter writes its native opset 18 and down-converts; where
                 # the conversion fails it only logs and keeps 18: the tracer writes 17 itself
@@ -336,12 +338,12 @@ def export(
                         f"the dynamo exporter wrote opset {got} (its down-conversion failed) "
                         f"and the torchscript exporter failed ({reason}); export at opset "
                         f"{DEFAULT_OPSET}") from e
-                exporter, got = "torchscript", _default_opset(path)
+                exporter, model = "torchscript", onnx.load(path)
+                got = model_opset(model)
             if got != opset:
                 path.unlink(missing_ok=True)
                 raise ValueError(f"{func}: expected an opset this model exports at, got "
                                  f"opset={opset}: the {exporter} exporter wrote opset {got}")
-    model = onnx.load(path)
     if exporter == "torchscript":  # the tracer names the non-batch output axes symbolically
         _fix_output_dims(model, outs, dynamic_batch)
     model.metadata_props.add(key=EXPORTER_KEY, value=exporter)
@@ -384,9 +386,10 @@ def _run_exporter(exporter: str, module: nn.Module, inputs: tuple[torch.Tensor, 
         )
 
 
-def _default_opset(path: Path) -> int | None:
-    """The version of the default (``ai.onnx``) domain the file at ``path`` imports."""
-    for o in onnx.load(path, load_external_data=False).opset_import:
+def model_opset(model) -> int | None:
+    """The version of the default (``ai.onnx``) domain an ``onnx.ModelProto`` imports (its
+    opset; ``None`` if it imports none)."""
+    for o in model.opset_import:
         if o.domain in ("", "ai.onnx"):
             return int(o.version)
     return None

@@ -11,13 +11,14 @@ import torch
 
 import torchtof.recon as recon
 from torchtof.operators import Hadamard
+from torchtof.recon.base import pow2_scale
 from torchtof.recon.bp import BasisPursuit, basis_pursuit
 from torchtof.recon.depth import JointTV, joint_tv
 from torchtof.recon.dip import DIP, dip, fit_dip
 from torchtof.recon.learned import Learned, learned
 from torchtof.recon.pinv import PseudoInverse, pseudo_inverse
 from torchtof.recon.tgv import tgv
-from torchtof.recon.tval3 import pow2_scale, tval3
+from torchtof.recon.tval3 import tval3
 from torchtof.recon.unrolled import UnrolledTVAL3, unrolled_tval3
 
 auto = importlib.import_module("torchtof.recon.auto").auto

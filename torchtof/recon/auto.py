@@ -225,7 +225,7 @@ from .._checks import check_bool, check_int, check_positive
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
-from .base import relative_residual
+from .base import pow2_scale, relative_residual
 from .gauss import markov_covariance
 from .learned import learned as learned_recon
 from .tgv import TGV_STOP_REASONS, tgv
@@ -237,7 +237,6 @@ from .tval3 import (
     check_buckets,
     default_split,
     holdout_split,
-    pow2_scale,
     tval3,
 )
 
@@ -854,7 +853,7 @@ def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv
 
 def _unit(ys: torch.Tensor) -> torch.Tensor:
     """``(R, 1, 1)`` exact power-of-two factors for the buckets ``ys (R, 1, M)``
-    (:func:`~torchtof.recon.tval3.pow2_scale`): squared errors of ``(A x − y)·unit`` neither
+    (:func:`~torchtof.recon.base.pow2_scale`): squared errors of ``(A x − y)·unit`` neither
     overflow nor underflow, so the scores, the discrepancy bound and the stacking weight are
     scale-free (``auto(c·y) = c·auto(y)`` up to rounding) for any ``y`` the dtype holds, and
     the factor is 1 (nothing changes) at ordinary scales."""
@@ -863,7 +862,7 @@ def _unit(ys: torch.Tensor) -> torch.Tensor:
 
 def _rms_gap(d: torch.Tensor, width: float, dims: tuple) -> torch.Tensor:
     """``RMS(d) / width`` over ``dims`` without over/underflow of ``d²``: ``d`` and ``width``
-    are first multiplied by the power of two of :func:`~torchtof.recon.tval3.pow2_scale` for
+    are first multiplied by the power of two of :func:`~torchtof.recon.base.pow2_scale` for
     ``width`` (exact; 1 at ordinary scales)."""
     u = float(pow2_scale(torch.tensor([width], dtype=d.dtype)))
     return (d * u).pow(2).mean(dim=dims).sqrt() / (width * u)

@@ -38,10 +38,9 @@ from .._checks import (
 )
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from .base import ReconResult, relative_residual, renamed_option
+from .base import ReconResult, pow2_scale, relative_residual, renamed_option
 from .noise import tail_noise_sigma
 from .tv import tv_norm
-from .tval3 import pow2_scale
 from .unet import UNet
 
 __all__ = ["DIP", "DIPResult", "auto_zeta", "default_unet", "dip", "dip_input", "fit_dip"]
@@ -94,7 +93,7 @@ def _swap_legacy(y, A, func: str):
 
 def _zscore(v: torch.Tensor, rescale: bool = False) -> torch.Tensor:
     """Standardise over the last axis (GIDC's normalisation of buckets). ``rescale``: first
-    multiply each slice by the power of two of :func:`~torchtof.recon.tval3.pow2_scale`
+    multiply each slice by the power of two of :func:`~torchtof.recon.base.pow2_scale`
     (exact, and 1 at ordinary scales; the result is scale-free anyway), so that the variance
     of data at any scale the dtype holds neither overflows nor underflows."""
     if rescale:

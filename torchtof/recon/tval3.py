@@ -42,7 +42,6 @@ from .._checks import (
 )
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from .base import pow2_scale as pow2_scale  # re-exported: dip, auto and tests import it here
 from .base import relative_residual
 from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (

@@ -394,8 +394,7 @@ class UnrolledTVAL3(nn.Module):
                     stacklevel=2,
                 )
         elif pretrained is not False:
-            _read_weights_file(pretrained, func, "pretrained")  # missing/unreadable: names it
-            self.load_weights(pretrained)
+            self._load(pretrained, func, "pretrained")  # missing/unreadable: names it
 
     def _describe(self) -> str:
         A = self.A
@@ -425,8 +424,13 @@ class UnrolledTVAL3(nn.Module):
             ValueError: if the file is missing or unreadable, or its metadata (operator, n, m,
                 order, K, TV norm) or its parameter shapes do not match this network.
         """
+        self._load(path, "UnrolledTVAL3.load_weights", "path")
+
+    def _load(self, path: str | os.PathLike, read_func: str, name: str) -> None:
+        """:meth:`load_weights`; a missing or unreadable file is an error of ``read_func``'s
+        argument ``name`` (the constructor's ``pretrained``)."""
         func = "UnrolledTVAL3.load_weights"
-        blob = _read_weights_file(path, func, "path")
+        blob = _read_weights_file(path, read_func, name)
         meta, state = blob.get("meta", {}), blob.get("state_dict", {})
         meta = meta if isinstance(meta, dict) else {}
         state = state if isinstance(state, dict) and all(
