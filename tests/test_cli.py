@@ -528,6 +528,9 @@ def test_demo_defaults_and_the_auto_maximum_sr(monkeypatch):
     (["operators", "--plot"], "argument --plot: used by bench recon only"),
     (["recon", "--models", "g2"], "argument --models: used by bench onnx only"),
     (["stability", "--seeds", "0-2"], "argument --seeds: used by bench adaptive only"),
+    # an option given at its default value is still one the benchmark would ignore
+    (["onnx", "--n", "32"], "argument --n: used by bench operators only"),
+    (["recon", "--seed", "0"], "argument --seed: used by bench adaptive only"),
 ])
 def test_bench_refuses_options_of_another_benchmark(argv, msg, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -591,12 +594,17 @@ def test_bench_seed_with_seeds_is_a_usage_error(capsys):
         main(["bench", "adaptive", "--seed", "7", "--seeds", "0-1"])
     assert exc.value.code == 2
     assert "argument --seed: not used with --seeds" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # the default seed, written out, too
+        main(["bench", "adaptive", "--seed", "0", "--seeds", "0-1"])
+    assert "argument --seed: not used with --seeds" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("opts, flag", [
     (["--steps", "5"], "--steps"), (["--lr", "0.1"], "--lr"), (["--resume"], "--resume"),
     (["--no-calibrate"], "--no-calibrate"), (["--max-minutes", "1"], "--max-minutes"),
-    (["--init", "shipped"], "--init"), (["--workers", "1"], "--workers")])
+    (["--init", "shipped"], "--init"), (["--workers", "1"], "--workers"),
+    # at their default values too (they would still be ignored)
+    (["--steps", "8000"], "--steps"), (["--lr=0.002"], "--lr")])
 def test_calibrate_only_refuses_a_training_option(opts, flag, tmp_path, capsys):
     """A training option beside --calibrate-only would be ignored: a one-line usage error
     that names it, before the run is read (no checkpoint here)."""

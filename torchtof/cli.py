@@ -424,7 +424,7 @@ def _check_train(args: argparse.Namespace) -> None:
             raise ValueError(f"argument --families: {exc}") from None
     if args.calibrate_only:  # a training option would be silently ignored
         for dest in TRAIN_ONLY_OPTIONS:
-            if getattr(args, dest) != args.parser.get_default(dest):
+            if dest in args.given:
                 flag = "--" + dest.replace("_", "-")
                 raise ValueError(f"argument {flag}: a training option, not used with "
                                  "--calibrate-only (which calibrates a finished run)")
@@ -482,7 +482,7 @@ BENCH_OPTIONS: dict[str, tuple[str, ...]] = {
 
 def _check_bench(args: argparse.Namespace) -> None:
     for dest, which in BENCH_OPTIONS.items():  # an option the benchmark would ignore
-        if args.which not in which and getattr(args, dest) != args.parser.get_default(dest):
+        if args.which not in which and dest in args.given:
             flag = "--" + dest.replace("_", "-")
             raise ValueError(f"argument {flag}: used by bench {' / '.join(which)} only, "
                              f"not by bench {args.which}")
@@ -490,7 +490,7 @@ def _check_bench(args: argparse.Namespace) -> None:
         for n in args.n or (32,):
             check_patterns(n, args.sr)
     if args.which == "adaptive" and args.seeds is not None:
-        if args.seed != args.parser.get_default("seed"):  # --seeds replaces it
+        if "seed" in args.given:  # --seeds replaces it
             raise ValueError("argument --seed: not used with --seeds (give the seeds there)")
         from .apps.bench.adaptive import parse_seeds
 
@@ -503,6 +503,30 @@ def _check_bench(args: argparse.Namespace) -> None:
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
+
+
+class _Unset(list):
+    """The value every option starts from in ``_given_options`` (a list, so that ``append``
+    actions can copy and extend it)."""
+
+
+def _given_options(sub: argparse.ArgumentParser, argv: list[str]) -> set[str]:
+    """The destinations of the options written after the command in ``argv``, whatever their
+    value: an option given at its default value (``--steps 8000``) counts as given. ``argv``
+    has already parsed, so the second parse of its command's tokens cannot fail."""
+    i = _command_index(argv)
+    ns = argparse.Namespace(**{a.dest: _Unset() for a in sub._actions
+                               if a.dest != argparse.SUPPRESS})
+    sub.parse_known_args(argv[i + 1:], namespace=ns)
+    return {k for k, v in vars(ns).items() if not (isinstance(v, _Unset) and not v)}
+
+
+def _command_index(argv: list[str]) -> int:
+    """Index of the command in ``argv`` (after the global options ``--threads N``, ``--debug``)."""
+    i = 0
+    while i < len(argv) and argv[i].startswith("-"):
+        i += 2 if argv[i] == "--threads" else 1
+    return i
 
 
 def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> None:
@@ -557,6 +581,7 @@ def main(argv: list[str] | None = None) -> int:
     _check_global_options(parser, given)
     args = parser.parse_args(argv)
     _check_destinations(args)
+    args.given = _given_options(args.parser, given)
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work
         try:

@@ -223,6 +223,7 @@ def test_experiment_data_refuses_the_gate_without_depth_buckets():
     (["--scene", "steps"], "--scene"), (["--roi-px", "64"], "--roi-px"),
     (["--scattering"], "--scattering"), (["--noise-free"], "--noise-free"),
     (["--seed", "3"], "--seed"),
+    (["--seed", "0"], "--seed"), (["--scene", "sky"], "--scene"),  # at their default values
 ])
 def test_simulated_only_options_on_the_real_bench_are_usage_errors(argv, flag, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:

@@ -48,38 +48,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch-size", type=positive_int, default=12, help="global batch" + d)
     p.add_argument("--lr", type=positive_float, default=2e-3,
                    help="peak Adam learning rate" + d)
-    p.add_argument("--seed", type=nonneg_int, default=0, action=_Given,
+    p.add_argument("--seed", type=nonneg_int, default=0,
                    help="seed of every draw" + d)
-    p.add_argument("--sizes", type=_size, nargs="+", default=[32, 64], action=_Given,
+    p.add_argument("--sizes", type=_size, nargs="+", default=[32, 64],
                    help=f"image sides, powers of two in [{MIN_SIZE}, 256]" + d)
-    p.add_argument("--p-large", type=_probability, default=0.3, action=_Given,
+    p.add_argument("--p-large", type=_probability, default=0.3,
                    help="probability of the largest size, in [0, 1]" + d)
     p.add_argument("--sr-range", type=sampling_rate, nargs=2, default=[0.0625, 0.5],
-                   metavar=("LO", "HI"), action=_Given,
+                   metavar=("LO", "HI"),
                    help="range of the sampling rate, in (0, 1]" + d)
     p.add_argument("--orders", nargs="+", default=list(ORDERS), choices=list(ORDERS),
-                   metavar="ORDER", action=_Given,
+                   metavar="ORDER",
                    help=f"Hadamard orders, from {', '.join(ORDERS)}" + d)
-    p.add_argument("--n-layers", type=positive_int, default=DEFAULT_N_LAYERS, action=_Given,
+    p.add_argument("--n-layers", type=positive_int, default=DEFAULT_N_LAYERS,
                    help="unrolled steps K" + d)
-    p.add_argument("--width", type=positive_int, default=DEFAULT_WIDTH, action=_Given,
+    p.add_argument("--width", type=positive_int, default=DEFAULT_WIDTH,
                    help="channels of the prior" + d)
-    p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE, action=_Given,
+    p.add_argument("--shuffle", type=positive_int, default=DEFAULT_SHUFFLE,
                    help="pixel-unshuffle factor of the prior" + d)
-    p.add_argument("--scales", type=_scales, default=DEFAULT_SCALES, action=_Given,
+    p.add_argument("--scales", type=_scales, default=DEFAULT_SCALES,
                    help="resolutions of the prior's U-Net, >= 2 (image sides divisible by "
                         "2^(SCALES-1)*SHUFFLE)" + d)
     p.add_argument("--x0", choices=list(X0_CHOICES), default=None,
                    help="the network's starting estimate: adjoint (A^T b) or markov (the "
                         "Gaussian-Markov completion) (default: adjoint; --calibrate-only: the "
                         "run's, from OUT/recipe.json)")
-    p.add_argument("--noise-ref", type=nonneg_int, default=NOISE_REF, action=_Given,
+    p.add_argument("--noise-ref", type=nonneg_int, default=NOISE_REF,
                    help="scale the top Gaussian noise level by max(1, NOISE_REF/n); 0: the same "
                         "levels at every size" + d)
-    p.add_argument("--p-noise-ref", type=_probability, default=P_NOISE_REF, action=_Given,
+    p.add_argument("--p-noise-ref", type=_probability, default=P_NOISE_REF,
                    help="with --noise-ref, the probability that a noisy sample's level is drawn "
                         "from the scaled levels (else from the unscaled ones)" + d)
-    p.add_argument("--p-clean", type=_probability, default=0.3, action=_Given,
+    p.add_argument("--p-clean", type=_probability, default=0.3,
                    help="probability of a noise-free training sample" + d)
     p.add_argument("--families", type=_family, nargs="+", default=None, metavar="NAME=P",
                    help="probabilities of the scene families, summing to 1, from "
@@ -125,15 +125,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 #: Smallest image side ``train_learned`` trains on.
 MIN_SIZE = 8
-
-
-class _Given(argparse.Action):
-    """``store``, and remember that the option was given (``args.given_options``): what
-    ``--calibrate-only`` takes from the run unless it is given."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        setattr(namespace, self.dest, values)
-        namespace.given_options = {*getattr(namespace, "given_options", ()), self.dest}
 
 
 def _size(text: str) -> int:
@@ -278,7 +269,7 @@ def _calibrate_only(args: argparse.Namespace, command: str | None) -> int:
     state = torch.load(ckpt, weights_only=False, map_location="cpu")
     recipe_path = out / "recipe.json"
     recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
-    given = getattr(args, "given_options", set())
+    given = args.given  # the options on the command line (torchtof.cli)
     opts = {}
     for key, run in _run_options(recipe, state).items():
         value = _option_value(key, getattr(args, key))

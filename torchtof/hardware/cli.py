@@ -219,7 +219,7 @@ def _check_acquire(args: argparse.Namespace) -> None:
     """Cross-option checks of ``acquire`` (each option alone is checked by its type)."""
     if not args.simulated:  # the real bench records what is in front of it
         for dest in SIMULATED_ONLY:
-            if getattr(args, dest) != args.parser.get_default(dest):
+            if dest in args.given:  # even at its default value
                 flag = "--" + dest.replace("_", "-")
                 raise ValueError(f"argument {flag}: used with --simulated only (the real bench "
                                  "records the scene in front of it, with its own noise)")
