@@ -102,17 +102,44 @@ def test_a_duty_cycle_refused_after_the_new_frame_time_raises():
         opt.OPT8241(dev).set_frame_time(9500)
 
 
-def test_a_quad_count_change_is_followed_by_the_duty_cycle():
-    """TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate, which
-    writes INTG_DUTY_CYCLE again: configure does the same after changing quad_cnt_max (6 -> 4).
-    TI writes PIX_CNT_MAX in between; torchtof rewrites the duty cycle at once and, given a
-    period, again after pix_cnt_max (the frame-time test above), so this pins only that a
-    quad-count change is followed by the rewrite."""
+def test_a_quad_count_change_keeps_the_frame_rate_as_ti_does():
+    """TintinUnambiguousRangeParameter::set (ToFTintinCamera.cpp) reads the frame rate, sets
+    QUAD_CNT_MAX and calls _setFrameRate with the old rate: PIX_CNT_MAX = old rate's cycles /
+    (new quads · sub-frames), PIX_CNT_MAX_SET_FAILED read, INTG_TIME read and written back.
+    Here 6 -> 4 quads at pix 100000, one sub-frame: 100000 · 6 / 4 = 150000 (12.5 ms kept)."""
     dev = Recorder({**QVGA, QUAD_CNT_MAX: 0x16, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 100000})
-    opt.OPT8241(dev, mode="quad", quads=4).configure()
+    cam = opt.OPT8241(dev, mode="quad", quads=4)
+    cam.configure()
     w = dev.writes()
     i = w.index((QUAD_CNT_MAX, 0x14))
-    assert w[i + 1] == (INTG_DUTY_CYCLE, 9)
+    after = [x for x in w[i + 1:] if x[0] in (PIX_CNT_MAX, INTG_DUTY_CYCLE)]
+    assert after[:2] == [(PIX_CNT_MAX, 150000), (INTG_DUTY_CYCLE, 9)]
+    assert [v for a, v in w if a == PIX_CNT_MAX] == [150000]  # once: no period given
+    i_pix = dev.log.index(("w", PIX_CNT_MAX, 150000))
+    i_duty = dev.log.index(("w", INTG_DUTY_CYCLE, 9))
+    assert ("r", FLAGS, 0) in dev.log[i_pix:i_duty]  # pix_cnt_max_set_failed read between
+    assert cam.frame_time_us == pytest.approx(100000 * 6 / 48)
+
+
+def test_a_quad_count_change_with_a_period_sets_the_period_s_frame_time_once():
+    """With a pattern period the frame time follows the period (less the margin) at the
+    quad-count change, in TI's QUAD, PIX, INTG order, and is not written a second time."""
+    dev = Recorder({**QVGA, QUAD_CNT_MAX: 0x16, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 100000})
+    opt.OPT8241(dev, mode="quad", quads=4).configure(period_us=50000, margin_us=500)
+    w = dev.writes()
+    i = w.index((QUAD_CNT_MAX, 0x14))
+    pix = [v for a, v in w if a == PIX_CNT_MAX]
+    assert pix == [49500 * 48 // 4]  # 594000
+    assert [a for a, _ in w[i + 1:i + 4] if a != QUAD_CNT_MAX] == [PIX_CNT_MAX, INTG_DUTY_CYCLE]
+
+
+def test_a_frame_time_the_new_quad_count_cannot_hold_raises_before_any_write():
+    """4 -> 6 quads at pix 50000 (the board's minimum, TintinCDKCamera::_init) would need
+    pix 50000 · 4 / 6 = 33333 < 50000 to keep the frame rate: a ValueError, nothing written."""
+    dev = Recorder({**QVGA, QUAD_CNT_MAX: 0x14, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 50000})
+    with pytest.raises(ValueError, match="pix_cnt_max = 33333 < 50000"):
+        opt.OPT8241(dev, mode="quad", quads=6).configure()
+    assert dev.writes() == []
 
 
 # -- 3. bulk-read timeout -----------------------------------------------------------------------

@@ -52,9 +52,10 @@ QVGA = {0x5C2F: 240 << 14, 0x5C30: 320 << 14}
 #: sub_frame_cnt_max 2 in bits 4-7), vco1 = 480 MHz -> mod_m1 = 480·4/96 = 20 (0x580C bits
 #: 16-21), mod_n1 = 2, mod_ps1 = 1 (0x580F bits 0-1, 4-6): 40 MHz; vco2 = 360 MHz -> mod_m2 = 15
 #: (0x580D bits 16-21), mod_n2 = 2, mod_ps2 = 0 (0x580F bits 2-3, 7-9): 60 MHz; dealias_en = 1
-#: (0x5C02 bit 23).
+#: (0x5C02 bit 23); frame_rate 30 (TintinCDKCameraLongRange.conf) -> pix_cnt_max =
+#: ⌊48 MHz / (30 · 6 · 2)⌋ = 133333 (0x5882, ToFCamera::_setFrameRate).
 TI_PROFILE = {0x5883: 0x26, 0x580C: 20 << 16, 0x580D: 15 << 16,
-              0x580F: 2 | 2 << 2 | 1 << 4 | 0 << 7, 0x5C02: 1 << 23}
+              0x580F: 2 | 2 << 2 | 1 << 4 | 0 << 7, 0x5C02: 1 << 23, 0x5882: 133333}
 
 
 # -- 1. the modulation frequency -----------------------------------------------------------------
@@ -73,6 +74,9 @@ def test_configure_programs_the_modulation_frequency_over_ti_s_profile():
     assert dev.regs[0x5CB3] & 0xFFF == 1280  # delay_fb_coeff_1 = 30·1024/24 (DML id 10019)
     assert cam.freq_hz == 30e6 and cam.pll2_freq_hz == 30e6
     assert cam.unambiguous_range_m == pytest.approx(SPEED_OF_LIGHT / 60e6)
+    # 6 quads, 2 sub-frames -> 4 quads, 1 sub-frame at the profile's 30 frames/s (no period):
+    # pix_cnt_max = 133333 · 6 · 2 / 4 = 399999
+    assert dev.regs[0x5882] == 399999 and cam.frame_time_us == pytest.approx(1e6 / 30, abs=0.1)
 
 
 def test_quads_6_program_the_same_frequency():

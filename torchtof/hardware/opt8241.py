@@ -1046,26 +1046,30 @@ class OPT8241:
                 ``intg_duty_cycle_set_failed``.
         """
         sub = self.sub_frames if sub_frames is None else sub_frames
-        if isinstance(sub, bool) or sub not in SUB_FRAME_COUNTS:
-            raise ValueError(f"OPT8241.set_frame_time: expected sub_frames in "
-                             f"{SUB_FRAME_COUNTS}, got {sub!r}")
-        quads = self.read_field("quad_cnt_max")
-        if isinstance(max_us, bool) or not isinstance(max_us, (int, float)) or \
-                not math.isfinite(max_us) or max_us <= 0:
-            raise ValueError(f"OPT8241.set_frame_time: expected a positive max_us, got {max_us!r}")
-        pix = int(max_us * SYSCLK_MHZ // (quads * sub))
-        if pix < PIX_CNT_MAX_MIN:
-            shortest = PIX_CNT_MAX_MIN * quads * sub / SYSCLK_MHZ
-            raise ValueError(f"OPT8241.set_frame_time: a frame of at most {max_us:g} us needs "
-                             f"pix_cnt_max = {pix} < {PIX_CNT_MAX_MIN} (the board's limit, "
-                             f"TintinCDKCamera.cpp); the shortest frame with {quads} quads and "
-                             f"{sub} sub-frame(s) is {shortest:g} us")
-        pix = min(pix, REGISTERS["pix_cnt_max"].mask >> REGISTERS["pix_cnt_max"].lsb)
+        pix = self._pix_count(max_us, self.read_field("quad_cnt_max"), sub, "set_frame_time")
         self.write_field("sub_frame_cnt_max", sub)
         self.write_field("pix_cnt_max", pix)
         self._check_flag("pix_cnt_max_set_failed", f"pix_cnt_max = {pix}")
         self._rewrite_duty_cycle(f"pix_cnt_max = {pix}")
         return self.frame_time_us
+
+    def _pix_count(self, max_us: float, quads: int, sub: int, func: str) -> int:
+        """``pix_cnt_max`` for a frame of at most ``max_us`` with ``quads`` quads and ``sub``
+        sub-frames (``ToFCamera::_setFrameRate``), checked against the board's limits; no I/O."""
+        if isinstance(sub, bool) or sub not in SUB_FRAME_COUNTS:
+            raise ValueError(f"OPT8241.{func}: expected sub_frames in "
+                             f"{SUB_FRAME_COUNTS}, got {sub!r}")
+        if isinstance(max_us, bool) or not isinstance(max_us, (int, float)) or \
+                not math.isfinite(max_us) or max_us <= 0:
+            raise ValueError(f"OPT8241.{func}: expected a positive max_us, got {max_us!r}")
+        pix = int(max_us * SYSCLK_MHZ // (quads * sub))
+        if pix < PIX_CNT_MAX_MIN:
+            shortest = PIX_CNT_MAX_MIN * quads * sub / SYSCLK_MHZ
+            raise ValueError(f"OPT8241.{func}: a frame of at most {max_us:g} us needs "
+                             f"pix_cnt_max = {pix} < {PIX_CNT_MAX_MIN} (the board's limit, "
+                             f"TintinCDKCamera.cpp); the shortest frame with {quads} quads and "
+                             f"{sub} sub-frame(s) is {shortest:g} us")
+        return min(pix, REGISTERS["pix_cnt_max"].mask >> REGISTERS["pix_cnt_max"].lsb)
 
     def _rewrite_duty_cycle(self, what: str) -> None:
         """Write ``intg_duty_cycle`` again with the value it holds, after a change of the
@@ -1239,7 +1243,9 @@ class OPT8241:
     def configure(self, period_us: float | None = None, margin_us: float = 500.0,
                   spacing_us: float | None = None) -> None:
         """Output format of :attr:`mode` with no frame header, trailer, block header or zero
-        padding (bulk device), de-aliasing off, ``quad_cnt_max`` = :attr:`quads`, PLL 1 and
+        padding (bulk device), de-aliasing off, ``quad_cnt_max`` = :attr:`quads` (a change
+        keeps the frame time, ``pix_cnt_max`` recomputed, or sets it from ``period_us``, as
+        ``TintinUnambiguousRangeParameter::set`` calls ``_setFrameRate``), PLL 1 and
         PLL 2 at :attr:`mod_freq_hz` (:meth:`set_modulation_frequency`), TI's phase
         calibration off (:meth:`disable_phase_calibration`), ``hdr_scale`` 0 (no alternate-
         frame integration scaling), slave mode with ``sync_mode`` off, device frame numbers
@@ -1254,7 +1260,9 @@ class OPT8241:
         Raises:
             ValueError: :attr:`mod_freq_hz` gives an unambiguous range ``c/(2f)`` shorter than
                 ``rules.max_m`` (:func:`check_unambiguous_range`), or a frame takes longer than
-                ``spacing_us`` to send (:meth:`output_time_us`); both before any write.
+                ``spacing_us`` to send (:meth:`output_time_us`), or the frame time to keep
+                at a new quad count needs ``pix_cnt_max`` below the board's limit; all
+                before any write.
             HardwareError: the frame size differs (:meth:`check_frame_size`), or a flag of
                 :meth:`set_frame_time`.
         """
@@ -1278,15 +1286,19 @@ class OPT8241:
                     "spacing or choose a smaller ROI"
                     + (f" or a mode with fewer bytes per pixel ({', '.join(map(repr, fewer))})"
                        if fewer else ""))
+        target = None if period_us is None else float(period_us) - float(margin_us)
+        new_quads = self.read_field("quad_cnt_max") != self.quads
+        if new_quads:
+            # TintinUnambiguousRangeParameter::set reads the frame rate, sets QUAD_CNT_MAX and
+            # sets the frame rate back (_setFrameRate: PIX_CNT_MAX for the new quad count, then
+            # the duty cycle written again): the frame time is kept, or set from the period.
+            # Checked before any write (a frame time the board cannot hold is a ValueError).
+            keep = self.frame_time_us if target is None else target
+            self._pix_count(keep, self.quads, self.sub_frames, "configure")
         self.write_field("tg_dis", 1)
-        if self.read_field("quad_cnt_max") != self.quads:
+        if new_quads:
             self.write_field("quad_cnt_max", self.quads)
-            # a new cycle count per frame: the duty cycle written again, as
-            # TintinUnambiguousRangeParameter::set follows QUAD_CNT_MAX with _setFrameRate.
-            # TI's order is QUAD_CNT_MAX, PIX_CNT_MAX, INTG_TIME; here the duty cycle follows
-            # at once (pix_cnt_max still the old one) and, with a period, set_frame_time below
-            # writes pix_cnt_max and the duty cycle again in TI's order
-            self._rewrite_duty_cycle(f"quad_cnt_max = {self.quads}")
+            self.set_frame_time(keep)
         self.set_modulation_frequency(self.mod_freq_hz)  # PLL 1 and PLL 2, delay coefficient
         self.write_field("dealias_en", 0)
         self.write_field("dealias_16bit_op_enable", 0)
@@ -1303,8 +1315,8 @@ class OPT8241:
         self.write_field("debug_frame_number_en", int(self.frame_ids))
         self.write_field("sync_mode", 0)  # it would override slave_mode (OPT9221.dml)
         self.write_field("slave_mode", int(self.slave))
-        if period_us is not None:
-            self.set_frame_time(float(period_us) - float(margin_us))
+        if target is not None and not new_quads:
+            self.set_frame_time(target)
 
     def start(self) -> None:
         """Check the precondition, configure (unless :meth:`configure` ran since the last
