@@ -515,10 +515,10 @@ def _given_options(sub: argparse.ArgumentParser, argv: list[str]) -> set[str]:
     value: an option given at its default value (``--steps 8000``) counts as given. ``argv``
     has already parsed, so the second parse of its command's tokens cannot fail."""
     i = _command_index(argv)
-    ns = argparse.Namespace(**{a.dest: _Unset() for a in sub._actions
-                               if a.dest != argparse.SUPPRESS})
+    dests = {a.dest for a in sub._actions if a.dest != argparse.SUPPRESS}
+    ns = argparse.Namespace(**{d: _Unset() for d in dests})
     sub.parse_known_args(argv[i + 1:], namespace=ns)
-    return {k for k, v in vars(ns).items() if not (isinstance(v, _Unset) and not v)}
+    return {d for d in dests if not (isinstance(getattr(ns, d), _Unset) and not getattr(ns, d))}
 
 
 def _command_index(argv: list[str]) -> int:

@@ -137,9 +137,22 @@ def test_a_frame_time_the_new_quad_count_cannot_hold_raises_before_any_write():
     """4 -> 6 quads at pix 50000 (the board's minimum, TintinCDKCamera::_init) would need
     pix 50000 · 4 / 6 = 33333 < 50000 to keep the frame rate: a ValueError, nothing written."""
     dev = Recorder({**QVGA, QUAD_CNT_MAX: 0x14, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 50000})
-    with pytest.raises(ValueError, match="pix_cnt_max = 33333 < 50000"):
+    with pytest.raises(ValueError, match=r"pix_cnt_max = 33333 < 50000.*give the pattern "
+                                         r"period: configure\(period_us=\.\.\.\)"):
         opt.OPT8241(dev, mode="quad", quads=6).configure()
     assert dev.writes() == []
+
+
+def test_a_period_too_short_for_the_board_raises_before_any_write_quads_unchanged_too():
+    """A period whose frame needs pix_cnt_max < 50000 (4 quads, 1 sub-frame: < 4166.7 us) is
+    refused before tg_dis is written, whether or not the quad count changes."""
+    for quad_reg in (0x14, 0x16):  # 4 quads (unchanged), 6 quads (changed to 4)
+        dev = Recorder({**QVGA, QUAD_CNT_MAX: quad_reg, INTG_DUTY_CYCLE: 9, PIX_CNT_MAX: 100000})
+        with pytest.raises(ValueError, match="OPT8241.configure: a frame of at most 3500 us "
+                                             "needs pix_cnt_max = 42000 < 50000"):
+            opt.OPT8241(dev, mode="depth", quads=4).configure(period_us=4000, margin_us=500,
+                                                                 spacing_us=20000)
+        assert dev.writes() == []
 
 
 # -- 3. bulk-read timeout -----------------------------------------------------------------------

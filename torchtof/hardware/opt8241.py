@@ -1041,7 +1041,8 @@ class OPT8241:
 
         Raises:
             ValueError: ``max_us`` needs ``pix_cnt_max`` below the board's limit 50000
-                (``TintinCDKCamera::_init``) or beyond its 22 bits.
+                (``TintinCDKCamera::_init``). Beyond the register's 22 bits ``pix_cnt_max`` is
+                clamped (the frame is then shorter than ``max_us``).
             HardwareError: the camera set ``pix_cnt_max_set_failed`` or
                 ``intg_duty_cycle_set_failed``.
         """
@@ -1245,7 +1246,9 @@ class OPT8241:
         """Output format of :attr:`mode` with no frame header, trailer, block header or zero
         padding (bulk device), de-aliasing off, ``quad_cnt_max`` = :attr:`quads` (a change
         keeps the frame time, ``pix_cnt_max`` recomputed, or sets it from ``period_us``, as
-        ``TintinUnambiguousRangeParameter::set`` calls ``_setFrameRate``), PLL 1 and
+        ``TintinUnambiguousRangeParameter::set`` calls ``_setFrameRate``; ``sub_frame_cnt_max``
+        becomes :attr:`sub_frames`, where TI keeps the device's, so the frame time, not
+        ``pix_cnt_max``, is TI's), PLL 1 and
         PLL 2 at :attr:`mod_freq_hz` (:meth:`set_modulation_frequency`), TI's phase
         calibration off (:meth:`disable_phase_calibration`), ``hdr_scale`` 0 (no alternate-
         frame integration scaling), slave mode with ``sync_mode`` off, device frame numbers
@@ -1260,9 +1263,9 @@ class OPT8241:
         Raises:
             ValueError: :attr:`mod_freq_hz` gives an unambiguous range ``c/(2f)`` shorter than
                 ``rules.max_m`` (:func:`check_unambiguous_range`), or a frame takes longer than
-                ``spacing_us`` to send (:meth:`output_time_us`), or the frame time to keep
-                at a new quad count needs ``pix_cnt_max`` below the board's limit; all
-                before any write.
+                ``spacing_us`` to send (:meth:`output_time_us`), or the period's frame time
+                or the one to keep at a new quad count needs ``pix_cnt_max`` below the
+                board's limit; all before any write.
             HardwareError: the frame size differs (:meth:`check_frame_size`), or a flag of
                 :meth:`set_frame_time`.
         """
@@ -1288,13 +1291,20 @@ class OPT8241:
                        if fewer else ""))
         target = None if period_us is None else float(period_us) - float(margin_us)
         new_quads = self.read_field("quad_cnt_max") != self.quads
-        if new_quads:
-            # TintinUnambiguousRangeParameter::set reads the frame rate, sets QUAD_CNT_MAX and
-            # sets the frame rate back (_setFrameRate: PIX_CNT_MAX for the new quad count, then
-            # the duty cycle written again): the frame time is kept, or set from the period.
-            # Checked before any write (a frame time the board cannot hold is a ValueError).
-            keep = self.frame_time_us if target is None else target
-            self._pix_count(keep, self.quads, self.sub_frames, "configure")
+        # TintinUnambiguousRangeParameter::set reads the frame rate, sets QUAD_CNT_MAX and sets
+        # the frame rate back (_setFrameRate: PIX_CNT_MAX for the new quad count, then the duty
+        # cycle written again): the frame time is kept, or set from the period. Either frame
+        # time is checked before any write (one the board cannot hold is a ValueError).
+        keep = target if target is not None else self.frame_time_us if new_quads else None
+        if keep is not None:
+            try:
+                self._pix_count(keep, self.quads, self.sub_frames, "configure")
+            except ValueError as exc:
+                if target is not None:
+                    raise
+                raise ValueError(f"{exc} (keeping the frame time across the change to "
+                                 f"{self.quads} quads; give the pattern period: "
+                                 "configure(period_us=...))") from None
         self.write_field("tg_dis", 1)
         if new_quads:
             self.write_field("quad_cnt_max", self.quads)
