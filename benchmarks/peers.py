@@ -165,6 +165,8 @@ def _on_edge(best, params: list) -> bool:
 
 #: Split-Bregman penalties scanned with the TV weight (pylops SB-TV).
 SB_RHOS = (1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
+#: deepinv FISTA-TV's λ grid: σ·4^k for these k (then refined by a factor 2 at the best)
+DINV_KS = (-4, -3, -2, -1, 0)
 
 
 def refine2(best):
@@ -432,7 +434,7 @@ def method_table(P: Problem, dip: bool):
         # λ from σ/256 to σ: with the exact prox the best λ lies low (σ/8 or below in most
         # n = 32 cells); edges are flagged
         table["deepinv FISTA-TV"] = ("deepinv", dinv_fista_tv,
-                                     [s * 4.0**k for k in range(-4, 1)], refine2)
+                                     [s * 4.0**k for k in DINV_KS], refine2)
         if dip and P.n <= 32:
             table["deepinv DIP"] = ("deepinv", dinv_dip, [100, 300, 1000, 3000], None)
     if vers.get("spyrit"):
@@ -699,6 +701,9 @@ def parse(argv=None):
     p.add_argument("--sb-rhos", type=float, nargs="+", default=None, metavar="RHO",
                    help="pylops SB-TV's split penalties instead of SB_RHOS (a wider grid for the "
                         "cells whose best point lay on the default grid's edge)")
+    p.add_argument("--dinv-ks", type=int, nargs="+", default=None, metavar="K",
+                   help="deepinv FISTA-TV's λ grid σ·4^K instead of DINV_KS (-4 … 0; a wider "
+                        "grid for the cells whose best λ lay on the default grid's edge)")
     p.add_argument("--out", type=Path, default=None, help="JSON output (written after each cell)")
     p.add_argument("--report", type=Path, nargs="+", default=None,
                    help="print the markdown tables of these JSONs (merged) and write the PNG, "
@@ -725,6 +730,9 @@ def main(argv=None) -> int:
     if a.sb_rhos is not None:
         global SB_RHOS
         SB_RHOS = tuple(sorted(a.sb_rhos))
+    if a.dinv_ks is not None:
+        global DINV_KS
+        DINV_KS = tuple(sorted(a.dinv_ks))
     if a.auto_tv_solver is not None:
         AUTO_OPTIONS["tv_solver"] = a.auto_tv_solver
     if a.auto_cv_iter is not None:
