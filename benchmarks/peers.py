@@ -165,6 +165,8 @@ def _on_edge(best, params: list) -> bool:
 
 #: Split-Bregman penalties scanned with the TV weight (pylops SB-TV).
 SB_RHOS = (1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
+#: pylops SB-TV's τ grid: σ·4^k for these k (with every ρ of SB_RHOS)
+SB_KS = (-4, -3, -2, -1, 0, 1)
 #: deepinv FISTA-TV's λ grid: σ·4^k for these k (then refined by a factor 2 at the best)
 DINV_KS = (-4, -3, -2, -1, 0)
 
@@ -449,7 +451,7 @@ def method_table(P: Problem, dip: bool):
         # outer steps): scanned with τ, not only checked at two values
         table["pylops SB-TV"] = (
             "pylops", pylops_sb_tv,
-            [(tau, rho) for tau in (s * 4.0**k for k in range(-4, 2)) for rho in SB_RHOS],
+            [(tau, rho) for tau in (s * 4.0**k for k in SB_KS) for rho in SB_RHOS],
             lambda b: [(b[0] / 2, b[1]), (b[0] * 2, b[1])])
         table["pylops FISTA-DCT"] = ("pylops", pylops_fista_dct, geometric(s / 16), refine2)
         table["pylops FISTA-Haar"] = ("pylops", pylops_fista_haar, geometric(s / 16), refine2)
@@ -701,6 +703,9 @@ def parse(argv=None):
     p.add_argument("--sb-rhos", type=float, nargs="+", default=None, metavar="RHO",
                    help="pylops SB-TV's split penalties instead of SB_RHOS (a wider grid for the "
                         "cells whose best point lay on the default grid's edge)")
+    p.add_argument("--sb-ks", type=int, nargs="+", default=None, metavar="K",
+                   help="pylops SB-TV's τ grid σ·4^K instead of SB_KS (-4 … 1; for the cells "
+                        "whose best τ lay on the default grid's edge)")
     p.add_argument("--dinv-ks", type=int, nargs="+", default=None, metavar="K",
                    help="deepinv FISTA-TV's λ grid σ·4^K instead of DINV_KS (-4 … 0; a wider "
                         "grid for the cells whose best λ lay on the default grid's edge)")
@@ -730,6 +735,9 @@ def main(argv=None) -> int:
     if a.sb_rhos is not None:
         global SB_RHOS
         SB_RHOS = tuple(sorted(a.sb_rhos))
+    if a.sb_ks is not None:
+        global SB_KS
+        SB_KS = tuple(sorted(a.sb_ks))
     if a.dinv_ks is not None:
         global DINV_KS
         DINV_KS = tuple(sorted(a.dinv_ks))
