@@ -510,28 +510,19 @@ class _Unset(list):
     actions can copy and extend it)."""
 
 
-def _given_options(sub: argparse.ArgumentParser, argv: list[str]) -> set[str]:
-    """The destinations of the options written after the command in ``argv``, whatever their
-    value: an option given at its default value (``--steps 8000``) counts as given. ``argv``
-    has already parsed, so the second parse of its command's tokens cannot fail."""
-    i = _command_index(argv)
+def _given_options(sub: argparse.ArgumentParser, tokens: list[str]) -> set[str]:
+    """The destinations of the options written in ``tokens`` (the command's own, after its
+    name), whatever their value: an option given at its default value (``--steps 8000``)
+    counts as given. They have already parsed, so this second parse cannot fail."""
     dests = {a.dest for a in sub._actions if a.dest != argparse.SUPPRESS}
     ns = argparse.Namespace(**{d: _Unset() for d in dests})
-    sub.parse_known_args(argv[i + 1:], namespace=ns)
+    sub.parse_known_args(tokens, namespace=ns)
     return {d for d in dests if not (isinstance(getattr(ns, d), _Unset) and not getattr(ns, d))}
 
 
-def _command_index(argv: list[str]) -> int:
-    """Index of the command in ``argv`` (after the global options ``--threads N``, ``--debug``)."""
-    i = 0
-    while i < len(argv) and argv[i].startswith("-"):
-        i += 2 if argv[i] == "--threads" else 1
-    return i
-
-
-def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> int:
     """Name an unknown option given before the command (``torchtof --thr 2 demo``) instead of
-    argparse's reading of its value as the command."""
+    argparse's reading of its value as the command; returns the command's index in ``argv``."""
     takes_value = {"--threads"}
     known = takes_value | {"--debug", "-h", "--help"}
     i = 0
@@ -541,6 +532,7 @@ def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> N
             parser.error(f"unrecognized arguments: {argv[i]} (the options before the command: "
                          "--threads, --debug)")
         i += 2 if name in takes_value and "=" not in argv[i] else 1
+    return i
 
 
 def _check_destination(parser, flag: str, path: str, folder: bool | None) -> None:
@@ -578,10 +570,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     given = list(sys.argv[1:] if argv is None else argv)
     OneLineParser.debug = "--debug" in given
-    _check_global_options(parser, given)
+    command = _check_global_options(parser, given)
     args = parser.parse_args(argv)
     _check_destinations(args)
-    args.given = _given_options(args.parser, given)
+    args.given = _given_options(args.parser, given[command + 1:])
     check = getattr(args, "check", None)
     if check is not None:  # cross-option checks, before any work
         try:
