@@ -261,7 +261,8 @@ def bp_table(ns, srs, scenes, noise=0.01) -> list[dict]:
 def problems(args) -> list[tuple]:
     """``(key, x, A, y, score)`` per cell, ``key = (scene, n, sr, order, level)``: the cells of
     the peers JSON ``args.peers_cells`` (``peers_scenes.make_problem``, its PSNR) at the sizes
-    ``args.n`` and SRs ``args.sr``, or this script's grid. ``score(x_hat, x)``: a list of PSNRs over the batch."""
+    ``args.n``, SRs ``args.sr`` and orders ``args.orders`` (``None``: all), or this script's
+    grid. ``score(x_hat, x)``: a list of PSNRs over the batch."""
     if args.peers_cells:
         import sys
         from pathlib import Path
@@ -273,7 +274,8 @@ def problems(args) -> list[tuple]:
             return [ps.score(a[i : i + 1], b[i : i + 1]) for i in range(a.shape[0])]
 
         return [(k, *ps.make_problem(*k, args.seed)[:3], many)
-                for k in peer_best(args.peers_cells) if k[1] in args.n and k[2] in args.sr]
+                for k in peer_best(args.peers_cells) if k[1] in args.n and k[2] in args.sr
+                and (args.orders is None or k[3] in args.orders)]
     probs = []
     for n in args.n:
         for sr in args.sr:
@@ -362,6 +364,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--seed", type=int, default=0,
                     help="with --peers-cells: the cells' noise draw (peers.py --seed; the "
                          "held-out runs of docs/peers_heldout.json used 1)")
+    ap.add_argument("--orders", nargs="+", default=None, metavar="ORDER",
+                    help="with --peers-cells: only the cells of these Hadamard orders "
+                         "(cake_cutting, sequency; default every order)")
     ap.add_argument("--shard", default="0/1", type=_shard, metavar="I/K",
                     help="run every K-th cell from the I-th (two processes: 0/2 and 1/2)")
     ap.add_argument("--reuse", default=None, metavar="AUTO_EVAL_JSON",
@@ -371,6 +376,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--bp", action="store_true",
                     help="basis pursuit's default against TVAL3's default instead (PSNR dB)")
     args = ap.parse_args(argv)
+    if args.orders is not None and not args.peers_cells:
+        ap.error("--orders selects cells of --peers-cells (this script's own grid is "
+                 "cake-cutting rows only)")
     torch.set_num_threads(1)
     if args.fold_rules:
         return fold_rules(args.fold_rules, args.peers_cells)
