@@ -15,6 +15,7 @@ from torchtof.hardware.errors import (
     FrameError,
     FrameTimeoutError,
     FrameTimingError,
+    HardwareError,
     ProtocolError,
 )
 from torchtof.hardware.opt8241 import QUAD_OFFSET
@@ -239,6 +240,19 @@ def test_stop_hook_after_two_blocks(reference, tmp_path):
 def test_bad_arguments(kw, error, match, tmp_path):
     with pytest.raises(error, match=match):
         run(tmp_path / "b.zarr", **kw)
+
+
+def test_uninitialised_camera_is_refused_before_any_write_or_store(tmp_path):
+    # TI's board initialisation (TintinCDKCamera::_init) writes tillum_slv_addr = 0x72; on a
+    # board it never set up, nothing may be programmed and no store left behind
+    bench = SimulatedBench(CLEAN, sdk_initialised=False)
+    cam = bench.camera()
+    before = list(cam.dev.writes)
+    with pytest.raises(HardwareError, match="tillum_slv_addr reads 0x71"):
+        acquire(tmp_path / "u.zarr", bench.lightcrafter(timeout_ms=100), cam, n=N, sr=SR,
+                progress=False)
+    assert cam.dev.writes == before
+    assert not (tmp_path / "u.zarr").exists()
 
 
 def test_load_rejects_foreign_and_empty_stores(tmp_path):

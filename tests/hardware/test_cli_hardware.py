@@ -41,6 +41,29 @@ def uninterrupted(tmp_path_factory):
     return path
 
 
+def test_uninitialised_camera_is_refused_before_the_region_is_written(monkeypatch, tmp_path,
+                                                                     capsys):
+    # --camera-roi writes the region registers first (OPT8241.set_roi): the board check
+    # (tillum_slv_addr, written 0x72 by TintinCDKCamera::_init) must come before it
+    from torchtof.hardware import simulated
+
+    cams = []
+
+    class Uninitialised(simulated.SimulatedBench):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, sdk_initialised=False, **kw)
+
+        def camera(self, **kw):
+            cams.append(super().camera(**kw))
+            return cams[-1]
+
+    monkeypatch.setattr(simulated, "SimulatedBench", Uninitialised)
+    path = tmp_path / "u.zarr"
+    assert main([*ARGS, "--camera-roi", "0", "0", "16", "16", "-o", str(path)]) != 0
+    assert "tillum_slv_addr reads 0x71" in capsys.readouterr().err
+    assert len(cams) == 1 and cams[0].dev.writes == [] and not path.exists()
+
+
 def test_acquire_then_reconstruct_equals_pure_simulation(uninterrupted, tmp_path, capsys):
     out = tmp_path / "rec"
     assert main(["reconstruct", str(uninterrupted), "--method", "tval3", "--out", str(out)]) == 0
@@ -328,6 +351,9 @@ def test_real_bench_sets_the_whole_sensor_without_camera_roi(monkeypatch):
     seen = []
 
     class Cam:
+        def check_initialised(self):
+            seen.append("checked")
+
         def set_roi(self, *roi):
             seen.append(roi)
 
@@ -346,7 +372,7 @@ def test_real_bench_sets_the_whole_sensor_without_camera_roi(monkeypatch):
                               "camera_roi": roi, "display": 1, "mod_freq_mhz": 30.0,
                               "no_overflow_check": off})()
         hcli._open_devices(args, {})
-        assert seen[-1] == want
+        assert seen[-2:] == ["checked", want]  # the board check before the region's writes
         assert opened[-1]["mod_freq_hz"] == 30e6  # --mod-freq-mhz reaches the camera
         assert opened[-1]["check_overflow"] is (not off)  # so does --no-overflow-check
 

@@ -471,6 +471,9 @@ def acquire(
     seq = min(MAX_SEQUENCE, 2 * block)
     roi = _check_roi(roi, camera.height, camera.width, device)
     h, w = roi[2], roi[3]
+    check_initialised = getattr(camera, "check_initialised", None)
+    if check_initialised is not None:  # before any register write or store (OPT8241 docstring)
+        check_initialised()
     if hasattr(camera, "frame_ids"):
         camera.frame_ids = device  # written to debug_frame_number_en by camera.configure()
     period_us = exposure_us if period_us is None else period_us

@@ -57,6 +57,7 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         bench = SimulatedBench(cfg, seed=args.seed, faults=faults, video_hz=args.video_hz)
         metadata["simulation"] = {"config": asdict(cfg), "seed": args.seed}
         cam = bench.camera(**cam_kw)
+        cam.check_initialised()  # before any register write (OPT8241 class docstring)
         if args.camera_roi:
             cam.set_roi(*args.camera_roi)
         return bench.lightcrafter(), cam, None
@@ -70,6 +71,7 @@ def _open_devices(args: argparse.Namespace, metadata: dict):
         opened.append(lcr)
         cam = OPT8241.open(width=320, height=240, **cam_kw)
         opened.append(cam)
+        cam.check_initialised()  # before any register write (OPT8241 class docstring)
         # the region asked for, else the whole sensor (an earlier run's region stays set)
         cam.set_roi(*(args.camera_roi or (0, 0, 240, 320)))
         lcr.video = WindowVideoPort(display=args.display)
@@ -396,7 +398,8 @@ def add_parsers(sub) -> None:
                    "out of the buckets): smaller frames take less time to send "
                    "(OPT8241.set_roi); default on the real bench: the whole 320x240 sensor")
     a.add_argument("--quads", type=int, default=4, choices=[4, 6],
-                   help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6)")
+                   help="quad_cnt_max: samples per pixel and frame (TI's profiles use 6, its No "
+                        "Calibration profile 4)")
     a.add_argument("--mod-freq-mhz", type=positive_float, default=30.0, metavar="MHZ",
                    help="OPT8241 modulation frequency programmed into PLL 1 and PLL 2 (default "
                    "30, the paper's: unambiguous range c/2f = 5.0 m). TI's optimal band for "

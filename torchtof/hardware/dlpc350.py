@@ -128,8 +128,9 @@ MIN_DARK_US = 230  # PAT_EXPO_PRD: exposure == period or exposure <= period - 23
 #: dlpc350_api.cpp, documentation of DLPC350_SetMode).
 DMD_SHAPE = (1140, 912)
 #: Highest video input rate: "Video Display mode ... up to 1280 x 800 up to 120 Hz" (TI's
-#: DLPC350 API, dlpc350_api.cpp, documentation of DLPC350_SetMode; the LightCrafter 4500
-#: user's guide DLPU011 was not available where this was written).
+#: DLPC350 API, dlpc350_api.cpp, documentation of DLPC350_SetMode; its text for pattern
+#: display mode, used here, gives no rate, so the video mode's cap is taken; the LightCrafter
+#: 4500 user's guide DLPU011 was not available where this was written).
 MAX_VIDEO_HZ = 120.0
 #: TRIG_OUT1 edge delay codes (DLPC350_SetTrigOutConfig, dlpc350_api.cpp): "Each bit adds
 #: 107.2 ns, 0x00 = -20.05 µs, ... 0xBB = 0.00 µs, ..., 0xD5 = +2.787 µs".

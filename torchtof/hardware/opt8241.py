@@ -128,7 +128,8 @@ transfer of another size, reads on its own capture thread (200 ms transfer timeo
 ``USBBulkStreamerPrivate``; torchtof keeps it in master mode and waits longer in slave mode:
 :attr:`OPT8241.SLAVE_READ_TIMEOUT_S`), resets
 the endpoint at start and after three failed transfers, and drops the oldest buffer when the
-consumer is slow (``USBBulkStreamer::putBuffer``). :class:`OPT8241` does the same on a reader
+consumer is slow (``USBBulkStreamer::USBBulkStreamerPrivate::putBuffer``, at most
+``MAX_BUFFER_COUNT`` = 2 buffers). :class:`OPT8241` does the same on a reader
 thread, but reports dropped and wrong-sized transfers instead of hiding them. Layouts,
 little-endian 16-bit words, row-major (:data:`FRAME_MODES`):
 
@@ -688,11 +689,15 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     ``"iq"``: phase and amplitude from ``I``/``Q`` (Eqs. 7, 8). Depth modes: the 12-bit words.
     Then Eq. 1 and the camera rules (§2.2). ``frame_id`` and ``timestamp`` come from the host.
 
-    The SDK's amplitude in ``"quad"`` and ``"iq"`` modes is ``|I + jQ|``
-    (``ToFFrameGenerator::generate`` for raw I/Q frames); Eq. 8 gives ``2|I + jQ|/N`` in
-    ``"quad"`` mode (``/2`` for ``N = 4``, ``/3`` for ``N = 6``) and ``|I + jQ|/2`` in ``"iq"``
-    mode, so an ``amp_threshold`` taken from TI's tools is 2 or 3 times torchtof's there. In the
-    depth modes the amplitude is the camera's 12-bit word.
+    The SDK's amplitude in ``"quad"`` and ``"iq"`` modes is ``|I + jQ|`` in its raw processed
+    frame (``ToFFrameGenerator::generate`` for raw I/Q frames) and ``|I + jQ|/4096`` in its
+    depth frames (``ToFCamera::_getAmplitudeNormalizingFactor``); Eq. 8 gives ``2|I + jQ|/N``
+    in ``"quad"`` mode (``/2`` for ``N = 4``, ``/3`` for ``N = 6``) and ``|I + jQ|/2`` in
+    ``"iq"`` mode, so an ``amp_threshold`` read off TI's raw frames is 2 or 3 times torchtof's
+    there (one read off its depth frames, 1/2048 or 1/1365 of it). The SDK then truncates I
+    and Q to int16, the phase to a 12-bit code and the amplitude to an integer; torchtof keeps
+    floats (at most one phase code apart, 1.2 mm at 30 MHz). In the depth modes the amplitude
+    is the camera's 12-bit word.
     ``"iq"`` words are plain int16 as the SDK reads them (``_generateToFRawIQFrame``), not
     range-checked: from six signed 12-bit samples ``|Σ d_k cos(2πk/6)|`` reaches
     ``4 · 2048 = 8192`` (four: 4095), and the firmware's scaling of them is device-only.
@@ -759,9 +764,10 @@ class OPT8241:
     **Precondition**: TI's SDK (Voxel Viewer, or ``voxelsdk``'s ``CameraSystem`` connecting
     to the camera) has initialised the board since it was powered (illumination driver,
     potentiometer, current monitors, profile: ``TintinCDKCamera::_init``,
-    ``ToFTintinCamera::_init``). torchtof does not repeat that; :meth:`start` reads back
-    ``tillum_slv_addr`` (0x71 at power-up, 0x72 after TI's initialisation) and refuses to
-    stream from an uninitialised board (:meth:`check_initialised`).
+    ``ToFTintinCamera::_init``). torchtof does not repeat that; :meth:`check_initialised`
+    reads back ``tillum_slv_addr`` (0x71 at power-up, 0x72 after TI's initialisation) and
+    refuses an uninitialised board. :meth:`start` calls it, and ``acquire`` and ``torchtof
+    acquire`` call it first, before any register write (region, configuration) or store.
 
     Args:
         dev: the USB device.
@@ -777,8 +783,8 @@ class OPT8241:
         quads: ``quad_cnt_max`` written by :meth:`configure` (4 or 6, OPT9221.dml).
         sub_frames: ``sub_frame_cnt_max`` written by :meth:`set_frame_time` (1, 2, 4, 8).
         queue_frames: frames the reader thread may hold before it drops the oldest
-            (``USBBulkStreamer::putBuffer`` does the same); each drop is counted in
-            :attr:`stats` and reported by :meth:`grab` as a lost frame.
+            (``USBBulkStreamer::USBBulkStreamerPrivate::putBuffer`` does the same); each drop
+            is counted in :attr:`stats` and reported by :meth:`grab` as a lost frame.
         mod_freq_hz: the modulation frequency :meth:`configure` programs into PLL 1 and PLL 2
             (default 30 MHz, the paper's; TI's CDK profiles leave 40 MHz in PLL 1 and 60 MHz in
             PLL 2, except No Calibration, 48/48, and Extra Long Range, 25.5/34: module
