@@ -382,7 +382,8 @@ def add_parsers(sub) -> None:
                    help="vsync: each pattern starts at a VSYNC of the video input, exposures "
                    "within one video frame (TI's video-mode examples); internal: the DMD paces")
     a.add_argument("--video-hz", type=positive_float, default=60.0,
-                   help="video input frame rate in Hz, at most 120 (the DLPC350's video input); "
+                   help="video input frame rate in Hz, at most 120 (the DLPC350's video display "
+                        "mode limit; pattern mode states none); "
                    "checked against the rate the LightCrafter measures before a run")
     a.add_argument("--display", type=nonneg_int, default=1,
                    help="display index of the LightCrafter's HDMI input (real bench)")

@@ -460,8 +460,9 @@ def unpack_bitplane(frame: np.ndarray, k: int) -> np.ndarray:
 
 
 def check_video_hz(video_hz: float, where: str, option: str = "video_hz") -> float:
-    """``video_hz`` as a float in ``(0, 120]`` Hz (:data:`MAX_VIDEO_HZ`: the DLPC350's video
-    input runs "up to 120 Hz", DLPC350_SetMode's documentation in TI's dlpc350_api.cpp).
+    """``video_hz`` as a float in ``(0, 120]`` Hz (:data:`MAX_VIDEO_HZ`: video display mode runs
+    "up to 120 Hz", DLPC350_SetMode's documentation in TI's dlpc350_api.cpp; its text for
+    pattern display mode states no rate).
 
     Raises:
         ValueError: naming ``where`` and ``option``.

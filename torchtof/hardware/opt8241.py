@@ -696,8 +696,9 @@ def decode_frame(raw: bytes, width: int, height: int, freq_hz: float, mode: str 
     ``"iq"`` mode, so an ``amp_threshold`` read off TI's raw frames is 2 or 3 times torchtof's
     there (one read off its depth frames, 1/2048 or 1/1365 of it). The SDK then truncates I
     and Q to int16, the phase to a 12-bit code and the amplitude to an integer; torchtof keeps
-    floats (at most one phase code apart, 1.2 mm at 30 MHz). In the depth modes the amplitude
-    is the camera's 12-bit word.
+    floats (the phase code's truncation is under one code, 1.2 mm at 30 MHz; in ``"quad"``
+    mode the int16 truncation of I and Q adds up to ``√2/|I + jQ|`` rad). In the depth modes
+    the amplitude is the camera's 12-bit word.
     ``"iq"`` words are plain int16 as the SDK reads them (``_generateToFRawIQFrame``), not
     range-checked: from six signed 12-bit samples ``|Σ d_k cos(2πk/6)|`` reaches
     ``4 · 2048 = 8192`` (four: 4095), and the firmware's scaling of them is device-only.
