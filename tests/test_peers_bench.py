@@ -254,3 +254,28 @@ def test_deepinv_fista_tv_zero_weight_is_least_squares():
     # λ = 0: FISTA from Aᵀy on ½‖Ax − y‖² stays at the minimum-norm solution Aᵀy
     x = pb.dinv_fista_tv(P, 0.0, iters=5)
     assert torch.allclose(x, P.A.pinv(P.y), atol=1e-4)
+
+
+def test_auto_eval_orders_selects_peers_cells(tmp_path):
+    import argparse
+    import json
+
+    import auto_eval
+
+    def cell(order, scene):
+        return {"scene": scene, "n": 32, "sr": 0.25, "order": order, "level": 0.01,
+                "results": {"torchtof auto": {"psnr": 20.0, "peer": "torchtof"},
+                            "pylops SB-TV": {"psnr": 21.0, "peer": "pylops"}}}
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"cells": [cell("cake_cutting", "sky"), cell("sequency", "sky"),
+                                          cell("sequency", "horse")]}))
+    args = argparse.Namespace(peers_cells=str(path), n=[32], sr=[0.25], seed=0,
+                              orders=["sequency"])
+    keys = [p[0] for p in auto_eval.problems(args)]
+    assert keys == [("sky", 32, 0.25, "sequency", 0.01), ("horse", 32, 0.25, "sequency", 0.01)]
+    args.orders = None
+    assert len(auto_eval.problems(args)) == 3
+    with pytest.raises(SystemExit) as e:  # its own grid has cake-cutting rows only
+        auto_eval.main(["--orders", "sequency"])
+    assert e.value.code == 2
