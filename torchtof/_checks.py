@@ -11,6 +11,7 @@ checked once at entry: a NaN/Inf check reads the data back to the host, a device
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import numbers
 import threading
@@ -35,6 +36,8 @@ __all__ = [
     "check_power_of_two",
     "check_device",
     "is_tracing",
+    "cache_build",
+    "built_for_cache",
     "unchecked",
 ]
 
@@ -55,6 +58,28 @@ def unchecked() -> contextlib.AbstractContextManager:
     sync). Nests; the shape and type checks still run. Under tracing (where the checks are
     skipped anyway) it is a ``nullcontext``, so compiled graphs hold no state change."""
     return contextlib.nullcontext() if is_tracing() else _Unchecked()
+
+
+def cache_build() -> contextlib.AbstractContextManager:
+    """Build a tensor for a cache (behind an operator or process-wide) as an ordinary tensor
+    even when the caller runs inside ``torch.inference_mode()``: an inference tensor in a
+    cache would make every later call that needs gradients fail ("Inference tensors cannot
+    be saved for backward"). Outside inference mode (and under tracing) a ``nullcontext``."""
+    if torch.is_inference_mode_enabled() and not is_tracing():
+        return torch.inference_mode(False)
+    return contextlib.nullcontext()
+
+
+def built_for_cache(fn):
+    """Decorator: run ``fn`` (the builder behind a ``functools.lru_cache``) in
+    :func:`cache_build`."""
+
+    @functools.wraps(fn)
+    def build(*args, **kwargs):
+        with cache_build():
+            return fn(*args, **kwargs)
+
+    return build
 
 
 def is_tracing() -> bool:

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .._checks import check_bool, check_int, check_number, check_positive
+from .._checks import cache_build, check_bool, check_int, check_number, check_positive
 from .budget import MethodChoice, choose_method
 from .detect import (
     GATE_MIN_BUCKETS,
@@ -210,7 +210,8 @@ _REF_CACHE: dict = {}
 def _reference(data) -> DarkReference:
     key = repr(data.config)
     if key not in _REF_CACHE:
-        _REF_CACHE[key] = dark_reference(data.config)
+        with cache_build():
+            _REF_CACHE[key] = dark_reference(data.config)
     return _REF_CACHE[key]
 
 

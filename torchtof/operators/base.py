@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_rank, check_shape
+from .._checks import cache_build, check_finite, check_rank, check_shape
 from .._memory import check_memory
 
 __all__ = ["LinearOperator"]
@@ -112,8 +112,9 @@ class LinearOperator(nn.Module):
             check_memory(8 * (3 * self.m * big + min(self.m, big) ** 2),
                          f"the dense {self.m}x{big} pseudo-inverse (float64 SVD)",
                          f"{type(self).__name__}.pinv", "use an operator with orthonormal rows")
-            a = self.matrix(dtype=torch.float64)
-            cache[key] = torch.linalg.pinv(a).to(dtype=dtype, device=device)
+            with cache_build():
+                a = self.matrix(dtype=torch.float64)
+                cache[key] = torch.linalg.pinv(a).to(dtype=dtype, device=device)
         return cache[key]
 
     def matrix(self, dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:

@@ -23,7 +23,7 @@ import functools
 
 import torch
 
-from .._checks import check_finite, check_power_of_two, check_tensor
+from .._checks import built_for_cache, check_finite, check_power_of_two, check_tensor
 
 __all__ = ["fwht", "fwht2", "fwht2_matmul", "fwht_kron", "kron_factors", "sylvester"]
 
@@ -103,6 +103,7 @@ def fwht2_unchecked(x: torch.Tensor) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=32)
+@built_for_cache
 def _sylvester_cpu(n: int, dtype: torch.dtype) -> torch.Tensor:
     h = torch.ones(1, 1, dtype=dtype)
     while h.shape[0] < n:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from .._checks import cache_build
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .fwht import fwht2_matmul, fwht2_unchecked, fwht_kron, kron_factors, sylvester
@@ -146,7 +147,8 @@ class Hadamard(LinearOperator):
             key = (like.dtype, like.device)
             hs = self._kron_cache.get(key)
             if hs is None:
-                hs = tuple(sylvester(r, like.dtype, like.device) for r in self.kron_radices)
+                with cache_build():
+                    hs = tuple(sylvester(r, like.dtype, like.device) for r in self.kron_radices)
                 self._kron_cache[key] = hs
             return hs
         return self.h.to(dtype=like.dtype, device=like.device)

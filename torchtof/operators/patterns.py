@@ -27,7 +27,7 @@ import functools
 
 import torch
 
-from .._checks import check_in_range, check_power_of_two
+from .._checks import built_for_cache, check_in_range, check_power_of_two
 from .._memory import check_memory
 from .fwht import sylvester
 
@@ -52,6 +52,7 @@ def row_sequency(n: int) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=64)
+@built_for_cache
 def _order_cpu(n: int, order: str) -> torch.Tensor:
     s = row_sequency(n).to(torch.int64)
     si = s.repeat_interleave(n)  # s_i of natural index k = i*n + j

@@ -25,7 +25,7 @@ from functools import lru_cache
 import torch
 from torch import nn
 
-from .._checks import check_power_of_two, check_tensor, is_tracing
+from .._checks import built_for_cache, check_power_of_two, check_tensor, is_tracing
 
 __all__ = ["dct_matrix", "dct2", "idct2", "haar2", "ihaar2", "DCT2", "Haar2"]
 
@@ -38,6 +38,7 @@ def _dct_matrix(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tenso
 
 
 @lru_cache(maxsize=32)
+@built_for_cache
 def _dct_matrix_cached(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     return _dct_matrix_uncached(n, dtype, device)
 

@@ -79,7 +79,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .._checks import check_finite, check_real, check_shape, check_tensor, is_tracing
+from .._checks import (
+    built_for_cache,
+    check_finite,
+    check_real,
+    check_shape,
+    check_tensor,
+    is_tracing,
+)
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
@@ -472,6 +479,7 @@ def _unrolled(
 
 
 @functools.lru_cache(maxsize=4)
+@built_for_cache
 def _read_blob(path: str) -> dict:
     return torch.load(path, weights_only=True, map_location="cpu")
 

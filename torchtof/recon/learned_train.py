@@ -56,7 +56,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from .._checks import check_device, check_in_range, check_int, check_positive
+from .._checks import built_for_cache, check_device, check_in_range, check_int, check_positive
 from ..data import (
     FAMILIES,
     TRAIN_IMAGES,
@@ -118,6 +118,7 @@ P_USER = 0.5
 
 
 @functools.lru_cache(maxsize=4)
+@built_for_cache
 def _user_images(paths: tuple[str, ...]) -> tuple[torch.Tensor, ...]:
     """The images of ``paths`` (:func:`torchtof.data.load_images`), read once per process: a
     run draws from the images as they were when it (or its data process) first read them.

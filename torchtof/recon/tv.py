@@ -47,7 +47,7 @@ from typing import NamedTuple
 
 import torch
 
-from .._checks import is_tracing, unchecked
+from .._checks import cache_build, is_tracing, unchecked
 from .._memory import check_memory
 from ..operators.base import LinearOperator
 from .dct import dct_matrix
@@ -478,7 +478,7 @@ def exact_factors(A: LinearOperator, like: torch.Tensor, boundary: str = "period
     key = (like.dtype, like.device, boundary)
     if key not in per_op:
         n, m = A.n, A.m
-        with torch.no_grad():
+        with torch.no_grad(), cache_build():
             dt = torch.float64
             diag = _k_inverse(n, boundary, dt, like.device)
             s = torch.empty(m, m, dtype=dt, device=like.device)

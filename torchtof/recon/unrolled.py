@@ -67,6 +67,7 @@ import torch
 from torch import nn
 
 from .._checks import (
+    built_for_cache,
     check_bool,
     check_finite,
     check_real,
@@ -284,6 +285,7 @@ def _raw_init(n_layers: int) -> dict[str, torch.Tensor]:
 
 
 @functools.lru_cache(maxsize=16)
+@built_for_cache
 def _read_cached(path: str, mtime_ns: int, size: int) -> dict:
     return torch.load(path, weights_only=True)
 

@@ -33,7 +33,14 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .._checks import check_finite, check_float_dtype, check_positive, check_rank, check_tensor
+from .._checks import (
+    built_for_cache,
+    check_finite,
+    check_float_dtype,
+    check_positive,
+    check_rank,
+    check_tensor,
+)
 from .._memory import check_memory
 
 __all__ = ["area_overlap_matrix", "dmd_to_sensor", "DMDToSensor", "blur_phasor"]
@@ -57,6 +64,7 @@ def size_pair(value: object, name: str, func: str) -> tuple[int, int]:
 
 
 @functools.lru_cache(maxsize=64)
+@built_for_cache
 def _overlap_cpu(n_in: int, n_out: int) -> torch.Tensor:
     """Row-normalised area overlap ``(n_out, n_in)`` in float64, exact integer arithmetic."""
     # in units of 1/(n_in·n_out): output pixel p spans [p·n_in, (p+1)·n_in),
