@@ -87,7 +87,7 @@ from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
 from .base import relative_residual
-from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, largest_eig_normal
+from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, scale_a
 from .tval3 import B_SPREAD, NOISE_QUANTILE, auto_weights, bucket_noise_sigma, check_buckets
 
 __all__ = [
@@ -369,8 +369,7 @@ def joint_tv(
                             y.new_zeros(per), torch.ones(per, dtype=torch.bool, device=y.device),
                             ())
         return res if return_result else x
-    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
-    inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
+    inv_s2 = scale_a(A, y, fn)
     sq = math.sqrt(inv_s2)
     # one gain for all channels, invariant to rotations of the channel vector (module doc)
     spread = y.norm(dim=1).amax(dim=-1)  # (B,)

@@ -101,6 +101,7 @@ from .tv import (
     largest_eig_normal,
     loop_differences,
     project_box,
+    scale_a,
     scaled_loop_pair,
     sym_grad2,
 )
@@ -361,8 +362,7 @@ def tgv(
         return res if return_result else res.x
 
     # ScaleA and Scaleb as TVAL3 (module doc)
-    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
-    inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
+    inv_s2 = scale_a(A, y, fn)
     sq = math.sqrt(inv_s2)
     spread = bucket_spread(y)
     zero = spread == 0

@@ -73,6 +73,7 @@ __all__ = [
     "check_exact_memory",
     "exact_solve",
     "largest_eig_normal",
+    "scale_a",
     "admm_tv",
     "AdmmOut",
     "split_tv",
@@ -554,13 +555,34 @@ def largest_eig_normal(A: LinearOperator, like: torch.Tensor) -> float:
         k = torch.arange(n * n, dtype=torch.float64, device=like.device)
         x = (1.0 + 0.5 * torch.cos(k * 2.399963)).reshape(1, 1, n, n)  # deterministic start
         s = x.new_zeros(())
+        tiny = torch.finfo(x.dtype).tiny
         for _ in range(_POWER_STEPS):
-            x = x / x.norm()
+            x = x / x.norm().clamp_min(tiny)  # A = 0: x stays 0 and s₂ = 0, never NaN
             z = A.normal(x)
             s = (z * x).sum()
             x = z
     per_op["s2"] = float(s)
     return per_op["s2"]
+
+
+def scale_a(A: LinearOperator, like: torch.Tensor, func: str) -> float:
+    """``1/s₂`` of TVAL3's ``ScaleA`` (``A`` and ``b`` are divided by ``√s₂``, ``s₂`` the
+    largest eigenvalue of ``AᵀA``, :func:`largest_eig_normal`); 1 for orthonormal rows.
+
+    The published ``ScaleA`` (``ftvcs_alp.m``) scales only when ``s₂ > 1``. Here an operator
+    with ``s₂ < 1`` is scaled up too, so that ``c·A`` with buckets ``c·y`` gives the same
+    image for every ``c > 0``: with ``s₂ ≪ 1`` (patterns in small physical units) the fixed
+    ``μ`` and ``β`` weigh the data too little and the solvers returned ``x ≈ 0`` with a
+    relative residual of 1 (patterns scaled by 10⁻⁶). No built-in operator has ``s₂ < 1``
+    (Hadamard rows are orthonormal; their DMD split has ``s₂ ≫ 1``). A zero operator raises a
+    ``ValueError`` naming ``func``."""
+    if A.orthonormal_rows:
+        return 1.0
+    s2 = largest_eig_normal(A, like)
+    if not (math.isfinite(s2) and s2 > 0.0):
+        raise ValueError(f"{func}: A is zero (largest eigenvalue of AᵀA: {s2}); no image "
+                         "can be fitted to its buckets")
+    return 1.0 / s2 if abs(s2 - 1.0) > 1e-10 else 1.0
 
 
 # -- one ADMM TV core ------------------------------------------------------------------------

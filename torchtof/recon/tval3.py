@@ -53,6 +53,7 @@ from .tv import (
     exact_solve,
     largest_eig_normal,
     loop_differences,
+    scale_a,
     scaled_loop_pair,
     shrink,
 )
@@ -348,7 +349,10 @@ def tval3(
 
     Scaling: nothing is done to ``A`` when ``A.orthonormal_rows`` (TVAL3 skips ``ScaleA`` after
     its ``A Aᵀ = I`` test); otherwise ``A`` and ``y`` are divided by ``√s₂``, ``s₂`` the largest
-    eigenvalue of ``AᵀA`` (power iteration, cached per operator; ``ScaleA``), when ``s₂ > 1``.
+    eigenvalue of ``AᵀA`` (power iteration, cached per operator; ``ScaleA``), when ``s₂ > 1``
+    as published and, unlike the published rule, also when ``s₂ < 1``
+    (:func:`~torchtof.recon.tv.scale_a`: ``tval3(c·y, c·A)`` is the same image for every
+    ``c > 0``).
     Each sample's buckets are then scaled and the image scaled back (``Scaleb``): the published
     rule maps a spread ``max b − min b`` below 0.5 to 0.5, above 1.5 to 1.5 and leaves spreads
     in ``[0.5, 1.5]`` alone; it is used as published for operators without orthonormal rows
@@ -484,8 +488,7 @@ def tval3(
     if opts["u_step"] == "exact":
         check_exact_memory(A, y, boundary, fn, _EXACT_MEMORY_HINT)
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
-    s2 = 1.0 if A.orthonormal_rows else largest_eig_normal(A, y)
-    inv_s2 = 1.0 / s2 if s2 > 1.0 + 1e-10 else 1.0
+    inv_s2 = scale_a(A, y, fn)
     spread = bucket_spread(y)
     zero = spread == 0
     safe = torch.where(zero, torch.ones_like(spread), spread)
