@@ -146,6 +146,19 @@ def test_function_returns_x_of_the_module(name):
         assert hasattr(type(res), "_fields") and torch.equal(res.x, x), name
 
 
+@pytest.mark.parametrize("name", [s for s in SPECS if recon.get(s).budget is not None])
+def test_function_takes_the_budget_options_of_the_module(name):
+    # the registry's budget_options (e.g. unrolled's n_layers, with its pretrained choice)
+    # are options of the function too, with the module's meaning
+    spec, A, y = _setup(name, "cpu", b=2)
+    opts = {**spec.defaults, **FAST.get(name, {}), **spec.budget_options(3)}
+    with torch.enable_grad() if spec.per_sample else torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        x = spec.function(y, A, **opts)
+        want = spec.build(A, **opts)(y)
+    torch.testing.assert_close(x, want, rtol=0, atol=0)
+
+
 @pytest.mark.parametrize("name", SPECS)
 def test_state_dict_round_trip(name, device):
     spec, A, y = _setup(name, device, b=1)

@@ -115,12 +115,16 @@ def unrolled_tval3(
     thresh: torch.Tensor | None = None,
     precond: torch.Tensor | None = None,
     isotropic: bool = True,
+    *,
+    n_layers: int | None = None,
+    pretrained: bool | str | os.PathLike = True,
 ) -> torch.Tensor:
     """K unrolled TVAL3 iterations with per-iteration scalars (module docstring).
 
-    With none of the five scalar vectors given, the shipped scalars of :class:`UnrolledTVAL3`
-    for ``A`` (its ``(n, SR)``; elsewhere TVAL3's defaults, with its warning): the module's
-    ``forward``.
+    With none of the five scalar vectors given, the scalars of
+    ``UnrolledTVAL3(A, n_layers, pretrained, isotropic)`` (by default the shipped ones for
+    ``A``'s ``(n, SR)``; elsewhere TVAL3's defaults, with its warning): the module's
+    ``forward``, so the registry's ``function(y, A, **options)`` takes the module's options.
 
     Args:
         y: measurements ``(B, C, M)``, real floating point.
@@ -133,6 +137,11 @@ def unrolled_tval3(
             Every entry of the five, in the dtype of ``y``, must be finite and ``> 0``
             (checked once here, eager mode).
         isotropic: isotropic TV (TVAL3 ``TVnorm=2``) or anisotropic; a bool.
+        n_layers: ``K`` of :class:`UnrolledTVAL3` when no scalars are given (``None``: its
+            default); an error with the scalars, whose length is ``K``.
+        pretrained: :class:`UnrolledTVAL3`'s weights when no scalars are given (``True``: the
+            shipped ones, ``False``: TVAL3's defaults, or a path); an error with the scalars
+            unless ``True``.
 
     Returns:
         The reconstruction ``x`` in the units of the scene (``A x ≈ y``).
@@ -156,7 +165,22 @@ def unrolled_tval3(
         >>> unrolled_tval3(A(torch.rand(2, 1, 16, 16)), A, 256 * k, 32 * k, k, k / 32, 4 * k).shape
         torch.Size([2, 1, 16, 16])
     """
-    return _unrolled_tval3(y, A, (mu, beta, step, thresh, precond), isotropic, check_values=True)
+    per_iter = (mu, beta, step, thresh, precond)
+    if all(v is None for v in per_iter):
+        _check_operator(A, "unrolled_tval3")
+        check_bool(isotropic, "isotropic", "unrolled_tval3")
+        net = UnrolledTVAL3(A, n_layers=DEFAULT_N_LAYERS if n_layers is None else n_layers,
+                            pretrained=pretrained, isotropic=isotropic)
+        # exp on y's device, as the module moved there computes them (A is never moved)
+        dev = y.device if isinstance(y, torch.Tensor) else None
+        per_iter = tuple(getattr(net, k).detach().to(device=dev).exp() for k in PARAM_NAMES)
+        check_values = False
+    else:
+        if n_layers is not None or pretrained is not True:
+            raise ValueError("unrolled_tval3: n_layers and pretrained choose the module's "
+                             "scalars; give them or the five scalar vectors, not both")
+        check_values = True
+    return _unrolled_tval3(y, A, per_iter, isotropic, check_values=check_values)
 
 
 #: The per-layer scalar arguments of :func:`unrolled_tval3`, in order.
@@ -174,12 +198,6 @@ def _unrolled_tval3(y: torch.Tensor, A: LinearOperator, per_iter: tuple, isotrop
     check_shape(y, (None, None, A.m), "y", func, "(B, C, M)")
     check_finite(y, "y", func)
     names = _SCALAR_NAMES
-    if all(v is None for v in per_iter):  # the shipped scalars: the module's forward
-        # the scalars on y's device (exp there, as the module moved to it would compute them);
-        # the caller's A is used as given, never moved (the operator casts per call)
-        net = UnrolledTVAL3(A, isotropic=isotropic)
-        per_iter = tuple(getattr(net, k).to(device=y.device).exp() for k in PARAM_NAMES)
-        check_values = False
     missing = [k for k, v in zip(names, per_iter, strict=True) if v is None]
     if missing:
         raise ValueError(f"{func}: expected mu, beta, step, thresh and precond all given or "
