@@ -32,6 +32,7 @@ __all__ = [
     "check_number",
     "check_broadcast",
     "check_nonnegative",
+    "check_weight_range",
     "check_float_dtype",
     "check_power_of_two",
     "check_device",
@@ -236,6 +237,27 @@ def check_broadcast(x: torch.Tensor, shape: Sequence[int], name: str, func: str,
         lay = f" {layout}" if layout else ""
         raise ValueError(f"{func}: expected {name} broadcastable to {target}{lay}, got shape "
                          f"{tuple(x.shape)}")
+
+
+def check_weight_range(value: object, name: str, func: str, dtype: torch.dtype) -> None:
+    """Raise ``ValueError`` unless the positive solver weight ``value`` (a number or a
+    tensor) lies in ``[2⁻ᵏ, 2ᵏ]``, ``k`` a quarter of ``dtype``'s largest exponent (float32:
+    ``2±32``, float64: ``2±256``): the TV solvers multiply up to four weights and scaled
+    data, so a weight outside overflows or underflows in ``dtype`` (NaN images, or a raw
+    overflow error). One host read for a tensor."""
+    k = math.frexp(torch.finfo(dtype).max)[1] // 4
+    lo, hi = 2.0 ** -k, 2.0 ** k
+    if isinstance(value, torch.Tensor):
+        if value.numel() == 0 or is_tracing() or value.device.type == "meta":
+            return
+        vmin, vmax = (float(v) for v in torch.stack((value.min(), value.max())).tolist())
+    else:
+        vmin = vmax = float(value)
+    if not (lo <= vmin and vmax <= hi):
+        got = vmin if vmin < lo else vmax
+        raise ValueError(f"{func}: expected {name} in [2^-{k}, 2^{k}] for {dtype} buckets (the "
+                         f"solver's products of weights must stay finite; float64 buckets take "
+                         f"a wider range), got {got:g}")
 
 
 def check_nonnegative(x: torch.Tensor, name: str, func: str) -> None:

@@ -437,3 +437,14 @@ def test_depth_result_carries_the_reconstructors_solve_result():
     assert len(res.stop_reason) == 2 and len(res.stop_reason[0]) == 2
     ref = TVAL3(A, mu=2**8, max_iter=40)(iq_buckets(y))
     torch.testing.assert_close(res.images, ref)
+
+
+@pytest.mark.parametrize("iq, err", [
+    (torch.full((1, 2, 2, 2), float("nan")), ValueError),
+    (torch.zeros(1, 2, 2, 2, dtype=torch.complex64), TypeError),
+    (torch.zeros(1, 2, 2, 2, dtype=torch.int64), TypeError),
+])
+def test_iq_phase_amplitude_errors_name_itself_and_iq(iq, err):
+    from torchtof.recon.depth import iq_phase_amplitude
+    with pytest.raises(err, match=r"^iq_phase_amplitude: .*\biq\b"):
+        iq_phase_amplitude(iq)

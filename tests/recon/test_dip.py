@@ -464,3 +464,12 @@ def test_noise_sigma_auto_is_the_tail_estimate(A):
                        fit_dip(y, A, noise_sigma=sigma, **kw).x)
     with pytest.raises(ValueError, match="fit_dip: expected noise_sigma > 0, None or 'auto'"):
         fit_dip(y, A, noise_sigma="pairs")
+
+
+def test_dip_x0_with_nan_names_dip():
+    from torchtof.operators import Hadamard
+    from torchtof.recon import dip
+    A = Hadamard(8, sr=0.5)
+    y = A(torch.rand(1, 1, 8, 8))
+    with pytest.raises(ValueError, match=r"^dip: x0 contains non-finite"):
+        dip(y, A, x0=torch.full((1, 1, 8, 8), float("nan")), max_iter=2)

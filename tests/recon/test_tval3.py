@@ -674,3 +674,17 @@ def test_float_and_tensor_mu_solve_alike(tvl2):
               max_iter=60, return_result=True)
     torch.testing.assert_close(a.x, b.x, rtol=0, atol=1e-12)
     assert a.n_iter.tolist() == b.n_iter.tolist()
+
+
+def test_per_sample_mu_and_tvl2_tensors_are_checked_and_solved_per_sample():
+    A = Hadamard(8, m=32)
+    y = A(torch.rand(2, 1, 8, 8, dtype=torch.float64, generator=torch.Generator().manual_seed(3)))
+    with pytest.raises(ValueError, match=r"tval3: expected mu broadcastable to \(2, 1\)"):
+        tval3(y, A, mu=torch.full((3,), 256.0), max_iter=5)
+    with pytest.raises(ValueError, match=r"tval3: expected tvl2 broadcastable to \(2, 1\)"):
+        tval3(y, A, mu=256.0, tvl2=torch.tensor([True, False, True]), max_iter=5)
+    # a float mu with a per-sample tvl2 tensor: each sample's model, as solved alone
+    both = tval3(y, A, mu=256.0, tvl2=torch.tensor([[True], [False]]), max_iter=50)
+    alone = torch.cat([tval3(y[:1], A, mu=256.0, tvl2=True, max_iter=50),
+                       tval3(y[1:], A, mu=256.0, tvl2=False, max_iter=50)])
+    assert torch.equal(both, alone)

@@ -81,6 +81,7 @@ from .._checks import (
     check_real,
     check_shape,
     check_tensor,
+    check_weight_range,
     is_tracing,
 )
 from .._memory import check_memory, format_bytes
@@ -246,8 +247,11 @@ def iq_phase_amplitude(iq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         (1.5708, 1.0)
     """
     func = "iq_phase_amplitude"
-    check_tensor(iq, "iq", func)
+    check_real(iq, "iq", func)
+    if not iq.is_floating_point():
+        raise TypeError(f"{func}: expected iq a real floating-point tensor, got {iq.dtype}")
     check_shape(iq, (None, 2, None, None), "iq", func, "(B, 2, H, W)")
+    check_finite(iq, "iq", func)
     taps = _iq_as_taps(iq)
     return tap_phase(taps), tap_amplitude(taps)
 
@@ -360,6 +364,14 @@ def joint_tv(
     check_buckets(y, A, fn)
     _check_jtv_options(fn, mu, beta, n_iter, tol, joint, adaptive, boundary, bounds)
     check_bool(return_result, "return_result", fn)
+    for name, v in (("mu", mu), ("beta", beta)):
+        if not isinstance(v, str):
+            check_weight_range(v, name, fn, y.dtype)
+    ratio_max = 1.0 / torch.finfo(y.dtype).eps  # the exact u-step solves DᵀD + (μ/β)AᵀA
+    if not isinstance(mu, str) and mu / beta > ratio_max:
+        raise ValueError(f"{fn}: expected mu/beta <= 2^{round(math.log2(ratio_max))} for "
+                         f"{y.dtype} buckets (beyond it the exact u-step loses the TV term "
+                         f"to rounding: NaN), got {mu / beta:g}")
     box = box_bounds(False, bounds, fn)
     check_exact_memory(A, y, boundary, fn, _JTV_MEMORY_HINT)
     if y.shape[0] * y.shape[1] == 0:  # empty batch: empty result

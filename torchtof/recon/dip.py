@@ -589,6 +589,7 @@ def _dip_batch(y, A, x0, output, func, fit_kwargs):
     if x0 is not None:
         check_tensor(x0, "x0", func)
         check_shape(x0, (b, c, A.n, A.n), "x0", func, "(B, C, n, n)")
+        check_finite(x0, "x0", func)
     key = "x_cal" if output == "calibrated" else "x"
     x = y.new_zeros(b, c, A.n, A.n)
     iters = torch.zeros(b, c, dtype=torch.int64)

@@ -89,7 +89,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_bool, check_positive, is_tracing, unchecked
+from .._checks import check_bool, check_positive, check_weight_range, is_tracing, unchecked
 from ..operators.base import LinearOperator
 from .base import relative_residual
 from .tv import (
@@ -350,6 +350,8 @@ def tgv(
     check_bool(adaptive, "adaptive", fn)
     check_bool(return_result, "return_result", fn)
     (a1, a0), (lo, hi) = opts["alpha"], opts["box"]
+    for name, v in (("mu", mu), ("alpha", a1), ("alpha", a0)):
+        check_weight_range(v, name, fn, y.dtype)
     b_, c_, _ = y.shape
     shape = (b_, c_)
     mu_t = _per_sample(mu, shape, y.dtype, y.device, "mu", fn)

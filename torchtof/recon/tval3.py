@@ -32,11 +32,13 @@ from torch import nn
 
 from .._checks import (
     check_bool,
+    check_broadcast,
     check_finite,
     check_positive,
     check_real,
     check_shape,
     check_tensor,
+    check_weight_range,
     is_tracing,
     unchecked,
 )
@@ -223,7 +225,11 @@ class MaskedRows(LinearOperator):
     ``adjoint(r) = innerᵀ(m ⊙ r)``, ``mask (C, M)``.
 
     ``normal`` is ``inner``'s own (an upper bound of the masked one), so TVAL3's ``ScaleA``
-    uses ``inner``'s largest eigenvalue.
+    uses ``inner``'s largest eigenvalue. ``orthonormal_rows`` is ``inner``'s too, although
+    ``A Aᵀ = diag(mask)``: a fold's fit is the full problem with some buckets removed, so it
+    is scaled as the full problem is (``Scaleb``'s spread 1.5), and its kept rows are
+    orthonormal. ``mask`` has one row per channel; the dense helpers (``matrix``, ``gram``)
+    describe one channel's operator and need ``C = 1``.
     """
 
     def __init__(self, inner: LinearOperator, mask: torch.Tensor) -> None:
@@ -483,6 +489,15 @@ def tval3(
     )
     check_bool(adaptive, "adaptive", fn)
     check_bool(return_result, "return_result", fn)
+    for name, v in (("mu", mu), ("tvl2", tvl2)):  # per-sample tensors: one per (B, C) entry
+        if isinstance(v, torch.Tensor):
+            check_broadcast(v, y.shape[:2], name, fn, "(B, C)")
+    ctn = float(rate_ctn) ** -ctn_steps if ctn_steps < 4096 else 0.0  # continuation's start
+    for name, v in (("mu", mu), ("beta", beta), ("beta·rate_ctn^-ctn_steps", beta * ctn)):
+        if not isinstance(v, str):
+            check_weight_range(v, name, fn, y.dtype)
+    if not isinstance(mu, str):
+        check_weight_range(mu * ctn, "mu·rate_ctn^-ctn_steps", fn, y.dtype)
 
     _check_boundary(boundary, fn)
     if opts["u_step"] == "exact":
@@ -530,8 +545,14 @@ def tval3(
             beta_f = torch.where(keep, torch.full_like(beta_f, float(beta)), beta_f)
     else:  # the same β rule as a per-sample weight: a float and a tensor solve alike
         mu_f = torch.full_like(spread, float(mu))
-        constrained = (torch.zeros_like if tvl2 else torch.ones_like)(spread, dtype=torch.bool)
-        beta_f = torch.full_like(spread, (AUTO_TVL2_BETA if tvl2 else 1.0) * float(beta))
+        if isinstance(tvl2, torch.Tensor):  # per sample
+            constrained = torch.broadcast_to(~tvl2.to(device=y.device), spread.shape)
+            beta_f = torch.where(constrained, torch.full_like(mu_f, float(beta)),
+                                 torch.full_like(mu_f, AUTO_TVL2_BETA * float(beta)))
+        else:  # no tensor from a Python value: tracing records no constant
+            constrained = (torch.zeros_like if tvl2 else torch.ones_like)(spread,
+                                                                          dtype=torch.bool)
+            beta_f = torch.full_like(spread, (AUTO_TVL2_BETA if tvl2 else 1.0) * float(beta))
 
     bound = None
     if discrepancy is not None:  # τ M σ² in the scaled units of b (‖A_s u − b‖ = gain ‖Ax − y‖)
@@ -642,6 +663,9 @@ def _sigma_tensor(value: float | torch.Tensor, y: torch.Tensor, name: str, fn: s
         check_positive(value, name, fn, strict=False)
     except ValueError as e:
         raise ValueError(f"{e}{hint}") from None
+    if float(value) > torch.finfo(y.dtype).max:
+        raise ValueError(f"{fn}: expected {name} representable in {y.dtype} (the dtype of y), "
+                         f"got {value:g}")
     return y.new_full(y.shape[:-1], float(value))
 
 
