@@ -189,3 +189,29 @@ def test_simulate_frames_names_a_non_finite_input(what):
         simulate_frames(Scene(*args[:2]), args[2], cfg)
     fr = simulate_frames(Scene(refl, depth), pats, cfg)  # the finite inputs give finite frames
     assert torch.isfinite(fr.depth).all() and fr.depth.shape[0] == 2
+
+
+def test_simulate_frames_refuses_bad_inputs_by_name():
+    import dataclasses
+
+    from torchtof.experiment import ExperimentConfig, simulate_frames
+    from torchtof.scenes import Scene
+
+    cfg = ExperimentConfig(n=16, roi_px=32)
+    scene = Scene(torch.rand(1, 1, 16, 16), torch.full((1, 1, 16, 16), 1.5))
+    ok = torch.ones(2, 16, 16)
+    cases = [
+        (dict(patterns=torch.ones(2, 8, 8)), r"simulate_frames: expected patterns of shape"),
+        (dict(patterns=torch.ones(16, 16)), r"simulate_frames: expected patterns of rank 3"),
+        (dict(patterns=ok, stray=torch.zeros(1, 1, 8, 8, dtype=torch.complex64)),
+         r"simulate_frames: expected stray of shape \(1, 1, 32, 32\)"),
+        (dict(patterns=ok, dust=torch.zeros(1, 1, 8, 8)),
+         r"simulate_frames: expected dust of shape \(1, 1, 32, 32\)"),
+        (dict(patterns=ok, cfg=dataclasses.replace(cfg, scattering=True)),
+         r"simulate_frames: cfg.scattering needs the sheet's dust map"),
+    ]
+    for kw, msg in cases:
+        c = kw.pop("cfg", cfg)
+        with pytest.raises(ValueError, match=msg):
+            simulate_frames(scene, kw.pop("patterns"), c, **kw)
+    assert simulate_frames(scene, ok, cfg).depth.shape == (2, 1, 32, 32)

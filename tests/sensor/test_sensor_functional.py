@@ -322,3 +322,10 @@ def test_phasor_from_depth_refuses_non_finite():
         phasor_from_depth(float("inf"), torch.ones(1, 1, 2, 2), F)
     with pytest.raises(TypeError, match="phasor_from_depth: expected amplitude to be"):
         phasor_from_depth("1", torch.ones(1, 1, 2, 2), F)
+
+
+@pytest.mark.parametrize("amp", [-100.0, torch.full((1, 1, 1, 1), -1.0)])
+def test_negative_amplitude_is_refused(amp):
+    # a negative magnitude is a phase shift of π: c/(4f) = 2.5 m of depth at 30 MHz, silently
+    with pytest.raises(ValueError, match=r"phasor_from_depth: expected amplitude >= 0"):
+        phasor_from_depth(amp, torch.full((1, 1, 1, 1), 1.5), 30e6)

@@ -13,11 +13,13 @@ linear in ``P``, so multipath returns and mixed (flying) pixels are phasor sums.
 then computes the phase (Eq. 7), the amplitude (Eq. 8) and the depth (Eq. 1), and applies
 its output rules (paper §2.2).
 
-**Tap order.** The paper contradicts itself. Fig. 1 and Eq. 2 (``φ = atan((Q₄ − Q₃)/(Q₁ − Q₂))``)
-put the control signals at ``C₁ = 0, C₂ = π, C₃ = π/2, C₄ = 3π/2``; the text after Eq. 6 names
-``τ₁…τ₄ = 0, π/2, π, 3π/2``. Eq. 7 recovers ``θ`` only for the Fig. 1 order; with the text
-order ``c₄ − c₃ = c₁ − c₂`` for every ``θ`` and Eq. 7 degenerates (the ratio is always 1).
-This module uses the Fig. 1 order (``order="fig1"``, the default) and keeps ``order="text"``
+**Tap order.** The paper contradicts itself. Eq. 2 (``φ = atan((Q₄ − Q₃)/(Q₁ − Q₂))``) needs
+the control signals at ``C₁ = 0, C₂ = π, C₃ = π/2, C₄ = 3π/2`` (the paper's text on Fig. 1
+says only that ``C₁ − C₄`` are π/2 apart; the order is named ``"fig1"`` after the figure that
+Eq. 2 describes); the text after Eq. 6 names ``τ₁…τ₄ = 0, π/2, π, 3π/2``. Eq. 7 recovers
+``θ`` only for the Eq. 2 order; with the text order ``c₄ − c₃ = c₁ − c₂`` for every ``θ`` and
+Eq. 7 degenerates (the ratio is always 1). This module uses the Eq. 2 order
+(``order="fig1"``, the default) and keeps ``order="text"``
 only to demonstrate the degeneracy.
 """
 
@@ -30,6 +32,7 @@ import torch
 from .._checks import (
     check_broadcast,
     check_finite,
+    check_nonnegative,
     check_number,
     check_positive,
     check_shape,
@@ -136,7 +139,8 @@ def phasor_from_depth(
 
     Raises:
         TypeError: if ``depth_m`` (or a tensor ``amplitude``) is not a real floating tensor.
-        ValueError: if ``freq_hz`` is not positive, or ``depth_m``/``amplitude`` hold NaN/Inf.
+        ValueError: if ``freq_hz`` is not positive, ``depth_m``/``amplitude`` hold NaN/Inf, or
+            ``amplitude`` is negative.
 
     Example:
         >>> p = phasor_from_depth(2.0, torch.zeros(1, 1, 2, 2), 30e6)
@@ -155,6 +159,8 @@ def phasor_from_depth(
     if isinstance(amplitude, torch.Tensor):
         check_real(amplitude, "amplitude", func)
         check_finite(amplitude, "amplitude", func)
+        # a magnitude: a negative one would be a phase shift of π, i.e. c/(4f) of depth
+        check_nonnegative(amplitude, "amplitude", func)
     else:
         if isinstance(amplitude, bool) or not isinstance(amplitude, (int, float)):
             raise TypeError(
@@ -163,6 +169,9 @@ def phasor_from_depth(
             )
         if not math.isfinite(amplitude):
             raise ValueError(f"{func}: expected a finite amplitude, got {amplitude}")
+        if amplitude < 0:
+            raise ValueError(f"{func}: expected amplitude >= 0 (a magnitude; a negative one "
+                             f"moves the depth by c/(4f)), got {amplitude}")
         amplitude = torch.as_tensor(float(amplitude), dtype=depth_m.dtype, device=depth_m.device)
     theta = depth_m * (4.0 * math.pi * f / SPEED_OF_LIGHT)
     amplitude, theta = torch.broadcast_tensors(amplitude.to(depth_m.dtype), theta)

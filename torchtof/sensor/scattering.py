@@ -262,7 +262,8 @@ class ScatteringMedium(nn.Module):
         mode: ``"depth"`` (paper Eq. 15, default) or ``"phasor"``.
         depth_s: explicit ``Dˢ`` in metres (``None``: the dust map times ``dust_m``).
         dust_m: scale of the dust map in metres for ``Dˢ`` (depth mode).
-        size: ``(H, W)`` of the dust map (default: the paper's 64×64 sensor region).
+        size: ``(H, W)`` of the dust map (default: 64×64, the sensor region of this
+            package's simulated experiment; the paper gives only the camera's 320×240).
         dust_sigma_px: correlation length of the dust in pixels.
         seed: seed of the dust map, an int (``torch.Generator``'s range).
         blur_sigma: forward-scatter blur in pixels (phasor mode; ``None``: none).
