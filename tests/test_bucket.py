@@ -204,3 +204,11 @@ def test_rank_and_finite_errors():
         tap_buckets(torch.full((1, 1, 4, 2, 2), float("inf")))
     with pytest.raises(TypeError, match="depth_bucket: expected depth to be a floating-point"):
         depth_bucket(torch.ones(1, 1, 2, 2, dtype=torch.int64))
+
+
+def test_roi_box_takes_numpy_integers():
+    import numpy as np
+
+    from torchtof.bucket import roi_mask
+    got = roi_mask((np.int64(4), np.int32(4)), (np.int64(1), 1, np.int32(2), 2))
+    assert torch.equal(got, roi_mask((4, 4), (1, 1, 2, 2)))

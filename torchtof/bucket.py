@@ -33,6 +33,7 @@ Example:
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 
 import torch
@@ -66,7 +67,8 @@ def _check_frames(x: object, rank: int, name: str, func: str, layout: str) -> No
 
 def _check_box(roi: Sequence[int], func: str) -> tuple[int, int, int, int]:
     """Validate a ``(top, left, height, width)`` box without knowing the frame."""
-    if len(roi) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in roi):
+    if len(roi) != 4 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool)
+                                for v in roi):
         raise TypeError(f"{func}: expected roi as (top, left, height, width) ints, got {roi!r}")
     top, left, height, width = (int(v) for v in roi)
     if height <= 0 or width <= 0:
@@ -83,9 +85,10 @@ def _roi_mask(
 ) -> torch.Tensor | None:
     """Bool ``(H, W)`` mask of ``roi`` for a frame of ``shape_hw``; ``None`` = whole frame."""
     if (not isinstance(shape_hw, (Sequence, torch.Size)) or len(shape_hw) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in shape_hw)):
+            or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool)
+                       for v in shape_hw)):
         raise TypeError(f"{func}: expected shape_hw as (H, W) ints, got {shape_hw!r}")
-    h, w = shape_hw
+    h, w = (int(v) for v in shape_hw)
     if h <= 0 or w <= 0:
         raise ValueError(f"{func}: expected shape_hw of a frame of positive size, got {shape_hw}")
     if roi is None:

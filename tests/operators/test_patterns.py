@@ -89,3 +89,15 @@ def test_random_patterns_seeded():
     assert c > 0.5
     with pytest.raises(ValueError, match="p"):
         random_binary_patterns(3, 4, p=1.0)
+
+
+def test_pattern_sizes_take_numpy_integers_and_dtypes_are_checked():
+    import numpy as np
+
+    from torchtof.operators import hadamard_patterns
+    from torchtof.operators.patterns import num_patterns
+    assert num_patterns(8, m=np.int64(16)) == 16 and type(num_patterns(8, m=np.int64(16))) is int
+    assert torch.equal(hadamard_patterns(4, np.int64(3)), hadamard_patterns(4, 3))
+    assert hadamard_patterns(4, 2, dtype=torch.int8).dtype == torch.int8
+    with pytest.raises(TypeError, match=r"hadamard_patterns: expected dtype"):
+        hadamard_patterns(4, 2, dtype=torch.bool)

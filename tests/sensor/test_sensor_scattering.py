@@ -166,3 +166,9 @@ def test_scattering_lowers_depth_contrast():
     d[..., 2:6, 2:6] = 2.0
     out = scatter_depth(d, 0.6, 0.5)
     assert math.isclose(float(out.max() - out.min()), 0.6 * 3.0)
+
+
+def test_dust_map_refuses_an_integer_dtype():
+    from torchtof.sensor import dust_map
+    with pytest.raises(TypeError, match=r"dust_map: expected dtype"):
+        dust_map(8, dtype=torch.int64)

@@ -24,6 +24,7 @@ Orders:
 from __future__ import annotations
 
 import functools
+import numbers
 
 import torch
 
@@ -112,8 +113,9 @@ def num_patterns(n: int, sr: float | None = None, m: int | None = None, func: st
     if sr is not None:
         check_in_range(sr, 0.0, 1.0, "sr", func, lo_open=True)
         return max(1, min(big, int(round(sr * big))))
-    if isinstance(m, bool) or not isinstance(m, int):
+    if isinstance(m, bool) or not isinstance(m, numbers.Integral):
         raise TypeError(f"{func}: expected m to be an int, got {type(m).__name__}")
+    m = int(m)
     if not 1 <= m <= big:
         raise ValueError(f"{func}: expected m in [1, {big}], got {m}")
     return m
@@ -132,6 +134,10 @@ def hadamard_patterns(
     requested patterns are materialised (never the full ``N × N`` basis).
     """
     check_n_order(n, order, "hadamard_patterns")
+    if not isinstance(dtype, torch.dtype) or not (dtype.is_floating_point or dtype in (
+            torch.int8, torch.int16, torch.int32, torch.int64)):
+        raise TypeError("hadamard_patterns: expected dtype a floating or signed integer "
+                        f"torch.dtype (the patterns are ±1), got {dtype!r}")
     m = n * n if m is None else num_patterns(n, m=m, func="hadamard_patterns")
     check_memory(m * n * n * torch.empty((), dtype=dtype).element_size(),
                  f"{m} patterns of {n}x{n}", "hadamard_patterns")

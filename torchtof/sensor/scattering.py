@@ -32,6 +32,7 @@ from torch import nn
 
 from .._checks import (
     check_finite,
+    check_float_dtype,
     check_in_range,
     check_int,
     check_nonnegative,
@@ -118,7 +119,7 @@ def dust_map(
         noise = blur_phasor(noise, sigma)
     lo, hi = noise.amin(), noise.amax()
     m = (noise - lo) / (hi - lo).clamp_min(torch.finfo(torch.float64).tiny)
-    dtype = torch.get_default_dtype() if dtype is None else dtype
+    dtype = torch.get_default_dtype() if dtype is None else check_float_dtype(dtype, "dtype", func)
     return m.to(dtype=dtype, device=device)
 
 
