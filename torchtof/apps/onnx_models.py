@@ -192,7 +192,8 @@ def _build_frames(kind):
             return IntensityBucket(_roi_box(n)), (amp,)
         # Eq. 6 taps (Fig. 1 order) of a return at the object's depth, ambient offset 100 e⁻
         b, _, h, w = amp.shape
-        a = amp.reshape(-1, 1, h, w)
+        a = amp.reshape(-1, 1, h, w).clamp_min(0.0)  # a return's magnitude: the noise's tail
+        # below −5σ would make it negative (phasor_from_depth refuses that)
         p = phasor_from_depth(a, torch.full_like(a, _OBJECT_M), MODULATION_HZ)
         taps = correlation_taps(p, offset=100.0).view(b, m, 4, h, w)
         return TapBuckets(_roi_box(n)), (taps,)
