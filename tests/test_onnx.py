@@ -141,6 +141,31 @@ def test_check_detects_a_different_model(exported, tmp_path):
         tto.check(path, other, (y,))
 
 
+def test_check_judges_float32_rounding_against_float64(tmp_path):
+    # pinv at n = 16, SR 100 % (κ ≈ 7e3): onnxruntime and PyTorch float32 both lie ~1e-3 of
+    # the peak from the float64 pseudo-inverse; the check passes them as rounding and reports
+    # the errors, while a wrong model stays a failure
+    module, (y,) = MODELS["pinv"](16, 1.0)
+    path = tto.export(module, (y,), tmp_path / "pinv.onnx")
+    _, (y3,) = MODELS["pinv"](16, 1.0, batch=3, seed=0)
+    rep = tto.check(path, module, (y3,))
+    row = rep["outputs"][0]
+    assert rep["ok"] and row["max_abs_err"] > 1e-5 * max(1.0, row["peak"])  # the bound alone fails
+    assert row["float64_err_ort"] <= 2 * row["float64_err_torch"] + 1e-5 * max(1.0, row["peak"])
+
+
+    class OnePercentOff(torch.nn.Module):  # a model 1 % away: far beyond rounding
+        def __init__(self):
+            super().__init__()
+            self.inner = module
+
+        def forward(self, y):
+            return 1.01 * self.inner(y)
+
+    with pytest.raises(AssertionError, match="differs from PyTorch"):
+        tto.check(path, OnePercentOff(), (y3,))
+
+
 def test_export_errors(tmp_path):
     A = tto.OperatorMethod(Hadamard(8, sr=0.5), "adjoint")
     y = torch.rand(2, 1, 32)
