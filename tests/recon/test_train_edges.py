@@ -183,6 +183,41 @@ def test_old_checkpoint_without_the_records_still_resumes(tmp_path):
     assert len(r.losses) == 1
 
 
+def test_resume_keeps_the_runs_origin(tmp_path):
+    """A checkpoint records where its run started; a resume keeps that origin in
+    recipe.json and refuses another init (which would not be loaded anyway)."""
+    train_learned(steps=1, out=tmp_path / "w", **TINY)
+    w = tmp_path / "w" / "learned.pt"
+    train_learned(steps=1, out=tmp_path / "a", **TINY)  # random initialisation
+    with pytest.raises(ValueError, match="started from its random initialisation"):
+        train_learned(steps=2, out=tmp_path / "a", resume=True, init=w, **TINY)
+    train_learned(steps=1, out=tmp_path / "b", init=w, **{**TINY, "seed": 1})
+    train_learned(steps=2, out=tmp_path / "b", resume=True, **{**TINY, "seed": 1})
+    recipe = json.loads((tmp_path / "b" / "recipe.json").read_text())
+    assert recipe["init"]["path"] == os.fspath(w)
+    train_learned(steps=3, out=tmp_path / "b", resume=True, init=w, **{**TINY, "seed": 1})
+    assert json.loads((tmp_path / "b" / "recipe.json").read_text())["init"] == recipe["init"]
+
+
+def test_resume_from_a_corrupt_or_foreign_checkpoint_is_one_line(tmp_path, capsys):
+    train_learned(steps=1, out=tmp_path, **TINY)
+    ckpt = tmp_path / "checkpoint.pt"
+    (tmp_path / "learned.pt").replace(ckpt)  # a weights file where the checkpoint belongs
+    with pytest.raises(ValueError, match=r"is not a training checkpoint of train_learned \(no "):
+        train_learned(steps=2, out=tmp_path, resume=True, **TINY)
+    ckpt.write_text("\n")
+    with pytest.raises(ValueError, match="is not a readable training checkpoint"):
+        train_learned(steps=2, out=tmp_path, resume=True, **TINY)
+    assert main(["train", "--model", "learned", "--steps", "2", "--resume", "--out",
+                 str(tmp_path), *CLI_TINY]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a readable training checkpoint" in err[0], err
+    assert main(["train", "--model", "learned", "--calibrate-only", "--out", str(tmp_path),
+                 "--no-progress"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a readable training checkpoint" in err[0], err
+
+
 # -- 4. a resumed run writes the uninterrupted run's log and final loss -------------------------
 
 

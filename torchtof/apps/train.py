@@ -31,6 +31,7 @@ from ..recon.learned_train import (
     P_NOISE_REF,
     atomic_write,
     calibrate_tau,
+    read_checkpoint,
     train_learned,
     write_text,
 )
@@ -266,7 +267,7 @@ def _calibrate_only(args: argparse.Namespace, command: str | None) -> int:
     on another scene mixture (recorded as ``calibration_families``)."""
     out = Path(args.out)
     ckpt = out / "checkpoint.pt"
-    state = torch.load(ckpt, weights_only=False, map_location="cpu")
+    state = read_checkpoint(ckpt, "torchtof train")
     recipe_path = out / "recipe.json"
     recipe = json.loads(recipe_path.read_text()) if recipe_path.is_file() else {}
     given = args.given  # the options on the command line (torchtof.cli)

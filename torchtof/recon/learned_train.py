@@ -191,6 +191,23 @@ def same_mixture(a: dict[str, float], b: dict[str, float]) -> bool:
     return ({k: v for k, v in a.items() if v > 0} == {k: v for k, v in b.items() if v > 0})
 
 
+def read_checkpoint(ckpt: Path, func: str, device="cpu") -> dict:
+    """The state of a :func:`train_learned` checkpoint file; a one-line ``ValueError`` naming
+    ``func`` for a file that is unreadable (truncated, another format) or is no such
+    checkpoint (e.g. a weights file)."""
+    try:
+        state = torch.load(ckpt, weights_only=False, map_location=device)
+    except Exception as exc:  # noqa: BLE001 - any unpickling failure: not a checkpoint
+        raise ValueError(f"{func}: {ckpt} is not a readable training checkpoint "
+                         f"({type(exc).__name__}); delete it to start the run anew") from None
+    need = ("model", "opt", "sched", "step", "log", "wall_s")
+    lacks = [k for k in need if k not in state] if isinstance(state, dict) else list(need)
+    if lacks:
+        raise ValueError(f"{func}: {ckpt} is not a training checkpoint of train_learned "
+                         f"(no {', '.join(lacks)}); delete it to start the run anew")
+    return state
+
+
 def run_settings(seed: int, steps: int, lr: float, batch_size: int, sizes: tuple[int, ...],
                  p_large: float, sr_range: tuple[float, float], orders: tuple[str, ...],
                  noise_ref: int | None, p_clean: float, p_noise_ref: float) -> dict:
@@ -576,7 +593,8 @@ def train_learned(
             ``shuffle`` and ``scales`` must equal these arguments. The schedule starts again
             at ``lr`` (give a smaller one, and another ``seed`` than the file's run so that its
             batches are not replayed). ``recipe.json`` records the file and its SHA-256. A
-            checkpoint resumed (``resume``) takes precedence.
+            resumed run (``resume``) keeps the origin its checkpoint records: ``init`` may be
+            left out then, and another file (or one for a run started at random) is refused.
         x0: the network's starting estimate (:class:`Learned`, ``x0``), also when ``init``
             was trained with another; the weights file records it.
         user_images: the caller's own scenes for the ``"user"`` family: a path or paths of
@@ -665,7 +683,7 @@ def train_learned(
     start, log, wall0, history, steps_changes = 0, [], 0.0, [], []
     ckpt = outdir / "checkpoint.pt" if outdir is not None else None
     if resume and ckpt is not None and ckpt.is_file():
-        state = torch.load(ckpt, weights_only=False, map_location=device)
+        state = read_checkpoint(ckpt, func, device)
         if state["step"] > steps:
             raise ValueError(f"{func}: checkpoint {ckpt} is at step {state['step']}, beyond "
                              f"steps={steps}; resume with the run's steps")
@@ -695,6 +713,14 @@ def train_learned(
                              f"{state.get('x0', 'adjoint')!r}, got x0={x0!r}")
         families, user_paths = _resumed_data(state.get("data"), given_data, families,
                                              user_paths, ckpt, func)
+        if "init" in state:  # the run's origin (checkpoints before the record: as given)
+            had = state["init"]
+            if init is not None and (had is None or had["sha256"] != init_record["sha256"]):
+                origin = "its random initialisation" if had is None else repr(had["path"])
+                raise ValueError(f"{func}: checkpoint {ckpt} was started from {origin}; init "
+                                 f"{os.fspath(init)!r} only starts a new run (resume without "
+                                 "init)")
+            init_record = had
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         start, log, wall0 = state["step"], state["log"], state["wall_s"]
@@ -726,7 +752,7 @@ def train_learned(
             state = {"model": model.state_dict(), "opt": opt.state_dict(),
                      "sched": sched.state_dict(), "step": step, "log": log, "x0": x0,
                      "meta": model.meta(), "data": data_record, "run": settings,
-                     "steps_changes": steps_changes, "losses": history,
+                     "steps_changes": steps_changes, "losses": history, "init": init_record,
                      "wall_s": wall0 + time.perf_counter() - t0}
             atomic_write(ckpt, functools.partial(torch.save, state))
             write_text(outdir / "log.json", json.dumps(log, indent=0))
