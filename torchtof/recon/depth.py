@@ -89,7 +89,20 @@ from ..operators.base import LinearOperator
 from ..sensor.functional import SPEED_OF_LIGHT, phase_to_depth, tap_amplitude, tap_phase
 from .base import relative_residual
 from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, scale_a
-from .tval3 import B_SPREAD, NOISE_QUANTILE, auto_weights, bucket_noise_sigma, check_buckets
+from .tval3 import (
+    AUTO_CV_FACTOR,
+    AUTO_CV_MAX_ITER,
+    AUTO_CV_SLACK,
+    AUTO_MU_MAX,
+    B_SPREAD,
+    NOISE_QUANTILE,
+    MaskedRows,
+    auto_weights,
+    bucket_noise_sigma,
+    check_buckets,
+    default_split,
+    holdout_split,
+)
 
 __all__ = [
     "MODES",
@@ -396,6 +409,15 @@ def joint_tv(
         else:
             sigma = y.new_full((y.shape[0],), check_positive(noise_sigma, "noise_sigma", fn, False))
         mu_b, beta_b, constrained = auto_weights(sigma * gain, beta)  # TVAL3's rule
+        if noise_sigma is None and adaptive and A.m >= 8 and not is_tracing() \
+                and y.device.type != "meta" and bool((~constrained & ~zero).any()):
+            # one host read at entry: TVAL3's hold-out check of the estimate's TV-L2 choice
+            keep, mu_cv = _validate_constrained(b, A, mu_b, beta_b, beta, joint, boundary,
+                                                box, gain / sq, inv_s2, n_iter)
+            mu_b = torch.where(constrained, mu_b, mu_cv)
+            constrained = constrained | keep
+            mu_b = torch.where(keep, torch.full_like(mu_b, AUTO_MU_MAX), mu_b)
+            beta_b = torch.where(keep, torch.full_like(beta_b, float(beta)), beta_b)
     else:
         mu_b = y.new_full((y.shape[0],), float(mu))
         beta_b = y.new_full((y.shape[0],), float(beta))
@@ -417,6 +439,44 @@ def joint_tv(
     names = () if is_tracing() else tuple(
         tuple("tol" if d else "max_iter" for d in row) for row in out.converged.tolist())
     return JointTVResult(x, out.n_iter, residual, out.converged, names)
+
+
+def _validate_constrained(b, A, mu_b, beta_b, beta, joint, boundary, box, scale, inv_s2,
+                          n_iter) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(keep, mu)``, each ``(B,)``: TVAL3's hold-out check of ``mu="auto"``
+    (:func:`torchtof.recon.tval3._validate_constrained`, the same folds, models and slack)
+    for the joint model: ``keep`` where the constrained model predicts the held-out buckets
+    (all channels) within :data:`~torchtof.recon.tval3.AUTO_CV_SLACK` of the better of the
+    TV-L2 weights ``μ`` and ``4μ`` around the noise estimate's; ``mu`` the better of the two.
+    ``b``: the scaled buckets, ``scale = gain/√s₂`` the image's factor into ``u``. A tail
+    estimate reads signal as noise when few high-order rows carry no signal (e.g. n = 16): its
+    TV-L2 weight is then so small that the image came out flat."""
+    bsz, c, m = b.shape
+    held, train = holdout_split(A, 3, b, 0, default_split(A))  # (F, M)
+    nm = 3  # models: constrained, TV-L2 μ, TV-L2 4μ (model-major blocks of the batch)
+    mus = torch.cat((torch.full_like(mu_b, AUTO_MU_MAX), mu_b, AUTO_CV_FACTOR * mu_b))
+    betas = torch.cat((torch.full_like(beta_b, float(beta)), beta_b, beta_b))
+    cons = torch.zeros(nm * bsz, dtype=torch.bool, device=b.device)
+    cons[:bsz] = True
+    per = (nm * bsz, c)
+    bounds = tuple(None if v is None else float(v) * scale.repeat(nm).reshape(-1, 1, 1, 1)
+                   for v in box)
+    err = b.new_zeros(nm * bsz)
+    sq = math.sqrt(inv_s2)
+    for f in range(held.shape[0]):
+        op = MaskedRows(A, train[f : f + 1])
+        bt = b.repeat(nm, 1, 1) * train[f].to(b.dtype)
+        out = admm_tv(bt, op, mus[:, None].expand(per), betas[:, None].expand(per),
+                      cons[:, None].expand(per), tv="isotropic", boundary=boundary,
+                      joint=joint, bounds=bounds, inv_s2=inv_s2,
+                      max_iter=min(n_iter, AUTO_CV_MAX_ITER), stop_over_channels=True)
+        pred = A(out.u) * sq  # the scaled buckets' prediction, all rows
+        err = err + ((pred - b.repeat(nm, 1, 1)) * held[f].to(b.dtype)).pow(2).sum(dim=(1, 2))
+    err = err.reshape(nm, bsz)
+    larger = err[2] < err[1]
+    best = torch.where(larger, err[2], err[1])
+    keep = err[0] <= (1 + AUTO_CV_SLACK) * best
+    return keep, torch.where(larger, AUTO_CV_FACTOR * mu_b, mu_b)
 
 
 class JointTVResult(NamedTuple):
