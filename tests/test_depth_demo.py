@@ -21,6 +21,17 @@ def test_demo_depth_writes_png_and_table(tmp_path, capsys):
     for m in ("I/Q pinv", "I/Q TVAL3", "I/Q vTV-separate", "I/Q joint"):
         assert rows[m]["rmse_m"] < rows["raw ToF"]["rmse_m"]
         assert rows[m]["mask"] > 0.9
+    # the best is named among the methods that do not fit the true depth
+    fair = min((r for m, r in rows.items() if m.startswith("I/Q")), key=lambda r: r["rmse_m"])
+    assert f"best without the oracle fit {fair['method']} {fair['rmse_m']:.3f} m" in out
+
+
+def test_demo_depth_on_a_single_depth_scene_names_no_oracle_row_best(tmp_path, capsys):
+    # on 'sky' (one depth) the oracle affine fit of the depth-sum rows is exact (0.000 m)
+    assert main(["demo", "--depth", "sky", "--n", "16", "--sr", "0.25", "--out",
+                 str(tmp_path)]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "best without the oracle fit I/Q" in last and "depth-sum" not in last
 
 
 def test_demo_default_scene_is_motorcycle():
