@@ -62,6 +62,22 @@ def test_reproduce_writes_everything(tmp_path):
     assert {c["claim"] for c in res["claims"]} >= {"PSNR rises with SR (6.25 % → 37.5 %)"}
 
 
+def test_reproduce_says_only_what_it_ran(tmp_path, capsys):
+    from torchtof.apps.reproduce import reproduce
+
+    res = reproduce(tmp_path, quick=True, realisations=1, methods=("CGI", "TVAL3"), n=16,
+                    depth=False)
+    claim = next(c for c in res["claims"] if c["claim"].startswith("TVAL3 ≥ CGI and BP"))
+    assert claim["evidence"].endswith("(only CGI evaluated)")  # BP was not run
+    heads = [ln for ln in (tmp_path / "table.md").read_text().splitlines()
+             if ln.startswith("### ")]
+    assert len(heads) == 4
+    for h in heads:  # the paper gives a raw ToF PSNR in air only
+        assert ("(paper 5.70)" in h) == h.startswith("### air"), h
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "depth_" not in last and "reproduce.json" in last
+
+
 def test_bad_command():
     with pytest.raises(SystemExit):
         main(["bench", "nothing"])

@@ -215,3 +215,16 @@ def test_simulate_frames_refuses_bad_inputs_by_name():
         with pytest.raises(ValueError, match=msg):
             simulate_frames(scene, kw.pop("patterns"), c, **kw)
     assert simulate_frames(scene, ok, cfg).depth.shape == (2, 1, 32, 32)
+
+
+def test_evaluate_options_take_any_spelling_and_refuse_unknown_names():
+    data = PaperExperiment(sr=0.25, n=16, roi_px=32, srs=(0.25,)).run(seed=0, realisations=1)
+    one = {"max_iter": 1}
+    ref = evaluate(data, 0.25, False, ("TVAL3",), options={"TVAL3": one})[0][0]["psnr"]
+    default = evaluate(data, 0.25, False, ("TVAL3",))[0][0]["psnr"]
+    assert ref != default  # the option acts
+    assert evaluate(data, 0.25, False, ("TVAL3",), options={"tval3": one})[0][0]["psnr"] == ref
+    with pytest.raises(ValueError, match="evaluate: options names an unknown method 'TVAL'"):
+        evaluate(data, 0.25, False, ("TVAL3",), options={"TVAL": one})
+    with pytest.raises(ValueError, match="evaluate: options gives TVAL3 twice"):
+        evaluate(data, 0.25, False, ("TVAL3",), options={"TVAL3": one, "tval3": one})

@@ -258,3 +258,26 @@ def test_return_types_follow_the_documented_rule():
     public = {n for n in sc.__all__ if callable(getattr(sc, n)) and n != "Scene"}
     assert public == {"get_scene", "depth_steps", "slanted_plane", "depth_scene",
                       "sky_character", "skimage_scene", "binary_scene", "motorcycle_depth"}
+
+
+def test_scene_inputs_review_edges(tmp_path):
+    import numpy as np
+
+    from torchtof.data import draw_scene, grey_image, load_images, planar_depth
+    # the cached photograph is never handed out: editing a result changes no later call
+    img = grey_image("camera")
+    img.zero_()
+    assert float(grey_image("camera").max()) > 0.5
+    # seeds: negative ones wrapped onto other seeds' scenes, floats were truncated
+    with pytest.raises(ValueError, match="draw_scene: expected seed"):
+        draw_scene(32, -1, "planar")
+    with pytest.raises(TypeError, match="planar_depth: expected seed"):
+        planar_depth(16, 1.7)
+    with pytest.raises(TypeError, match="draw_scene: expected images to be a sequence"):
+        draw_scene(32, 1, "natural", images="coins")
+    # an image spanning nearly the whole float64 range normalises without NaN
+    a = np.zeros((8, 8))
+    a[0, 0], a[1, 1] = -1e308, 1e308
+    np.save(tmp_path / "big.npy", a)
+    got = load_images(tmp_path / "big.npy")[0]
+    assert torch.isfinite(got).all() and float(got.min()) == 0.0 and float(got.max()) == 1.0

@@ -126,6 +126,15 @@ def build_method(name: str, data: ExperimentData, sr: float, gate: bool, kind: s
                   **options)
 
 
+def _label_or_name(name: str) -> str:
+    """The registry's label of ``name`` (any accepted spelling), or ``name`` itself when it
+    names no method (:func:`build_method` then raises its error)."""
+    try:
+        return registry.get(name).label
+    except (ValueError, TypeError):
+        return name
+
+
 def _check_data(data: object, func: str) -> None:
     if not isinstance(data, ExperimentData):
         raise TypeError(f"{func}: expected data to be an ExperimentData (PaperExperiment.run), "
@@ -166,7 +175,9 @@ def evaluate(
 ) -> tuple[list[dict], dict[str, torch.Tensor]]:
     """Run and score ``methods`` at ``sr``; returns (rows, images) — rows hold mean ± std over
     the realisations and the wall time of the whole batch. ``options[name]`` are constructor
-    keyword arguments of that method (e.g. ``{"DIP": {"max_iter": 100}}``)."""
+    keyword arguments of that method (e.g. ``{"DIP": {"max_iter": 100}}``; any spelling the
+    registry accepts, ``"dip"`` too; a key naming no method is a ``ValueError``, options for
+    a method not in ``methods`` are unused)."""
     func = "evaluate"
     _check_data(data, func)
     if isinstance(methods, str) or not all(isinstance(m, str) for m in methods):
@@ -176,12 +187,24 @@ def evaluate(
             isinstance(v, dict) for v in options.values())):
         raise TypeError(f"{func}: expected options to be a dict of name -> dict of constructor "
                         f"options, got {options!r}")
+    # options by the registry's label, so "tval3" and "TVAL3" name the same method; a key that
+    # names no method at all (a typo) is an error, options for a method not run are unused
+    by_label = {}
+    for key, opts in (options or {}).items():
+        try:
+            label = registry.get(key).label
+        except (ValueError, TypeError):
+            raise ValueError(f"{func}: options names an unknown method {key!r}") from None
+        if label in by_label:
+            raise ValueError(f"{func}: options gives {label} twice (as {key!r})")
+        by_label[label] = opts
+    run_labels = [_label_or_name(m) for m in methods]
     rows, images = [], {}
     polarity = data.polarity(gate, kind)
-    for name in methods:
+    for name, label in zip(methods, run_labels, strict=True):
         if progress is not None:
             progress(name)
-        method = build_method(name, data, sr, gate, kind, **(options or {}).get(name, {}))
+        method = build_method(name, data, sr, gate, kind, **by_label.get(label, {}))
         if not method.per_sample:  # one-off initialisation is not the method's run time
             with torch.no_grad():
                 method.module(method.y[:1])

@@ -25,8 +25,12 @@ probability 0.3 (the ungated depth bucket gives negative images, paper §3.1).
 
 Every scene comes from its own ``torch.Generator`` seeded by
 :func:`~torchtof.recon.synthetic.scene_seed` of ``(seed, step, index)``: a global batch is the
-same whichever process draws it (data-parallel training), and an evaluation set uses seeds
-that training never uses (:data:`EVAL_SEED_BASE` and up).
+same whichever process draws it (data-parallel training). Evaluation sets draw their scenes
+from raw seeds :data:`EVAL_SEED_BASE` and up; a training seed is a 32-bit hash, which can land
+there too (15 of the shipped run's 96,000 scene seeds are below 10⁶, three in
+``[10⁶, 1.1·10⁶)``), so the separation is checked, not built in:
+``benchmarks/eval_learned.py`` verifies that no scene seed of the shipped run is one of its
+evaluation seeds.
 """
 
 from __future__ import annotations
@@ -74,14 +78,17 @@ FAMILIES: dict[str, float] = {
     "leaves": 0.0,
     "user": 0.0,
 }
-#: scikit-image images drawn for training (bundled with scikit-image, no download).
+#: scikit-image images drawn for training (bundled with scikit-image, no download): 15
+#: names, 14 photographs (``cat`` and ``chelsea`` are the same image in scikit-image, so that
+#: one is drawn twice as often; kept so that the shipped weights' recipe is unchanged).
 TRAIN_IMAGES: tuple[str, ...] = (
     "coins", "moon", "text", "page", "clock", "coffee", "chelsea", "rocket", "grass",
     "gravel", "brick", "cell", "hubble_deep_field", "immunohistochemistry", "cat",
 )
 #: scikit-image images kept for evaluation only.
 HELD_OUT_IMAGES: tuple[str, ...] = ("camera", "astronaut", "horse", "shepp_logan_phantom")
-#: Training runs use seeds below this; evaluation sets use this and above.
+#: First raw seed of the evaluation sets (``draw_scene(n, EVAL_SEED_BASE + k)``); training's
+#: hashed seeds are not kept below it, so evaluations check disjointness (module doc).
 EVAL_SEED_BASE = 1_000_000
 
 
@@ -125,7 +132,7 @@ def grey_image(name: str) -> torch.Tensor:
         raise ValueError(
             f"grey_image: expected name in {TRAIN_IMAGES + HELD_OUT_IMAGES}, got {name!r}"
         )
-    return torch.from_numpy(_grey_np(name))
+    return torch.from_numpy(_grey_np(name).copy())  # the cached array is never handed out
 
 
 #: File types :func:`load_images` reads (the image formats through ``skimage.io.imread``).
@@ -239,7 +246,9 @@ def load_images(paths: str | os.PathLike | Sequence[str | os.PathLike],
                     if not hi > lo:
                         raise ValueError(f"{func}: expected a non-constant image, {name!r} is "
                                          f"constant ({lo:g})")
-                    out.append(torch.from_numpy((img - lo) / (hi - lo)).to(torch.float32))
+                    # halves first: hi − lo of values near ±1.8e308 would overflow to inf
+                    img = (img / 2 - lo / 2) / (hi / 2 - lo / 2)
+                    out.append(torch.from_numpy(img).to(torch.float32))
     return tuple(out)
 
 
@@ -276,10 +285,11 @@ def _finite_once(t: torch.Tensor) -> bool:
     return True
 
 
-def _check_seed(seed: object, name: str, func: str, lo: int = -(2**63),
+def _check_seed(seed: object, name: str, func: str, lo: int = 0,
                 hi: int | None = 2**64 - 1) -> int:
     """:func:`~torchtof._checks.check_int` (a Python or numpy integer, not a bool nor a float:
-    1.5 was truncated to 1), by default in what ``torch.Generator.manual_seed`` accepts."""
+    1.5 was truncated to 1), by default in ``[0, 2⁶⁴)``: ``torch.Generator.manual_seed`` also
+    takes negative seeds but wraps them (−1 is 2⁶⁴ − 1), so two seeds would give one scene."""
     return check_int(seed, name, func, lo, hi)
 
 
@@ -518,6 +528,9 @@ def _check_scene_args(n, family, images, families, user_images, dtype,
     check_float_dtype(dtype, "dtype", func)
     if family is not None and family not in FAMILIES:
         raise ValueError(f"{func}: expected family in {tuple(FAMILIES)} or None, got {family!r}")
+    if isinstance(images, str) or not all(isinstance(v, str) for v in images):
+        raise TypeError(f"{func}: expected images to be a sequence of image names (e.g. "
+                        f"('coins',)), got {images!r}")
     if len(images) == 0:
         raise ValueError(f"{func}: expected a non-empty images, got {images!r}")
     probs = FAMILIES if families is None else check_families(families, func)
@@ -623,7 +636,7 @@ def planar_depth(n: int, seed: int = 0, dtype: torch.dtype = torch.float64) -> t
     """
     if isinstance(n, bool) or not isinstance(n, int) or n < 2:
         raise ValueError(f"planar_depth: expected n to be an int >= 2, got {n!r}")
-    g = torch.Generator().manual_seed(int(seed))
+    g = torch.Generator().manual_seed(_check_seed(seed, "seed", "planar_depth"))
     yy, xx = torch.meshgrid(torch.linspace(0, 1, n, dtype=torch.float64),
                             torch.linspace(0, 1, n, dtype=torch.float64), indexing="ij")
     z = 0.8 - 0.2 * xx - 0.1 * yy
