@@ -264,3 +264,17 @@ def test_depth_rmse_and_affine_fit_do_not_overflow():
     # x̂ = 3e37·x is an exact affine image of x: the fit returns x (a = 1/3e37, b = 0)
     x = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
     torch.testing.assert_close(affine_fit(3e37 * x, x), x, rtol=0, atol=1e-6)
+
+
+def test_ssim_and_psnr_edge_inputs_raise_by_name():
+    from torchtof.metrics import psnr, ssim
+    a = torch.rand(1, 1, 8, 8) * 1e3
+    with pytest.raises(ValueError, match="ssim: data_range 1e-38 is too small for x_hat"):
+        ssim(a, a.clone(), data_range=1e-38)
+    with pytest.raises(ValueError, match="ssim: expected x with at least one pixel"):
+        ssim(torch.zeros(1, 0, 8, 8), torch.zeros(1, 0, 8, 8))
+    e = torch.zeros(0, 1, 8, 8)
+    for f in (psnr, ssim):
+        assert f(e, e).shape == (0,)  # 'none': an empty batch gives an empty result
+        with pytest.raises(ValueError, match=rf"{f.__name__}: reduction='mean' of an empty"):
+            f(e, e, reduction="mean")

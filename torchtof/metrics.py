@@ -44,7 +44,7 @@ import math
 import torch
 from torch import nn
 
-from torchtof._checks import check_bool, check_finite, check_positive, check_rank
+from torchtof._checks import check_bool, check_finite, check_positive, check_rank, is_tracing
 
 __all__ = [
     "POLARITIES",
@@ -129,6 +129,9 @@ def _reduce(v: torch.Tensor, reduction: str, func: str) -> torch.Tensor:
     if reduction == "none":
         return v
     if reduction == "mean":
+        if v.shape[0] == 0:
+            raise ValueError(f"{func}: reduction='mean' of an empty batch has no value (use "
+                             "reduction='none')")
         return v.mean()
     raise ValueError(f"{func}: expected reduction in ('mean', 'none'), got {reduction!r}")
 
@@ -287,6 +290,7 @@ def ssim(
 
     func = "ssim"
     _check_pair(x_hat, x, func)
+    _check_nonempty(x, "x", func)
     check_finite(x_hat, "x_hat", func)
     check_finite(x, "x", func)
     data_range = check_positive(data_range, "data_range", func)
@@ -302,7 +306,12 @@ def ssim(
     # μ², σ² cannot overflow (L = 1e30 gave NaN in float32)
     if x.is_meta or x_hat.is_meta:  # shape inference: kornia's window has no meta kernel
         return _reduce(x.new_empty(x.shape[0]), reduction, func)
-    smap = _kornia_ssim(x_hat / data_range, x / data_range, window_size, max_val=1.0, eps=0.0)
+    xh, xs = x_hat / data_range, x / data_range
+    for name, t in (("x_hat", xh), ("x", xs)):
+        if not is_tracing() and not bool(torch.isfinite(t).all()):  # one host read, at entry
+            raise ValueError(f"{func}: data_range {data_range:g} is too small for {name}: "
+                             f"{name} / data_range overflows {t.dtype}")
+    smap = _kornia_ssim(xh, xs, window_size, max_val=1.0, eps=0.0)
     return _reduce(smap.flatten(1).mean(1), reduction, func)
 
 
