@@ -232,3 +232,14 @@ def test_simulated_only_options_on_the_real_bench_are_usage_errors(argv, flag, t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"argument {flag}: used with --simulated only" in err[0], err
     assert not (tmp_path / "r.zarr").exists()
+
+
+@pytest.mark.parametrize("value", ["7", "1"])  # 1: at its default value
+def test_real_bench_only_options_with_simulated_are_usage_errors(value, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["acquire", "--simulated", "--n", "8", "--sr", "0.5", "--display", value,
+              "-o", str(tmp_path / "s.zarr")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --display: used on the real bench only" in err[0], err
+    assert not (tmp_path / "s.zarr").exists()

@@ -16,6 +16,8 @@ __all__ = ["add_parsers", "cmd_acquire", "cmd_reconstruct"]
 
 #: ``acquire`` options that only the simulated bench uses.
 SIMULATED_ONLY = ("scene", "roi_px", "scattering", "noise_free", "seed")
+#: ``acquire`` options that only the real bench uses.
+REAL_ONLY = ("display",)
 #: ``acquire --auto``: patterns per block of the stopping rule (torchtof.adaptive's default).
 AUTO_BLOCK = 32
 
@@ -225,6 +227,12 @@ def _check_acquire(args: argparse.Namespace) -> None:
                 flag = "--" + dest.replace("_", "-")
                 raise ValueError(f"argument {flag}: used with --simulated only (the real bench "
                                  "records the scene in front of it, with its own noise)")
+    if args.simulated:  # the simulated bench has no video output to choose
+        for dest in REAL_ONLY:
+            if dest in args.given:
+                flag = "--" + dest.replace("_", "-")
+                raise ValueError(f"argument {flag}: used on the real bench only (the simulated "
+                                 "bench sends its patterns to no display)")
     if args.simulated and args.n < 8:
         raise ValueError(f"argument --n: the simulated scenes need n >= 8, got {args.n}")
     if args.roi_px is not None and args.roi_px < args.n:
