@@ -64,6 +64,26 @@ def test_uninitialised_camera_is_refused_before_the_region_is_written(monkeypatc
     assert len(cams) == 1 and cams[0].dev.writes == [] and not path.exists()
 
 
+def test_reconstruct_says_when_a_store_is_incomplete(uninterrupted, tmp_path, capsys):
+    import shutil
+
+    assert main(["reconstruct", str(uninterrupted), "--method", "pinv", "--out",
+                 str(tmp_path / "a")]) == 0
+    assert "incomplete" not in capsys.readouterr().err  # a finished run: no note
+    part = tmp_path / "part.zarr"
+    shutil.copytree(uninterrupted, part)
+    g = zarr.open_group(str(part), mode="r+")
+    g.attrs["status"] = "interrupted"  # as after Ctrl-C: the first 8 pattern pairs verified
+    ok = g["frames_ok"][:]
+    ok[16:] = False
+    g["frames_ok"][:] = ok
+    assert main(["reconstruct", str(part), "--method", "pinv", "--out", str(tmp_path / "b")]) == 0
+    cap = capsys.readouterr()
+    assert "PINV from 8 pattern pairs" in cap.out
+    assert (f"note: {part} is incomplete (status 'interrupted': 8 of 16 planned pattern pairs "
+            "recorded); 'torchtof acquire --resume") in cap.err
+
+
 def test_acquire_then_reconstruct_equals_pure_simulation(uninterrupted, tmp_path, capsys):
     out = tmp_path / "rec"
     assert main(["reconstruct", str(uninterrupted), "--method", "tval3", "--out", str(out)]) == 0

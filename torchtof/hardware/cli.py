@@ -154,6 +154,11 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     except (StoreDamagedError, FileNotFoundError) as exc:
         print(f"torchtof reconstruct: {exc}", file=sys.stderr)
         return 2
+    status = _store_status(args.store, data.hadamard.m)
+    if status is not None:  # an interrupted run: say so before the image hides it
+        print(f"torchtof reconstruct: note: {args.store} is incomplete ({status}); "
+              f"'torchtof acquire --resume -o {args.store}' with the run's options finishes "
+              "it", file=sys.stderr)
     name = args.method  # a label: checked by _method
     sr = data.config.srs[0]
     method = build_method(name, data, sr, args.gate, args.kind, weights=args.weights)
@@ -175,6 +180,18 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         line += f"; PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f} vs the simulated object"
     print(line)
     return 0
+
+
+def _store_status(path, recorded: int) -> str | None:
+    """``None`` for a finished run (``--auto`` runs stopped by their rule included), else
+    what the store holds of its plan (``recorded``: the verified pattern pairs)."""
+    from .acquisition import _open_group
+
+    attrs = _open_group(path, "r").attrs
+    if attrs.get("status") == "complete":
+        return None
+    return (f"status {attrs.get('status', 'unknown')!r}: {recorded} of "
+            f"{int(attrs.get('m', 0))} planned pattern pairs recorded")
 
 
 def _method(text: str) -> str:
