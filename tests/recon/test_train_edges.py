@@ -482,3 +482,14 @@ def test_rank_device_uses_local_rank_under_torchrun(monkeypatch):
     assert rank_device("cuda", False) == "cuda"  # not distributed
     assert rank_device("cpu", None) == "cpu"
     assert rank_device("nope", None) == "nope"  # check_device names it
+
+
+def test_train_unrolled_makes_the_out_folder_before_training(tmp_path):
+    from torchtof.recon.train import train_unrolled
+    out = tmp_path / "new" / "deeper" / "w.pt"
+    train_unrolled(n=16, sr=0.25, n_layers=2, steps=1, batch_size=2, out=out, log_every=0)
+    assert out.is_file()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="train_unrolled: out's folder .* is not a directory"):
+        train_unrolled(n=16, sr=0.25, n_layers=2, steps=1, batch_size=2,
+                       out=tmp_path / "file" / "w.pt", log_every=0)

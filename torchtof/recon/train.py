@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -139,7 +140,8 @@ def train_unrolled(
         seed: base seed of the scene and noise streams (held-out sets use another seed).
         distributed: ``None`` detects torchrun's environment, ``True`` requires it (or an
             initialised process group), ``False`` trains in this process only.
-        out: if given, rank 0 writes the weights there (:meth:`UnrolledTVAL3.save_weights`).
+        out: if given, rank 0 writes the weights there (:meth:`UnrolledTVAL3.save_weights`);
+            its folder is made first, before any training step.
         log_every: print the loss every that many steps on rank 0 (0: never).
         n_iter: old name of ``n_layers`` (``DeprecationWarning``; removed in the next release).
 
@@ -165,6 +167,14 @@ def train_unrolled(
     check_in_range(lo, 0.0, math.inf, "noise_level[0]", func)
     check_in_range(hi, lo, math.inf, "noise_level[1]", func)
 
+    if out is not None:  # before the training, not after it: a missing folder lost the run
+        if not isinstance(out, (str, os.PathLike)):
+            raise TypeError(f"{func}: expected out to be a path or None, got "
+                            f"{type(out).__name__}")
+        parent = Path(out).parent
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"{func}: out's folder {os.fspath(parent)!r} is not a directory")
+        parent.mkdir(parents=True, exist_ok=True)
     A = Hadamard(n, sr=sr, order=order)
     model = UnrolledTVAL3(A, n_layers=n_layers, pretrained=False)
     is_dist, rank, world, created = _dist_setup(distributed, func)
