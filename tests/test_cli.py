@@ -78,6 +78,21 @@ def test_reproduce_says_only_what_it_ran(tmp_path, capsys):
     assert "depth_" not in last and "reproduce.json" in last
 
 
+@pytest.mark.parametrize("argv, msg", [
+    (["demo", "--n", "8", "--methods", "CGI", "--out", "/proc/nope"],
+     "argument --out: cannot make the folder '/proc/nope'"),
+    (["bench", "operators", "--n"], "argument --n: expected at least one argument"),
+])
+def test_usage_errors_come_before_the_work(argv, msg, capsys):
+    # an unwritable --out was found after the whole run; '--n' with no values ran the
+    # default grid
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr()
+    assert msg in err.err and "PSNR" not in err.out
+
+
 def test_bad_command():
     with pytest.raises(SystemExit):
         main(["bench", "nothing"])

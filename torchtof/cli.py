@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -328,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: " + ", ".join(BENCHES),
                        description="Run one benchmark, print its table and write its JSON.")
     b.add_argument("which", choices=BENCHES, help="the benchmark")
-    b.add_argument("--n", type=power_of_two, nargs="*", default=None,
+    b.add_argument("--n", type=power_of_two, nargs="+", default=None,
                    help="operators: DMD sides, powers of two in [4, 256] (default 32 64 128 256)")
     b.add_argument("--batch", type=positive_int, default=16, help="operators: batch size")
     b.add_argument("--sr", type=sampling_rate, default=0.25, help="operators: sampling rate")
@@ -541,10 +542,12 @@ def _check_global_options(parser: argparse.ArgumentParser, argv: list[str]) -> i
     return i
 
 
-def _check_destination(parser, flag: str, path: str, folder: bool | None) -> None:
+def _check_destination(parser, flag: str, path: str, folder: bool | None,
+                       make: bool = False) -> None:
     """Before any work: ``path`` (a folder to write into, a file to write, ``None``: the
-    command checks the path itself) must not be the other kind, and its nearest existing
-    ancestor must be a folder (``mkdir`` would fail after the whole run otherwise)."""
+    command checks the path itself) must not be the other kind, its nearest existing
+    ancestor must be a folder; with ``make`` (after every option check passed) the folder (a
+    file's parent) is made now (``mkdir`` would fail after the whole run otherwise)."""
     p = Path(path)
     if folder is not None and p.exists() and p.is_dir() != folder:
         parser.error(f"argument {flag}: expected {'a folder' if folder else 'a file path'}, "
@@ -554,21 +557,29 @@ def _check_destination(parser, flag: str, path: str, folder: bool | None) -> Non
             if not up.is_dir():
                 parser.error(f"argument {flag}: expected a path under a folder, {up} is a file")
             break
+    if folder is None or not make:  # acquire makes its store itself
+        return
+    try:  # made now: a folder that cannot be made is a usage error before the work
+        (p if folder else p.parent).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        parser.error(f"argument {flag}: cannot make the folder "
+                     f"{os.fspath(p if folder else p.parent)!r}: {exc.strerror or exc}")
 
 
-def _check_destinations(args: argparse.Namespace) -> None:
+def _check_destinations(args: argparse.Namespace, make: bool = False) -> None:
     """Every command's ``--out`` is a folder it writes into, unless a file option replaces it
-    (``export -o``, ``bench --json``: files); ``acquire -o`` is a zarr store (a folder)."""
+    (``export -o``, ``bench --json``: files); ``acquire -o`` is a zarr store (a folder).
+    ``make``: also make the folders (once the other checks passed)."""
     out, output = getattr(args, "out", None), getattr(args, "output", None)
     store = getattr(args, "cmd", None) == "acquire"
     files = {"-o/--output": None if store else output, "--json": getattr(args, "json", None)}
     if isinstance(out, str) and not any(files.values()):
-        _check_destination(args.parser, "--out", out, folder=True)
+        _check_destination(args.parser, "--out", out, folder=True, make=make)
     if store and isinstance(output, str):  # acquire names an existing non-store itself
         _check_destination(args.parser, "-o/--output", output, folder=None)
     for flag, path in files.items():
         if isinstance(path, str):
-            _check_destination(args.parser, flag, path, folder=False)
+            _check_destination(args.parser, flag, path, folder=False, make=make)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -588,6 +599,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.debug:
                 raise
             args.parser.error(_one_line(exc))
+    _check_destinations(args, make=True)
     # The library keeps torch's default thread count; the CLI sets --threads (default 1): the
     # problems are small (32–128 px images, ≤ 1k patterns), and OpenMP spin-waiting on a
     # loaded machine makes two threads many times slower than one (README 'Threads').
