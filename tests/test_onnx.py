@@ -373,3 +373,38 @@ def test_frame_models_build_at_the_default_size(name):
     for seed in (0, 2):
         module, (x,) = MODELS[name](32, 0.25, batch=2, seed=seed)
         assert torch.isfinite(module(x)).all()
+
+
+@pytest.mark.parametrize("cls", ["DIP", "Auto"])
+def test_export_refuses_a_reconstructor_the_registry_marks_not_exportable(cls, tmp_path):
+    # before: the FX graph printed twice and a TorchExportError (DIP), an internal assert (Auto)
+    import torchtof.recon as recon
+    A = Hadamard(8, sr=0.5)
+    with pytest.raises(ValueError, match=rf"^export: {cls} does not export to ONNX"):
+        tto.export(getattr(recon, cls)(A), A(torch.rand(2, 1, 8, 8)), tmp_path / "m.onnx")
+    assert not (tmp_path / "m.onnx").exists()
+
+
+def test_opset17_fallback_prints_no_converter_traceback(tmp_path):
+    # the dynamo exporter's down-conversion of g2 to opset 17 fails and logs a traceback;
+    # export() falls back to the tracer itself, so the user sees neither (a fresh process:
+    # pytest's log capture would hide the logging)
+    import subprocess
+    import sys
+    code = ("import onnx, torchtof.onnx as tto\n"
+            "from torchtof.apps.onnx_models import MODELS\n"
+            f"m, (y,) = MODELS['g2']({N}, {SR})\n"
+            f"p = tto.export(m, (y,), {str(tmp_path / 'g2.onnx')!r}, opset=17)\n"
+            "print(tto.model_opset(onnx.load(p)))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=240)
+    assert out.returncode == 0 and out.stdout.strip() == "17", out.stderr[-1000:]
+    assert "Traceback" not in out.stderr and "version" not in out.stderr, out.stderr[-1000:]
+
+
+def test_float64_export_warns_that_onnxruntime_may_not_run_it(tmp_path):
+    module, (y,) = MODELS["learned"](16, 0.25)
+    with pytest.warns(UserWarning, match="export: float64 example inputs give a float64 graph"):
+        path = tto.export(module, (y.double(),), tmp_path / "l64.onnx")
+    with pytest.raises(Exception, match="NOT_IMPLEMENTED|Could not find an implementation"):
+        tto.check(path, module.double(), y.double())  # Conv(11) has no double kernel

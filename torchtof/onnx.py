@@ -208,6 +208,16 @@ def _adaptive_solvers(module: nn.Module) -> list[str]:
             if getattr(m, "adaptive", None) is True or _options(m).get("adaptive") is True]
 
 
+def _not_exportable(module: nn.Module) -> list[str]:
+    """Labels of the registry's reconstructors inside ``module`` that do not export
+    (``ReconSpec.exportable`` false: ``Auto`` chooses its model by host-side cross-validation,
+    ``DIP`` trains a network per sample)."""
+    from .recon import registry
+
+    closed = {s.module: s.label for s in registry.specs() if not s.exportable}
+    return [closed[type(m)] for m in module.modules() if type(m) in closed]
+
+
 def default_exporter(module: nn.Module) -> str:
     """``"torchscript"`` for a module holding an iterative solver (a submodule with a
     ``max_iter``, ``n_iter`` or ``n_layers`` attribute or option), else ``"dynamo"``: the
@@ -278,6 +288,11 @@ def export(
     func = "export"
     if not isinstance(module, nn.Module):
         raise TypeError(f"{func}: expected module to be an nn.Module, got {type(module).__name__}")
+    closed = _not_exportable(module)
+    if closed:
+        raise ValueError(f"{func}: {closed[0]} does not export to ONNX (torchtof.recon.registry"
+                         f": exportable=False; its work is not a fixed graph); export a "
+                         "fixed-iteration reconstructor instead")
     adaptive = _adaptive_solvers(module)
     if adaptive:
         raise ValueError(
@@ -296,6 +311,11 @@ def export(
     output_names = _names(output_names, "output_names", func)
     path = _onnx_file(path, func, must_exist=False)
     inputs = _as_tuple(example_inputs)
+    if any(t.dtype == torch.float64 for t in inputs):
+        warnings.warn(f"{func}: float64 example inputs give a float64 graph; onnxruntime's CPU "
+                      "provider has no float64 kernel for some operators (Conv, Atan), so "
+                      "such a file may not run there: check() it, or export with float32 "
+                      "inputs (the deployment dtype)", UserWarning, stacklevel=2)
     if dynamic_batch and any(t.ndim == 0 or t.shape[0] == 1 for t in inputs):
         raise ValueError(
             f"{func}: expected example inputs with a batch axis of size > 1 for dynamic_batch "
@@ -426,10 +446,19 @@ def _quiet_registration():
     log = logging.getLogger("torch.onnx._internal.exporter._registration")
     note = _NoTorchvisionNote()
     log.addFilter(note)
+    # the opset down-conversion's own reports: a failed conversion logs a traceback and a
+    # warning, and export() falls back to the tracer (or says why not) itself
+    quiet = [logging.getLogger(n) for n in ("onnxscript.version_converter",
+                                            "torch.onnx._internal.exporter._compat")]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.CRITICAL)
     try:
         yield
     finally:
         log.removeFilter(note)
+        for q, lv in zip(quiet, levels, strict=True):
+            q.setLevel(lv)
 
 
 def ort_session(path: str | os.PathLike, threads: int | None = None):
