@@ -408,3 +408,26 @@ def test_float64_export_warns_that_onnxruntime_may_not_run_it(tmp_path):
         path = tto.export(module, (y.double(),), tmp_path / "l64.onnx")
     with pytest.raises(Exception, match="NOT_IMPLEMENTED|Could not find an implementation"):
         tto.check(path, module.double(), y.double())  # Conv(11) has no double kernel
+
+
+def test_example_keeps_every_output_and_names_missing_files(exported, tmp_path):
+    module, path = exported("camera")  # three outputs: phase, amplitude, depth
+    _, (taps,) = MODELS["camera"](N, SR, batch=2, seed=1)
+    np.save(tmp_path / "t.npy", taps.numpy())
+    res = _run_example([str(path), str(tmp_path / "t.npy"), "--quiet", "--out",
+                        str(tmp_path / "o.npy")], block_torch=True)
+    assert res.returncode == 0, res.stderr
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    names = [o.name for o in sess.get_outputs()]
+    with torch.no_grad():
+        want = module(taps)
+    assert np.allclose(np.load(tmp_path / "o.npy"), want[0].numpy(), atol=1e-3)
+    for k, w in zip(names[1:], want[1:]):
+        np.testing.assert_allclose(np.load(tmp_path / f"o_{k}.npy"), w.numpy(), rtol=1e-4,
+                                   atol=1e-3)
+    for args, msg in (([str(tmp_path / "none.onnx"), str(tmp_path / "t.npy")],
+                       "argument model: no such .onnx file"),
+                      ([str(path), str(tmp_path / "none.npy")],
+                       "argument buckets: no such .npy file")):
+        res = _run_example(args, block_torch=True)
+        assert res.returncode == 2 and msg in res.stderr and "Traceback" not in res.stderr
