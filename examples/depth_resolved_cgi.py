@@ -10,18 +10,18 @@ differential y⁺ − y⁻ removes ambient light and stray returns, which no sin
     python examples/depth_resolved_cgi.py [--scene motorcycle] [--sr 0.25] [--out out]
 """
 
-import argparse
 from pathlib import Path
 
+from torchtof.apps.args import OneLineParser, sampling_rate, scene
 from torchtof.experiment import PaperExperiment
 from torchtof.metrics import depth_rmse
 from torchtof.recon import DepthResolved, JointTV, PseudoInverse
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scene", default="motorcycle")
-    p.add_argument("--sr", type=float, default=0.25)
+    p = OneLineParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scene", type=scene, default="motorcycle")
+    p.add_argument("--sr", type=sampling_rate, default=0.25)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     exp = PaperExperiment(sr=args.sr, scene=args.scene, srs=(args.sr,))

@@ -16,13 +16,13 @@ The same export is ``torchtof export MODEL --n 32 --sr 0.25 -o out.onnx``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import onnx
 
+from torchtof.apps.args import OneLineParser, positive_int, power_of_two, sampling_rate
 from torchtof.apps.onnx_models import MODELS, export_model
 from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, check, model_opset
 
@@ -46,12 +46,14 @@ def _dims(value: onnx.ValueInfoProto) -> list[str | int]:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("models", nargs="*", help=f"models (default: all of {list(MODELS)})")
-    p.add_argument("--n", type=int, default=32, help="DMD side")
-    p.add_argument("--sr", type=float, default=0.25, help="sampling rate M / n^2")
-    p.add_argument("--n-iter", type=int, default=None, help="iterations of iterative models")
-    p.add_argument("--opset", type=int, default=DEFAULT_OPSET)
+    p = OneLineParser(description=__doc__.splitlines()[0])
+    p.add_argument("models", nargs="*", metavar="MODEL",
+                   help=f"models (default: all of {list(MODELS)})")
+    p.add_argument("--n", type=power_of_two, default=32, help="DMD side")
+    p.add_argument("--sr", type=sampling_rate, default=0.25, help="sampling rate M / n^2")
+    p.add_argument("--n-iter", type=positive_int, default=None,
+                   help="iterations of iterative models")
+    p.add_argument("--opset", type=int, choices=(17, 18), default=DEFAULT_OPSET)
     p.add_argument(
         "--exporter",
         choices=["dynamo", "torchscript"],
@@ -62,6 +64,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--no-check", action="store_true", help="skip the onnxruntime comparison")
     p.add_argument("--readme", action="store_true", help="print the README model table, exit")
     args = p.parse_args(argv)
+    unknown = [m for m in args.models if m not in MODELS]
+    if unknown:
+        p.error(f"argument MODEL: unknown model {unknown[0]!r}; choose from "
+                f"{', '.join(MODELS)}")
     if args.readme:
         print(readme_table())
         return []

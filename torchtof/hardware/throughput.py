@@ -12,7 +12,6 @@ at 10 ms patterns on the internal trigger).
 
 from __future__ import annotations
 
-import argparse
 import math
 import tempfile
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..apps.args import OneLineParser, csv_list, positive_int, power_of_two, sampling_rate
 from ..experiment import ExperimentConfig
 from . import opt8241 as opt
 from .simulated import FakeOPT8241, SimulatedBench
@@ -81,15 +81,16 @@ def measure(mode: str, n: int = 32, sr: float = 0.25, width: int = 320, height: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m torchtof.hardware.throughput",
-                                description=__doc__.split("\n\n")[0])
-    p.add_argument("--modes", default="depth,quad")
-    p.add_argument("--n", type=int, default=32)
-    p.add_argument("--sr", type=float, default=0.25)
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--height", type=int, default=240)
+    p = OneLineParser(prog="python -m torchtof.hardware.throughput",
+                      description=__doc__.split("\n\n")[0])
+    p.add_argument("--modes", type=csv_list(list(opt.FRAME_MODES)), default=["depth", "quad"],
+                   help=f"camera modes, comma-separated, of {', '.join(opt.FRAME_MODES)}")
+    p.add_argument("--n", type=power_of_two, default=32)
+    p.add_argument("--sr", type=sampling_rate, default=0.25)
+    p.add_argument("--width", type=positive_int, default=320)
+    p.add_argument("--height", type=positive_int, default=240)
     args = p.parse_args(argv)
-    for mode in args.modes.split(","):
+    for mode in args.modes:
         r = measure(mode, args.n, args.sr, args.width, args.height)
         print(f"{mode:6s} {args.width}x{args.height}: {r['frames']} frames in "
               f"{r['seconds']:.2f} s = {r['fps']:.1f} frames/s; {r['cpu_s']:.2f} s of CPU "
