@@ -8,6 +8,7 @@ units of the output's peak, float32). An export failure fails the test.
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -431,3 +432,11 @@ def test_example_keeps_every_output_and_names_missing_files(exported, tmp_path):
                        "argument buckets: no such .npy file")):
         res = _run_example(args, block_torch=True)
         assert res.returncode == 2 and msg in res.stderr and "Traceback" not in res.stderr
+
+
+def test_depth_resolved_says_when_its_unrolled_tval3_is_untrained():
+    with pytest.warns(UserWarning, match=r"MODELS\['depth_resolved'\]: no shipped unrolled "):
+        MODELS["depth_resolved"](8, 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the shipped weights: no warning
+        MODELS["depth_resolved"](32, 0.25)

@@ -249,8 +249,12 @@ def _build_depth_resolved(n, sr, batch, seed, n_iter):
     away from the 0/2π wrap), ambient offset, Gaussian noise of 0.2 % of the spread."""
     A = Hadamard(n, sr=sr)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # no shipped weights: TVAL3 defaults
+        warnings.simplefilter("ignore", UserWarning)  # said below, in this model's words
         net = UnrolledTVAL3(A, n_layers=n_iter, pretrained=True)
+    if net.weights_file is None:  # unrolled_tval3 refuses; this model documents its fallback
+        warnings.warn(f"MODELS['depth_resolved']: no shipped unrolled weights for n={n}, "
+                      f"sr={sr}, K={n_iter}: its unrolled TVAL3 holds TVAL3's default scalars "
+                      f"(untrained); shipped: {available_weights()}", UserWarning, stacklevel=2)
     refl = 0.3 + 0.7 * _scenes(n, batch, seed)
     depth = 1.0 + 3.0 * synthetic_scenes(n, seed=seed + 1, step=0, indices=range(batch))
     taps = correlation_taps(phasor_from_depth(400.0 * refl, depth, MODULATION_HZ), offset=2600.0)
