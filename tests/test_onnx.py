@@ -440,3 +440,16 @@ def test_depth_resolved_says_when_its_unrolled_tval3_is_untrained():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the shipped weights: no warning
         MODELS["depth_resolved"](32, 0.25)
+
+
+def test_frame_models_check_their_memory_before_drawing_the_frames():
+    # tap_buckets at n = 128 draws ~9 GB of frames: a limit below the estimate is a clear
+    # ValueError before any allocation (was a raw allocator error or the OOM killer)
+    import torchtof
+    torchtof.set_memory_limit("64M")
+    try:
+        for name in ("tap_buckets", "depth_gate", "intensity_bucket"):
+            with pytest.raises(ValueError, match=r"onnx_models: 2x1024 ToF frames of 136x136"):
+                MODELS[name](64, 0.25, batch=2)
+    finally:
+        torchtof.set_memory_limit(None)  # back to the environment's / the machine's

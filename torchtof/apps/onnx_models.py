@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from .._memory import check_memory
 from ..bucket import PAPER_GATE_M, DepthBucket, DepthGate, IntensityBucket, TapBuckets
 from ..onnx import DEFAULT_OPSET, EXPORT_BATCH, DepthAmplitude, OperatorMethod, export
 from ..operators import DMDSplit, Hadamard, PatternOperator, random_binary_patterns
@@ -116,9 +117,23 @@ def _hadamard_buckets(A: Hadamard, x: torch.Tensor, seed: int) -> torch.Tensor:
     return combine_split(_dmd_buckets(DMDSplit(A), x, seed), A.n)
 
 
-def _frames(n: int, m: int, x: torch.Tensor, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+#: Peak bytes per frame pixel of the frame models' inputs (the example frames and the
+#: tensors made from them: bool mask, float32 noise and amplitude, complex64 phasor, four
+#: float32 taps and their intermediates), for the memory check before they are drawn; about
+#: 1.2x the peak measured with the model's forward (53 / 18 / 13 bytes per pixel, n = 64).
+_FRAME_BYTES = {"depth": 24, "intensity": 16, "taps": 64}
+
+
+def _frames(n: int, m: int, x: torch.Tensor, seed: int, kind: str = "depth"
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(lit (B, m, H, W) bool, noise (B, m, H, W))`` of the ToF frames of ``m`` DMD
-    patterns: ``H = W = 2n + 8`` (2×2 sensor pixels per DMD pixel and a 4-pixel margin)."""
+    patterns: ``H = W = 2n + 8`` (2×2 sensor pixels per DMD pixel and a 4-pixel margin).
+    The peak of the ``kind`` model's inputs is checked against the memory limit first."""
+    side = 2 * n + 8
+    check_memory(_FRAME_BYTES[kind] * x.shape[0] * m * side * side,
+                 f"{x.shape[0]}x{m} ToF frames of {side}x{side} px ({kind})",
+                 "onnx_models", "use a smaller n or sampling rate: the frame models take "
+                 "every frame of the run")
     g = _gen(seed, 2)
     pats = random_binary_patterns(m, n, generator=g)
     lit = (pats[None] * (x > 0.5)).repeat_interleave(2, -1).repeat_interleave(2, -2) > 0
@@ -129,7 +144,7 @@ def _frames(n: int, m: int, x: torch.Tensor, seed: int) -> tuple[torch.Tensor, t
 def _depth_frames(n: int, m: int, x: torch.Tensor, seed: int) -> torch.Tensor:
     """ToF depth frames (m): lit pixels at 2 m ± 3 cm, 10 % far multipath at 3.5–4.5 m,
     the rest "no photon" at 5 m (paper §2.2, §3.1)."""
-    lit, noise = _frames(n, m, x, seed)
+    lit, noise = _frames(n, m, x, seed, "depth")
     far = noise.abs() < 0.125
     depth = torch.where(far, 4.0 + 0.2 * noise.clamp(-2.5, 2.5), torch.full_like(noise, 5.0))
     return torch.where(lit, _OBJECT_M + 0.03 * noise, depth)
@@ -186,7 +201,7 @@ def _build_frames(kind):
             return DepthGate(PAPER_GATE_M), (_depth_frames(n, m, x, seed),)
         if kind == "depth":
             return DepthBucket(_roi_box(n), PAPER_GATE_M), (_depth_frames(n, m, x, seed),)
-        lit, noise = _frames(n, m, x, seed)
+        lit, noise = _frames(n, m, x, seed, "taps" if kind == "taps" else "intensity")
         amp = lit * 200.0 + 5.0 + noise  # e⁻: signal on lit pixels, a dim background
         if kind == "intensity":
             return IntensityBucket(_roi_box(n)), (amp,)
