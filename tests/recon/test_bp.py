@@ -464,3 +464,12 @@ def test_default_exact_model_against_the_auto_radius():
 
     assert gap(binary_scene("horse", 32, dtype=torch.float64), 0.0) < -2.0
     assert gap(skimage_scene("moon", 32, dtype=torch.float64), 0.05) > 3.0
+
+
+def test_operator_too_small_for_float32_is_named_not_nan():
+    from torchtof.operators import PatternOperator
+    P = PatternOperator(torch.rand(6, 4, 4, generator=torch.Generator().manual_seed(0)) * 1e-20)
+    x = torch.rand(1, 1, 4, 4, generator=torch.Generator().manual_seed(1))
+    with pytest.raises(ValueError, match="basis_pursuit: A's rows are too small for torch.float32"):
+        basis_pursuit(P(x), P)
+    assert torch.isfinite(basis_pursuit(P(x.double()), P)).all()  # float64 holds them

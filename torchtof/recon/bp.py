@@ -371,6 +371,12 @@ def basis_pursuit(
         gram = None
     else:
         gram = gram_factor(A, y.device) if gram is None else gram
+        big = float(gram[2].abs().max()) if (gram[2].numel() and not is_tracing()
+                                                and gram[2].device.type != "meta") else 0.0
+        if big > torch.finfo(y.dtype).max:  # one host read, at entry: s⁻² would be inf
+            raise ValueError(f"{func}: A's rows are too small for {y.dtype} buckets (AAᵀ has "
+                             f"eigenvalues down to {1 / big:.3g}, whose inverses overflow); "
+                             "scale A (and y) up, or use float64 buckets")
         gram = tuple(g.to(dtype=y.dtype, device=y.device) for g in gram)
     n = A.n
     fwd, inv = _basis(basis, n, y)
