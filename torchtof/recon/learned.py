@@ -90,7 +90,7 @@ from .._checks import (
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from ..operators.split import DMDSplit, combine_split
-from .base import relative_residual
+from .base import pow2_scale, relative_residual
 from .gauss import markov_completion
 from .tval3 import bucket_noise_sigma
 from .unrolled import check_n_layers
@@ -428,6 +428,13 @@ def _unrolled(
     B, C = y.shape[0], y.shape[1]
 
     sigma = _sigma_of("auto" if noise_sigma is None else noise_sigma, y, func)  # (B, C)
+    # f(c·y) = c·f(y): an exact power of two per sample (1 at ordinary scales, bit for bit
+    # the same) keeps the norms below finite for buckets near the dtype's ends (1e38)
+    # (eager only: the factor is built from IEEE bits, which the exporters cannot trace; an
+    # exported graph keeps the plain normalisation, finite for ordinary buckets)
+    p2 = None if is_tracing() else pow2_scale(y)  # (B, C, 1)
+    if p2 is not None:
+        y, sigma = y * p2, sigma * p2[..., 0]
     B0 = B
     if flips > 1:  # every flipped image's buckets, stacked along the batch
         d = _flip_signs(op, flips, y)  # (F, M)
@@ -472,7 +479,7 @@ def _unrolled(
         back = [torch.flip(xf, [d for d, f in zip((-2, -1), fl, strict=True) if f])
                 if any(fl) else xf for xf, fl in zip(xs, FLIPS, strict=False)]
         x = torch.stack(back).mean(0)
-    return x
+    return x if p2 is None else x / p2[..., None]
 
 
 # -- weights -------------------------------------------------------------------------------

@@ -91,7 +91,7 @@ from torch import nn
 
 from .._checks import check_bool, check_positive, check_weight_range, is_tracing, unchecked
 from ..operators.base import LinearOperator
-from .base import relative_residual
+from .base import pow2_scale, relative_residual
 from .tv import (
     BOUNDARIES,
     TV_NORMS,
@@ -366,6 +366,12 @@ def tgv(
     # ScaleA and Scaleb as TVAL3 (module doc)
     inv_s2 = scale_a(A, y, fn)
     sq = math.sqrt(inv_s2)
+    # an exact power of two per sample (1 at ordinary scales: bit for bit the same) brings
+    # buckets near the ends of the dtype's range (3e38, 1e-40 in float32) to about 1, so
+    # that their spread and its inverse stay finite: tgv(c·y) = c·tgv(y) at every scale
+    # (eager only: the factor is built from IEEE bits, which the exporters cannot trace)
+    k = torch.ones_like(y[..., :1]) if is_tracing() else pow2_scale(y)  # (B, C, 1)
+    y = y * k
     spread = bucket_spread(y)
     zero = spread == 0
     safe = torch.where(zero, torch.ones_like(spread), spread)
@@ -379,16 +385,20 @@ def tgv(
         gain = g * sq
     b = y * gain[..., None]
     scale = gain / sq  # u = x · gain/√s2
+    k4 = k[..., None]  # (B, C, 1, 1)
     box = None if lo is None and hi is None else (
-        None if lo is None else lo * scale[..., None, None],
-        None if hi is None else hi * scale[..., None, None])
+        None if lo is None else (lo * k4) * scale[..., None, None],
+        None if hi is None else (hi * k4) * scale[..., None, None])
     with unchecked():  # y validated above: no check_finite per operator call in the loop
         u, w, n_iter, done = _pdhg(b, A, sq, mu_t, ~tvl2_t, (a1, a0), tv == "isotropic",
                                    boundary, box, max_iter, tol, adaptive, check_every, zero)
     unscale = (sq / gain)[..., None, None]
-    x = torch.where(zero[..., None, None], torch.zeros_like(u), u * unscale)
-    w = torch.where(zero[..., None, None, None], torch.zeros_like(w), w * unscale[..., None])
-    residual = relative_residual(x, y, A)
+    # all-zero buckets: 0, projected onto the caller's box (a bound is kept for them too)
+    x0 = project_box(torch.zeros_like(u), lo, hi) if box is not None else torch.zeros_like(u)
+    x = torch.where(zero[..., None, None], x0, u * unscale / k4)
+    w = torch.where(zero[..., None, None, None], torch.zeros_like(w),
+                    w * unscale[..., None] / k4[..., None])
+    residual = relative_residual(x, y / k, A)
     code = torch.where(done, 0, 1)
     names = () if is_tracing() or y.device.type == "meta" else tuple(
         tuple(TGV_STOP_REASONS[k] for k in row) for row in code.tolist())

@@ -44,7 +44,7 @@ from .._checks import (
 )
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
-from .base import relative_residual
+from .base import pow2_scale, relative_residual
 from .noise import abs_quantile_sigma, tail_noise_sigma
 from .tv import (
     BOUNDARIES,
@@ -504,6 +504,13 @@ def tval3(
         check_exact_memory(A, y, boundary, fn, _EXACT_MEMORY_HINT)
     # ScaleA (skipped for orthonormal rows, as after TVAL3's A Aᵀ = I test) and Scaleb.
     inv_s2 = scale_a(A, y, fn)
+    # An exact power of two per sample (1 at ordinary scales: bit for bit the same; eager
+    # only, built from IEEE bits) brings buckets near the dtype's ends (2^127, subnormals in
+    # float32) to about 1, so that their spread and its inverse stay finite. Quantities in
+    # the units of y (a given noise std, a discrepancy, the box) are scaled with them.
+    y0 = y
+    k = torch.ones_like(y[..., 0]) if is_tracing() else pow2_scale(y)[..., 0]  # (B, C)
+    y = y * k[..., None]
     spread = bucket_spread(y)
     zero = spread == 0
     safe = torch.where(zero, torch.ones_like(spread), spread)
@@ -519,7 +526,7 @@ def tval3(
     b = y * gain[..., None]
     lo, hi = box_bounds(nonneg, bounds, fn)
     scale = gain / math.sqrt(inv_s2)  # u = x · gain/√s2
-    box = (None if lo is None else lo * scale, None if hi is None else hi * scale)
+    box = (None if lo is None else (lo * k) * scale, None if hi is None else (hi * k) * scale)
 
     # Model and weights per sample.
     if isinstance(mu, torch.Tensor):  # per-sample weights (B, C) (e.g. a weight search)
@@ -532,13 +539,13 @@ def tval3(
         if noise_sigma is None or isinstance(noise_sigma, str):
             sigma = _estimate_sigma(y, A, noise_sigma, fn)
         else:
-            sigma = _sigma_tensor(noise_sigma, y, "noise_sigma", fn)
+            sigma = _sigma_tensor(noise_sigma, y0, "noise_sigma", fn) * k
         mu_f, beta_f, constrained = auto_weights(sigma * gain, beta)
         if (noise_sigma is None or isinstance(noise_sigma, str)) and adaptive and A.m >= 8 \
                 and not is_tracing() and y.device.type != "meta" and bool((~constrained).any()):
             # one host read at entry: validate the estimate's TV-L2 choice on held-out rows
-            keep, mu_cv = _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary,
-                                                max_iter)
+            keep, mu_cv = _validate_constrained(y0, A, mu_f, beta, tv, nonneg, bounds,
+                                                boundary, max_iter)
             mu_f = torch.where(constrained, mu_f, mu_cv)
             constrained = constrained | keep
             mu_f = torch.where(keep, torch.full_like(mu_f, AUTO_MU_MAX), mu_f)
@@ -562,13 +569,13 @@ def tval3(
                                  f"'auto', got {discrepancy!r}")
             sd = _tail_sigma(y, A.m, NOISE_TAIL, NOISE_QUANTILE)
         else:
-            sd = _sigma_tensor(discrepancy, y, "discrepancy", fn)
+            sd = _sigma_tensor(discrepancy, y0, "discrepancy", fn) * k
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
     with unchecked():  # y was validated above: operator calls in the loop skip check_finite
         u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
                    boundary=boundary, disc_bound=bound)
-    x = u.x * (math.sqrt(inv_s2) / _i(gain))  # A_s u = b  <=>  A (u/(√s2·gain)) = y
-    residual = relative_residual(x, y, A)
+    x = u.x * (math.sqrt(inv_s2) / _i(gain)) / _i(k)  # A_s u = b <=> A (u/(√s2·gain)) = y
+    residual = relative_residual(x, y0, A)
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
     code = torch.where(u.converged, code, 3)
