@@ -291,7 +291,8 @@ def test_every_single_bit_flip_in_a_recorded_chunk_is_detected(tmp_path):
 
 
 @pytest.mark.parametrize("damage", ["delete_bucket_chunk", "truncate_chunk", "garbage_json",
-                                    "bad_frames_ok"])
+                                    "bad_frames_ok", "delete_frames_ok_chunk",
+                                    "m_acquired_changed"])
 def test_damaged_store_is_reported_with_its_path(damage, tmp_path, capsys):
     path = tmp_path / "d.zarr"
     args = ["acquire", "--simulated", "--n", "8", "--roi-px", "8", "--sr", "0.125",
@@ -304,6 +305,11 @@ def test_damaged_store_is_reported_with_its_path(damage, tmp_path, capsys):
         c.write_bytes(c.read_bytes()[:-7])
     elif damage == "garbage_json":
         (path / "zarr.json").write_text("{not json")
+    elif damage == "delete_frames_ok_chunk":  # reads back as 0: "unrecorded", data NaN
+        _one_chunk(path, "frames_ok").unlink()
+    elif damage == "m_acquired_changed":  # the attributes carry no checksum of their own
+        g = zarr.open_group(str(path), mode="a")
+        g.attrs["m_acquired"] = int(g.attrs["m_acquired"]) - 1
     else:
         g = zarr.open_group(str(path), mode="a")
         g["frames_ok"][3] = 7

@@ -170,6 +170,26 @@ def _check_roi(roi, h: int, w: int, device: bool) -> tuple[int, int, int, int]:
     return (y, x, rh, rw)
 
 
+def _check_complete(path, attrs, ok: np.ndarray) -> int:
+    """The frames of a store marked complete: ``2·m_acquired``, which ``frames_ok`` must mark
+    recorded, and nothing after them (a run stopped early records no more). A deleted
+    ``frames_ok`` chunk (read back as 0) or a changed ``m_acquired`` breaks the agreement:
+    :class:`StoreDamagedError`, so the store is never read as NaN data nor taken as done."""
+    try:
+        f = 2 * int(attrs["m_acquired"])
+    except (KeyError, TypeError, ValueError):
+        raise StoreDamagedError(path, "it is marked complete but records no m_acquired") from None
+    if not 0 < f <= ok.shape[0] or not (ok[:f] == 1).all() or (ok[f:] == 1).any():
+        first = int(np.flatnonzero(ok[:f] != 1)[0]) if f <= ok.shape[0] and (ok[:f] != 1).any() \
+            else None
+        what = (f"frames_ok marks frame {first} unrecorded" if first is not None else
+                f"frames_ok marks {int((ok == 1).sum())} frames recorded")
+        raise StoreDamagedError(path, f"it is marked complete with {f} frames "
+                                f"(m_acquired {f // 2}) but {what} (a chunk was deleted or the "
+                                "attributes changed?)")
+    return f
+
+
 def _recorded(ok: np.ndarray) -> int:
     """Frames recorded without a gap from the start (``frames_ok == 1``)."""
     bad = np.flatnonzero(ok != 1)
@@ -508,6 +528,7 @@ def acquire(
     done -= done % 2  # restart at a pair boundary: y⁺ and y⁻ taken back to back
     buf = {k: torch.from_numpy(group[f"buckets_{k}"][:]) for k in _KINDS}
     if group.attrs.get("status") == "complete":
+        _check_complete(store, group.attrs, ok)
         return AcquisitionResult(str(store), int(group.attrs["m_acquired"]), m_total,
                                  bool(group.attrs.get("stopped_early", False)), 0, 0, done)
     stats = {"retries": int(group.attrs.get("retries", 0)),
@@ -694,7 +715,7 @@ def load_buckets(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
     ok = _verify(path, group, int(attrs.get("frames", 0)))
     f = _recorded(ok)
     if attrs.get("status") == "complete":
-        f = 2 * int(attrs["m_acquired"])
+        f = _check_complete(path, attrs, ok)
     f -= f % 2
     if f == 0:
         raise ValueError(f"load_buckets: {path} holds no complete pattern pair")
