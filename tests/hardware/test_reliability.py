@@ -504,3 +504,38 @@ def test_ten_kills_inside_chunk_writes_then_resume_is_bit_identical(noisy_full, 
     assert kills == 10
     assert main([*KILL_ARGS, "-o", str(path), "--resume"]) == 0
     _same_as(path, noisy_full)
+
+
+def test_run_interrupted_while_its_stop_rule_decides_resumes_to_the_same_store(tmp_path):
+    """The rule is asked again at every recorded block end on resume: a run stopped (Ctrl-C)
+    inside stop() at the block where the uninterrupted run stopped ends there too, bit for
+    bit (it recorded 4 more pairs before)."""
+    cfg = replace(TINY, srs=(0.5,))
+    kw = dict(cfg=cfg, sr=0.5, block=4)
+    rule = lambda y: y["gated"].shape[-1] >= 8  # noqa: E731 - stop once 8 pairs are in
+    ref, _ = run(tmp_path / "u.zarr", stop=rule, **kw)
+
+    def ctrl_c(y):
+        if y["gated"].shape[-1] >= 8:
+            raise KeyboardInterrupt
+        return False
+
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "i.zarr", stop=ctrl_c, **kw)
+    got, _ = run(tmp_path / "i.zarr", stop=rule, resume=True, **kw)
+    assert (got.m_acquired, got.stopped_early) == (ref.m_acquired, ref.stopped_early) == (8, True)
+    a, b = load_buckets(tmp_path / "u.zarr")[0], load_buckets(tmp_path / "i.zarr")[0]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_a_failing_stop_rule_leaves_the_devices_idle_and_the_store_resumable(tmp_path):
+    def broken(y):
+        raise ValueError("my rule failed")
+
+    path = tmp_path / "f.zarr"
+    bench = SimulatedBench(TINY, seed=0)
+    with pytest.raises(ValueError, match="my rule failed"):
+        acquire(path, bench.lightcrafter(), bench.camera(), n=TINY.n, sr=0.125, block=4,
+                progress=False, stop=broken)
+    assert bench.camera_usb.field("tg_dis") == 1  # the camera stopped streaming
+    assert zarr.open_group(str(path), mode="r").attrs["status"] == "interrupted"

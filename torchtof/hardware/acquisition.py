@@ -54,7 +54,6 @@ from .errors import (
     FrameSequenceError,
     FrameTimeoutError,
     FrameTimingError,
-    HardwareError,
     TransientError,
 )
 
@@ -569,20 +568,33 @@ def acquire(
     run = _Sequences(lightcrafter, camera, pats, exposure_us, period_us, trigger, video_hz,
                      retries, frame_timeout_s, device, check_timing, stats, on_frame)
     try:
-        camera.start()
-        for b0 in range(start_block * 2 * block, n_frames, 2 * block):
-            b1 = min(b0 + 2 * block, n_frames)
-            s0 = max(b0, done)
-            while s0 < b1:
-                s1 = min(s0 + seq, b1)
-                commit(s0, run.sequence(s0, s1))
-                s0 = s1
-            done = b1
-            if stop is not None and b1 < n_frames and stop(_signed(buf, b1)):
-                stopped = True
-                break
-        camera.stop()
-    except (HardwareError, KeyboardInterrupt, OSError):  # recorded sequences stay valid: resume
+        if stop is not None and done > 0:
+            # a resumed run asks the rule at every block end already recorded, as the
+            # uninterrupted run did: a stateful rule is rebuilt, and a run stopped while the
+            # rule was deciding gets the answer it would have had
+            for b1 in range(2 * block, min(done, n_frames - 1) + 1, 2 * block):
+                if stop(_signed(buf, b1)):
+                    stopped = True
+                    if b1 < done:  # frames past the stop (a rule that changed its mind)
+                        arrays["frames_ok"][b1:done] = 0
+                    done = b1
+                    break
+        if not stopped:
+            camera.start()
+            for b0 in range(start_block * 2 * block, n_frames, 2 * block):
+                b1 = min(b0 + 2 * block, n_frames)
+                s0 = max(b0, done)
+                while s0 < b1:
+                    s1 = min(s0 + seq, b1)
+                    commit(s0, run.sequence(s0, s1))
+                    s0 = s1
+                done = b1
+                if stop is not None and b1 < n_frames and stop(_signed(buf, b1)):
+                    stopped = True
+                    break
+            camera.stop()
+    except BaseException:  # any stop (a device, Ctrl-C, the disk, a failing stop rule): the
+        # recorded sequences stay valid for --resume
         for halt in (getattr(lightcrafter, "stop", None), getattr(camera, "stop", None)):
             try:  # leave the devices idle (best effort: one of them may be gone)
                 if halt is not None:
