@@ -539,3 +539,25 @@ def test_a_failing_stop_rule_leaves_the_devices_idle_and_the_store_resumable(tmp
                 progress=False, stop=broken)
     assert bench.camera_usb.field("tg_dis") == 1  # the camera stopped streaming
     assert zarr.open_group(str(path), mode="r").attrs["status"] == "interrupted"
+
+
+@pytest.mark.parametrize("kw, err, msg", [
+    (dict(metadata={"order": "natural"}), ValueError,
+     r"metadata may not replace the store's own attributes \['order'\]"),
+    (dict(metadata={"n": 99, "gate_m": 1.0}), ValueError, r"\['gate_m', 'n'\]"),
+    (dict(gate_m="3"), ValueError, "expected gate_m a positive finite number"),
+    (dict(gate_m=float("nan")), ValueError, "expected gate_m"),
+    (dict(on_frame=5), TypeError, "expected on_frame to be callable"),
+    (dict(check_timing="no"), TypeError, "expected check_timing a bool"),
+    (dict(frame_timeout_s=float("inf")), ValueError, "positive finite frame_timeout_s"),
+])
+def test_acquire_checks_its_arguments_before_the_store_exists(kw, err, msg, tmp_path):
+    # metadata={'order': 'natural'} made the store describe natural rows over cake-cutting
+    # patterns (reconstructed with the wrong operator, exit 0); the others were refused
+    # only after the store existed and the camera streamed, or taken as truthy
+    bench = SimulatedBench(TINY, seed=0)
+    path = tmp_path / "a.zarr"
+    with pytest.raises(err, match=msg):
+        acquire(path, bench.lightcrafter(), bench.camera(), n=TINY.n, sr=0.125,
+                progress=False, **kw)
+    assert not path.exists()

@@ -37,6 +37,7 @@ frame-id mode, camera settings and package versions are store attributes.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -238,6 +239,11 @@ class StoreDamagedError(ValueError):
 #: resume, including the simulation's configuration and seed from ``metadata``)
 _VOLATILE = {"status", "m_acquired", "stopped_early", "retries", "duplicates", "versions",
              "created", "timing_checks"}
+#: The attributes acquire() writes itself (``metadata`` may not replace them: a store whose
+#: ``order`` or ``n`` disagrees with its patterns would be reconstructed with the wrong
+#: operator).
+_CORE_ATTRS = {"format", "n", "m", "sr", "order", "frames", "frame_order", "block",
+               "sequence", "gate_m", "roi", "frame_ids", "dmd", "camera"} | _VOLATILE
 
 
 def _first_difference(old, new, where: str = "") -> str | None:
@@ -475,8 +481,27 @@ def acquire(
         raise ValueError(f"acquire: expected frame_ids in {_FRAME_IDS}, got {frame_ids!r}")
     if trigger not in ("vsync", "internal"):
         raise ValueError(f"acquire: expected trigger 'vsync' or 'internal', got {trigger!r}")
-    if not isinstance(frame_timeout_s, (int, float)) or not frame_timeout_s > 0:
-        raise ValueError(f"acquire: expected a positive frame_timeout_s, got {frame_timeout_s!r}")
+    if isinstance(frame_timeout_s, bool) or not isinstance(frame_timeout_s, (int, float)) \
+            or not 0 < frame_timeout_s < math.inf:
+        raise ValueError(f"acquire: expected a positive finite frame_timeout_s, got "
+                         f"{frame_timeout_s!r}")
+    if isinstance(gate_m, bool) or not isinstance(gate_m, (int, float)) \
+            or not 0 < gate_m < math.inf:
+        raise ValueError(f"acquire: expected gate_m a positive finite number of metres, got "
+                         f"{gate_m!r}")
+    if on_frame is not None and not callable(on_frame):
+        raise TypeError(f"acquire: expected on_frame to be callable or None, got "
+                        f"{type(on_frame).__name__}")
+    for name, flag in (("progress", progress), ("check_timing", check_timing)):
+        if not isinstance(flag, bool):
+            raise TypeError(f"acquire: expected {name} a bool, got {type(flag).__name__}")
+    if metadata is not None:
+        if not isinstance(metadata, dict) or not all(isinstance(k, str) for k in metadata):
+            raise TypeError("acquire: expected metadata a dict with str keys")
+        clash = sorted(set(metadata) & _CORE_ATTRS)
+        if clash:
+            raise ValueError(f"acquire: metadata may not replace the store's own attributes "
+                             f"{clash} (they describe the patterns recorded)")
     device = frame_ids == "device"
     if device and not hasattr(camera, "frame_ids"):
         raise TypeError(f"acquire: frame_ids='device' needs a camera with device frame "
