@@ -205,8 +205,7 @@ def main(argv: list[str] | None = None) -> dict:
         r = auto(y, A, learned=False, return_result=True)
         t_off = time.perf_counter() - t0
         t0 = time.perf_counter()  # the stacking stage alone, as auto(y, A) runs it
-        opts = dict(folds=None, cv_iter=100, max_iter=1025, split=None, slack=0.0,
-                    seed=0, priors=am.AUTO_PRIORS)
+        opts = am.auto_options()  # auto's defaults, every key its stages read
         stacked = am._with_learned(r, y, A, None, opts)
         t_stack = time.perf_counter() - t0
         ch = r.choice[0][0]

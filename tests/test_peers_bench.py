@@ -279,3 +279,26 @@ def test_auto_eval_orders_selects_peers_cells(tmp_path):
     with pytest.raises(SystemExit) as e:  # its own grid has cake-cutting rows only
         auto_eval.main(["--orders", "sequency"])
     assert e.value.code == 2
+
+
+def test_auto_stack_rules_runs_the_stacking_stage_as_auto_does(tmp_path):
+    # the study called auto's stacking stage with an options dict of its own, which lacked
+    # tv_solver and fit_iter once auto gained them (KeyError in every measuring mode); it now
+    # takes auto_options(), and the stage reproduces auto(y, A)
+    from torchtof.operators import Hadamard
+
+    am = importlib.import_module("torchtof.recon.auto")  # the module: recon.auto is the function
+    assert set(am.auto_options()) == set(am.STAGE_OPTIONS)
+    with pytest.raises(ValueError, match="auto_options: expected options among"):
+        am.auto_options(nope=1)
+    A = Hadamard(32, sr=0.25)
+    x = torch.zeros(1, 1, 32, 32)
+    x[..., 6:20, 8:24] = 1.0
+    y = A(x) + 0.01 * torch.randn(1, 1, A.m, generator=torch.Generator().manual_seed(0))
+    opts = dict(cv_iter=20, max_iter=60, priors=("tv",))
+    r = am.auto(y, A, learned=False, infer_box=False, gauss=False, return_result=True, **opts)
+    stacked = am._with_learned(r, y, A, None, am.auto_options(**opts))
+    want = am.auto(y, A, infer_box=False, gauss=False, **opts)
+    torch.testing.assert_close(stacked.x, want, rtol=0, atol=0)
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import auto_stack_rules  # noqa: F401 - the script imports (its options come from auto)

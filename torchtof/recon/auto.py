@@ -212,6 +212,7 @@ one default TVAL3 solve is in ``docs/auto.md``.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import warnings
@@ -580,6 +581,26 @@ def _pick(cv: torch.Tensor, rank: torch.Tensor, slack: float) -> torch.Tensor:
     r = rank.expand_as(cv)
     top = torch.where(ok, r, torch.full_like(r, -1.0)).amax(dim=1, keepdim=True)
     return torch.where(ok & (r == top), cv, torch.full_like(cv, _INF)).argmin(1)
+
+
+#: The options every stage of :func:`auto` reads (its ``opts`` dict).
+STAGE_OPTIONS = ("folds", "cv_iter", "max_iter", "split", "slack", "seed", "priors",
+                 "tv_solver", "fit_iter")
+
+
+def auto_options(**given) -> dict:
+    """The ``opts`` dict of :func:`auto`'s stages at :func:`auto`'s defaults, updated by
+    ``given`` (for studies that run one stage alone, e.g. ``benchmarks/auto_stack_rules.py``:
+    the keys follow :func:`auto`'s signature, so a new option cannot be left out)."""
+    sig = inspect.signature(auto).parameters
+    unknown = set(given) - set(STAGE_OPTIONS)
+    if unknown:
+        raise ValueError(f"auto_options: expected options among {STAGE_OPTIONS}, got "
+                         f"{sorted(unknown)}")
+    out = {k: sig[k].default for k in STAGE_OPTIONS}
+    out.update(given)
+    out["priors"] = tuple(out["priors"])
+    return out
 
 
 def auto(
