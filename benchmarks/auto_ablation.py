@@ -33,7 +33,7 @@ VARIANTS = {
 
 
 def main(argv: list[str]) -> dict:
-    if len(argv) != 1:
+    if len(argv) != 1 or argv[0] not in ("32", "64", "128"):  # --help included: the usage
         raise SystemExit(__doc__)
     n = int(argv[0])
     au = importlib.import_module("torchtof.recon.auto")

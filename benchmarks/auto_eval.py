@@ -275,7 +275,9 @@ def problems(args) -> list[tuple]:
 
         return [(k, *ps.make_problem(*k, args.seed)[:3], many)
                 for k in peer_best(args.peers_cells) if k[1] in args.n and k[2] in args.sr
-                and (args.orders is None or k[3] in args.orders)]
+                and (args.orders is None or k[3] in args.orders)
+                and (args.scenes is None or k[0] in args.scenes)
+                and (args.noise is None or k[4] == args.noise)]
     probs = []
     for n in args.n:
         for sr in args.sr:
@@ -347,8 +349,12 @@ def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[32, 64])
     ap.add_argument("--sr", type=float, nargs="+", default=list(SRS))
-    ap.add_argument("--scenes", nargs="+", default=list(SCENES))
-    ap.add_argument("--noise", type=float, default=0.01)
+    ap.add_argument("--scenes", nargs="+", default=None,
+                    help=f"scenes (default {' '.join(SCENES)}; with --peers-cells: only the "
+                    "cells of these peers scenes, default every one)")
+    ap.add_argument("--noise", type=float, default=None,
+                    help="relative noise level (default 0.01; with --peers-cells: only the "
+                    "cells at this level, default every one)")
     ap.add_argument("--cv-iter", type=int, default=100)
     ap.add_argument("--out", default=None)
     ap.add_argument("--noise-table", action="store_true",
@@ -376,6 +382,9 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--bp", action="store_true",
                     help="basis pursuit's default against TVAL3's default instead (PSNR dB)")
     args = ap.parse_args(argv)
+    if not args.peers_cells:  # this script's own grid
+        args.scenes = list(SCENES) if args.scenes is None else args.scenes
+        args.noise = 0.01 if args.noise is None else args.noise
     if args.orders is not None and not args.peers_cells:
         ap.error("--orders selects cells of --peers-cells (this script's own grid is "
                  "cake-cutting rows only)")

@@ -90,7 +90,10 @@ def main() -> int:
         return 0
     if not a.weights:
         p.error("WEIGHTS is required unless --summary is given")
-    i, k = (int(v) for v in a.shard.split("/"))
+    i, _, k = a.shard.partition("/")
+    if not (i.isdigit() and k.isdigit() and 0 <= int(i) < int(k)):
+        p.error(f"argument --shard: expected I/K with 0 <= I < K, got {a.shard!r}")
+    i, k = int(i), int(k)
     run(a.weights, a.min_n, a.max_n, a.level, (i, k), a.out)
     return 0
 

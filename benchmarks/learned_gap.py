@@ -107,12 +107,16 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     p.add_argument("--srs", type=float, nargs="+", default=[0.0625, 0.125])
     p.add_argument("--level", type=float, default=0.01)
-    p.add_argument("--per-family", type=int, default=6)
+    p.add_argument("--per-family", type=int, default=6,
+                   help="scenes per family, an even number >= 2 (the seen set takes half from "
+                   "each of two training steps)")
     p.add_argument("--draws", type=int, default=3, help="noise draws per scene set")
     p.add_argument("--weights", default=str(WEIGHTS_FILE))
     p.add_argument("--out", default=None)
     p.add_argument("--table", default=None, help="print the table of a stored --out file")
     a = p.parse_args()
+    if a.per_family < 2 or a.per_family % 2:
+        p.error(f"argument --per-family: expected an even number >= 2, got {a.per_family}")
     if a.table:
         print(table(json.loads(Path(a.table).read_text())["rows"]))
         return

@@ -747,7 +747,21 @@ def main(argv=None) -> int:
         AUTO_OPTIONS["cv_iter"] = a.auto_cv_iter
     if a.auto_fit_iter is not None:
         AUTO_OPTIONS["fit_iter"] = a.auto_fit_iter
+    if a.only:  # a misspelt name ran nothing but TVAL3's default, silently
+        known = ("torchtof tval3", "torchtof bp", "torchtof pinv", "torchtof auto",
+                 "torchtof auto [0,1]", "torchtof learned", "deepinv FISTA-TV", "deepinv DIP",
+                 "spyrit pinv", "spyrit Tikhonov", "spyrit PGD-box", "pylops SB-TV",
+                 "pylops FISTA-DCT", "pylops FISTA-Haar")
+        bad = [m for m in a.only if m not in known]
+        if bad:
+            raise SystemExit(f"peers.py: error: argument --only: unknown method {bad[0]!r}; "
+                             f"choose from {', '.join(known)}")
     if a.quick:
+        given = [f for f in ("--n", "--sr", "--scenes", "--orders", "--noise")
+                 if any(t == f or t.startswith(f + "=") for t in (argv or sys.argv[1:]))]
+        if given:  # --quick sets them: a given value would be silently replaced
+            raise SystemExit(f"peers.py: error: argument {given[0]}: not used with --quick "
+                             "(it runs n = 32, sky and camera, SR 12.5 / 37.5 %, 1 %)")
         a.n, a.scenes, a.sr, a.noise, a.orders = [32], ["sky", "camera"], [0.125, 0.375], [0.01], [
             "cake_cutting"]
         a.repeats = 0

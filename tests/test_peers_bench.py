@@ -271,11 +271,15 @@ def test_auto_eval_orders_selects_peers_cells(tmp_path):
     path.write_text(json.dumps({"cells": [cell("cake_cutting", "sky"), cell("sequency", "sky"),
                                           cell("sequency", "horse")]}))
     args = argparse.Namespace(peers_cells=str(path), n=[32], sr=[0.25], seed=0,
-                              orders=["sequency"])
+                              orders=["sequency"], scenes=None, noise=None)
     keys = [p[0] for p in auto_eval.problems(args)]
     assert keys == [("sky", 32, 0.25, "sequency", 0.01), ("horse", 32, 0.25, "sequency", 0.01)]
     args.orders = None
     assert len(auto_eval.problems(args)) == 3
+    args.scenes = ["horse"]  # --scenes and --noise select cells too (they were ignored)
+    assert [p[0][0] for p in auto_eval.problems(args)] == ["horse"]
+    args.scenes, args.noise = None, 0.05
+    assert auto_eval.problems(args) == []
     with pytest.raises(SystemExit) as e:  # its own grid has cake-cutting rows only
         auto_eval.main(["--orders", "sequency"])
     assert e.value.code == 2

@@ -181,4 +181,7 @@ def choose_method(n: int, sr: float, time_budget_s: float | None = None,
 if __name__ == "__main__":  # pragma: no cover - table conversion command (module docstring)
     import sys
 
+    if len(sys.argv) != 3 or sys.argv[1] in ("-h", "--help"):
+        raise SystemExit("usage: python -m torchtof.adaptive.budget TRADEOFF_JSON OUT_JSON "
+                         "(the table conversion of this module's docstring)")
     print(save_table(sys.argv[1], sys.argv[2]))
