@@ -901,3 +901,24 @@ def test_fit_iter_reaches_every_stage(monkeypatch):
     auto(y, A, cv_iter=5, fit_iter=9, max_iter=20, infer_box=False, priors=("tv",),
          learned=False, gauss=False, tv_solver="split")
     assert split_its and set(split_its) <= {9, 20} and 9 in split_its
+
+
+def test_folds_beyond_the_buckets_and_a_wrong_weights_file_are_refused_first(tmp_path):
+    # folds=40 on 32 buckets built tail folds that wrapped around to the first rows; a junk
+    # weights file was read only after the whole TV/TGV choice, named by Learned
+    from torchtof.recon.auto import Auto, auto
+    from torchtof.recon.tval3 import holdout_split
+    A = Hadamard(8, sr=0.5)
+    x = torch.zeros(1, 1, 8, 8)
+    x[..., 2:6, 3:7] = 1.0
+    y = A(x)
+    for f in (auto, lambda y, A, **kw: Auto(A, **kw)(y)):
+        with pytest.raises(ValueError, match=r"expected folds <= M = 32"):
+            f(y, A, folds=40, cv_iter=5, max_iter=10)
+    junk = tmp_path / "junk.pt"
+    junk.write_text("x")
+    with pytest.raises(ValueError, match="auto: expected learned to be a learned weights file"):
+        auto(y, A, learned=junk, cv_iter=5, max_iter=10)
+    held, train = holdout_split(Hadamard(8, m=4), 40, y, 0, "tail")  # more folds than rows
+    for hd, tr in zip(held, train):  # empty folds past the first row, never wrapped ones
+        assert not (hd & tr).any() and (not hd.any() or int(hd.nonzero()[0]) >= int(tr.sum()))

@@ -480,6 +480,14 @@ def candidates(bounds: tuple | None = None, priors: tuple = AUTO_PRIORS) -> tupl
     return tuple(out)
 
 
+def _check_folds(fn: str, folds: int | None, A: LinearOperator) -> None:
+    """At most ``M`` folds: each holds out at least one row and trains on at least one
+    (more made the tail folds wrap around to the first rows, the random ones empty)."""
+    if folds is not None and folds > A.m:
+        raise ValueError(f"{fn}: expected folds <= M = {A.m} (one held-out row per fold at "
+                         f"least), got {folds}")
+
+
 def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIORS,
            infer_box=True, learned=True, gauss=True, tv_solver="tval3", fit_iter=None, seed=0):
     check_int(seed, "seed", fn, 0, 2**64 - 1)  # a torch.Generator seed
@@ -491,9 +499,16 @@ def _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors=AUTO_PRIOR
     if not isinstance(learned, (bool, str, os.PathLike)):
         raise TypeError(f"{fn}: expected learned to be a bool or a weights file path, got "
                         f"{type(learned).__name__}")
-    if not isinstance(learned, bool) and not Path(learned).is_file():
-        raise ValueError(f"{fn}: expected learned to be a bool or an existing weights file "
-                         f"(Learned.save_weights, torchtof train), got {os.fspath(learned)!r}")
+    if not isinstance(learned, bool):  # read now: a wrong file fails before any fit
+        if not Path(learned).is_file():
+            raise ValueError(f"{fn}: expected learned to be a bool or an existing weights "
+                             f"file (Learned.save_weights, torchtof train), got "
+                             f"{os.fspath(learned)!r}")
+        try:
+            _learned_mod.check_weights_file(learned, fn)
+        except ValueError as exc:
+            raise ValueError(f"{fn}: expected learned to be a learned weights file: "
+                             f"{str(exc).partition(': ')[2]}") from None
     if (not isinstance(priors, (tuple, list)) or not priors
             or any(p not in AUTO_PRIORS for p in priors) or len(set(priors)) != len(priors)):
         raise ValueError(f"{fn}: expected priors a non-empty tuple of distinct names from "
@@ -706,6 +721,7 @@ def auto(
     check_bool(return_result, "return_result", fn)
     _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned,
            gauss, tv_solver, fit_iter, seed)
+    _check_folds(fn, folds, A)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
                 seed=seed, priors=tuple(priors), tv_solver=tv_solver, fit_iter=fit_iter)
     res, errs = _auto(y, A, bounds, **opts)
@@ -1281,6 +1297,7 @@ class Auto(nn.Module):
             raise TypeError(f"Auto: expected A to be a LinearOperator, got {type(A).__name__}")
         _check("Auto", folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box,
                learned, gauss, tv_solver, fit_iter, seed)
+        _check_folds("Auto", folds, A)
         self.A = A
         self.options = dict(bounds=bounds, folds=folds, cv_iter=cv_iter, max_iter=max_iter,
                             split=split, slack=slack, seed=seed, priors=tuple(priors),

@@ -271,7 +271,8 @@ def holdout_split(A: LinearOperator, k: int, like: torch.Tensor, seed: int, spli
         held = torch.zeros(nf, m, dtype=torch.bool, device=like.device)
         train = torch.zeros_like(held)
         for j in range(nf):
-            lo, hi = max(1, m - (j + 1) * h), m - j * h
+            # clamped: past the first row a fold is empty (a negative end would wrap around)
+            lo, hi = max(1, m - (j + 1) * h), max(1, m - j * h)
             held[j, lo:hi] = True
             train[j, :lo] = True
         return held, train
