@@ -73,3 +73,24 @@ def test_adaptive_noise_reexports_the_same_functions():
 
     for name in old.__all__:
         assert getattr(old, name) is getattr(noise, name), name
+
+
+def test_noise_estimators_and_markov_covariance_check_their_inputs():
+    from torchtof.recon.gauss import markov_covariance
+    from torchtof.recon.noise import abs_quantile_sigma, tail_noise_sigma
+    with pytest.raises(ValueError, match="tail_noise_sigma: y contains non-finite"):
+        tail_noise_sigma(torch.full((1, 1, 16), float("nan")))
+    with pytest.raises(TypeError, match="tail_noise_sigma: expected y to be a real"):
+        tail_noise_sigma(torch.zeros(1, 1, 16, dtype=torch.complex64))
+    with pytest.raises(ValueError, match="tail_noise_sigma: expected y with a measurement"):
+        tail_noise_sigma(torch.tensor(1.0))
+    for q in (0.0, 1.0, 2.0, float("nan")):
+        with pytest.raises(ValueError, match="abs_quantile_sigma: expected quantile in"):
+            abs_quantile_sigma(torch.rand(8), q)
+    with pytest.raises(ValueError, match="abs_quantile_sigma: expected t with at least one"):
+        abs_quantile_sigma(torch.zeros(3, 0))
+    for ell in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="markov_covariance: expected ell"):
+            markov_covariance(8, ell)
+    with pytest.raises(ValueError, match="markov_covariance: expected n"):
+        markov_covariance(6, 2.0)

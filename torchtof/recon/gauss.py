@@ -17,6 +17,7 @@ import math
 
 import torch
 
+from .._checks import check_positive, check_power_of_two
 from ..operators.base import LinearOperator
 from ..operators.fwht import sylvester
 from ..operators.hadamard import Hadamard
@@ -32,7 +33,12 @@ MARKOV_ITERS = 20
 def markov_covariance(n: int, ell: float, dtype: torch.dtype = torch.float64,
                       device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(S, T)``, both ``(n, n)``: the one-axis covariance ``S_ij = exp(−|i − j| / ℓ)`` and
-    its image ``T = Ĥ S Ĥᵀ`` in the normalised Sylvester basis (module docstring)."""
+    its image ``T = Ĥ S Ĥᵀ`` in the normalised Sylvester basis (module docstring); ``n`` a
+    power of two, ``ℓ > 0`` finite."""
+    check_power_of_two(n, "n", "markov_covariance")
+    check_positive(ell, "ell", "markov_covariance")
+    if not math.isfinite(ell):
+        raise ValueError(f"markov_covariance: expected ell finite, got {ell}")
     s = _exp_kernel(n, ell, dtype, device)
     h = sylvester(n, dtype, device) / math.sqrt(n)
     return s, h @ s @ h.T

@@ -31,7 +31,7 @@ from statistics import NormalDist
 
 import torch
 
-from .._checks import check_finite, check_in_range, check_rank, check_tensor
+from .._checks import check_finite, check_in_range, check_rank, check_real, check_tensor
 
 __all__ = ["tail_noise_sigma", "abs_quantile_sigma", "noise_from_repeats", "noise_from_blocks",
            "noise_from_pairs", "noise_from_pair_sums", "pair_sums", "pair_differences",
@@ -56,9 +56,15 @@ def abs_quantile_sigma(t: torch.Tensor, quantile: float = 0.5,
         >>> round(float(abs_quantile_sigma(torch.tensor([-1.0, 2.0, -3.0]))), 4)
         2.9652
     """
+    fn = "abs_quantile_sigma"
     if interpolation not in _INTERPOLATION:
-        raise ValueError(f"abs_quantile_sigma: expected interpolation in {_INTERPOLATION}, "
+        raise ValueError(f"{fn}: expected interpolation in {_INTERPOLATION}, "
                          f"got {interpolation!r}")
+    check_real(t, "t", fn)  # shape and range only: its callers have checked the values
+    check_in_range(quantile, 0.0, 1.0, "quantile", fn, True, True)
+    if t.ndim < 1 or t.shape[-1] < 1:
+        raise ValueError(f"{fn}: expected t with at least one value on its last axis, got "
+                         f"shape {tuple(t.shape)}")
     k = int(t.shape[-1])
     s = torch.sort(t.abs(), dim=-1).values
     pos = quantile * (k - 1)
@@ -99,7 +105,10 @@ def tail_noise_sigma(y: torch.Tensor, tail: float = 0.25, quantile: float = 0.2,
         0.5
     """
     fn = "tail_noise_sigma"
-    check_tensor(y, "y", fn)
+    check_real(y, "y", fn)
+    if y.ndim < 1:
+        raise ValueError(f"{fn}: expected y with a measurement axis, got a 0-d tensor")
+    check_finite(y, "y", fn)
     check_in_range(tail, 0.0, 1.0, "tail", fn, lo_open=True)
     check_in_range(quantile, 0.0, 1.0, "quantile", fn, True, True)
     if isinstance(min_count, bool) or not isinstance(min_count, int) or min_count < 1:
