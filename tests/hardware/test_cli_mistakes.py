@@ -243,3 +243,12 @@ def test_real_bench_only_options_with_simulated_are_usage_errors(value, tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "argument --display: used on the real bench only" in err[0], err
     assert not (tmp_path / "s.zarr").exists()
+
+
+def test_auto_block_below_the_rules_minimum_names_block(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["acquire", "--simulated", "--n", "8", "--sr", "0.5", "--auto", "--block", "2",
+              "-o", str(tmp_path / "s.zarr")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --block: expected >= 4 with --auto" in err[0], err

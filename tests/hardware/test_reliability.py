@@ -524,6 +524,9 @@ def test_run_interrupted_while_its_stop_rule_decides_resumes_to_the_same_store(t
         run(tmp_path / "i.zarr", stop=ctrl_c, **kw)
     got, _ = run(tmp_path / "i.zarr", stop=rule, resume=True, **kw)
     assert (got.m_acquired, got.stopped_early) == (ref.m_acquired, ref.stopped_early) == (8, True)
+    assert (ref.resumed_from, got.resumed_from) == (0, 8)  # pattern pairs held at the start
+    again, _ = run(tmp_path / "i.zarr", stop=rule, resume=True, **kw)  # already complete
+    assert (again.m_acquired, again.resumed_from) == (8, 8)
     a, b = load_buckets(tmp_path / "u.zarr")[0], load_buckets(tmp_path / "i.zarr")[0]
     assert all(torch.equal(a[k], b[k]) for k in a)
 

@@ -181,9 +181,12 @@ class ProgressiveStop:
     """Stopping rule of progressive acquisition, called after each block of patterns.
 
     ``stop(buckets) -> bool``: ``buckets["depth"|"gated"|"intensity"]`` are the SIGNED
-    orthonormal-Hadamard buckets measured so far, ``(1, 1, m)`` in pattern order (what a
-    hardware ``acquire(..., block=..., stop=...)`` loop passes after each block); the rule
-    reads ``buckets[kind]``. ``True`` means: stop, more patterns would not change the image
+    orthonormal-Hadamard buckets measured so far, ``(1, 1, m)`` in pattern order; the rule
+    reads ``buckets[kind]``. A hardware ``acquire(..., block=..., stop=...)`` passes the
+    differences ``y⁺ − y⁻`` of the DMD pairs, ``n`` times the orthonormal buckets: divide them
+    by ``n`` first (``stop=lambda b: rule({k: v / n for k, v in b.items()})``, as
+    ``torchtof acquire --auto`` does), or a known ``noise_sigma`` is ``n`` times too
+    small for them and the rule never stops. ``True`` means: stop, more patterns would not change the image
     beyond the noise (module docstring).
 
     Args:

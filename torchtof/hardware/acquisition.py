@@ -70,7 +70,9 @@ _FORMAT = "torchtof.acquisition/1"
 @dataclass
 class AcquisitionResult:
     """Summary of :func:`acquire`: the store, how many ±1 patterns (pairs) were acquired,
-    whether ``stop`` ended the run early, and the faults that were handled."""
+    whether ``stop`` ended the run early, the faults that were handled, and the pattern pairs
+    the store already held when this call started (``resumed_from``: 0 for a new store; for
+    a store already complete, all of them)."""
 
     path: str
     m_acquired: int
@@ -553,8 +555,9 @@ def acquire(
     buf = {k: torch.from_numpy(group[f"buckets_{k}"][:]) for k in _KINDS}
     if group.attrs.get("status") == "complete":
         _check_complete(store, group.attrs, ok)
-        return AcquisitionResult(str(store), int(group.attrs["m_acquired"]), m_total,
-                                 bool(group.attrs.get("stopped_early", False)), 0, 0, done)
+        m_done = int(group.attrs["m_acquired"])
+        return AcquisitionResult(str(store), m_done, m_total,
+                                 bool(group.attrs.get("stopped_early", False)), 0, 0, m_done)
     stats = {"retries": int(group.attrs.get("retries", 0)),
              "duplicates": int(group.attrs.get("duplicates", 0))}
     bar = None
@@ -589,6 +592,7 @@ def acquire(
             bar.update(len(cut))
 
     stopped = False
+    resumed_pairs = done // 2  # what the store held when this call began
     start_block = done // (2 * block)
     run = _Sequences(lightcrafter, camera, pats, exposure_us, period_us, trigger, video_hz,
                      retries, frame_timeout_s, device, check_timing, stats, on_frame)
@@ -637,7 +641,7 @@ def acquire(
     group.attrs.update({"status": "complete", "m_acquired": done // 2, "stopped_early": stopped,
                         **stats})
     return AcquisitionResult(str(store), done // 2, m_total, stopped, stats["retries"],
-                             stats["duplicates"], 0)
+                             stats["duplicates"], resumed_pairs)
 
 
 class _Sequences:

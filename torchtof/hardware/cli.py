@@ -244,6 +244,9 @@ def _check_acquire(args: argparse.Namespace) -> None:
                 flag = "--" + dest.replace("_", "-")
                 raise ValueError(f"argument {flag}: used with --simulated only (the real bench "
                                  "records the scene in front of it, with its own noise)")
+    if args.auto and args.block is not None and args.block < 4:  # ProgressiveStop's minimum
+        raise ValueError(f"argument --block: expected >= 4 with --auto (the stopping rule "
+                         f"compares blocks of at least 4 pattern pairs), got {args.block}")
     if args.simulated:  # the simulated bench has no video output to choose
         for dest in REAL_ONLY:
             if dest in args.given:
@@ -437,7 +440,8 @@ def add_parsers(sub) -> None:
                    "flag discards and repeats the sequence; that it fires only on an output "
                    "overrun is unconfirmed on a device: turn it off if it stops every run)")
     a.add_argument("--block", type=positive_int, default=None,
-                   help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto)")
+                   help=f"pattern pairs per block (default 12; {AUTO_BLOCK} with --auto, "
+                   "which needs at least 4)")
     a.add_argument("--auto", action="store_true",
                    help="stop acquiring when new blocks of patterns no longer change the image "
                    "beyond the noise (torchtof.adaptive.ProgressiveStop on the gated buckets)")
