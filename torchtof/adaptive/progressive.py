@@ -186,8 +186,8 @@ class ProgressiveStop:
     differences ``y⁺ − y⁻`` of the DMD pairs, ``n`` times the orthonormal buckets: divide them
     by ``n`` first (``stop=lambda b: rule({k: v / n for k, v in b.items()})``, as
     ``torchtof acquire --auto`` does), or a known ``noise_sigma`` is ``n`` times too
-    small for them and the rule never stops. ``True`` means: stop, more patterns would not change the image
-    beyond the noise (module docstring).
+    small for them and the rule never stops. ``True`` means: stop, more patterns would not
+    change the image beyond the noise (module docstring).
 
     Args:
         n: image side (DMD grid ``n × n``), a power of two in ``[4, 256]``: the ``n`` of the
