@@ -21,8 +21,12 @@ spurious — starting at ``frame_number_start`` (:mod:`.opt8241` on what is assu
 
 Each frame's noise comes from a generator seeded from ``seed`` and the displayed pattern
 (:meth:`SimulatedBench.noise_generator`), so a retried or resumed frame is the frame the
-uninterrupted run recorded; a noise-free acquisition equals ``PaperExperiment`` bucket for
-bucket.
+uninterrupted run recorded; a noise-free acquisition equals ``PaperExperiment``'s depth,
+gated and intensity buckets bucket for bucket. Its tap buckets are sums of signed 12-bit
+samples (the simulator's convention :data:`~torchtof.hardware.opt8241.QUAD_OFFSET`: a model
+tap ``c`` is sent as ``c − 2048``; the offset a real OPT9221 removes is undocumented), so
+they sit 2048 per pixel per frame below ``PaperExperiment``'s (a constant that cancels in
+``y⁺ − y⁻``).
 
 Fault injection (:class:`Faults`): frame-level faults are keyed by the camera's frame
 ordinal (0 = first frame rendered), command faults by the command's occurrence count.
