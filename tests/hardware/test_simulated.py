@@ -118,3 +118,18 @@ def test_vanished_devices_raise_enodev():
     with pytest.raises(usb.core.USBError) as err:
         bench.lightcrafter_usb.write(dlp.EP_OUT, bytes(64))
     assert err.value.errno == 19
+
+
+@pytest.mark.parametrize("kw, msg", [
+    (dict(drop=5), "'drop' a list of frame ordinals"),
+    (dict(drop=[-1]), "'drop' a list of frame ordinals"),
+    (dict(nack={"NOPE": {0}}), "unknown command 'NOPE' in 'nack'"),
+    (dict(set_failed={"bogus"}), "'set_failed' a list of"),
+    (dict(hang_s=-1), "'hang_s' a non-negative number"),
+])
+def test_faults_constructor_checks_the_plan(kw, msg):
+    # the Python constructor accepted these (injecting nothing) or failed later as a fake
+    # USB error; it now checks what Faults.from_dict (--sim-faults) checks
+    from torchtof.hardware.simulated import Faults
+    with pytest.raises(ValueError, match=msg):
+        Faults(**kw)

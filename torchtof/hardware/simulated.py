@@ -151,6 +151,19 @@ class Faults:
         """
         if not isinstance(d, dict):
             raise ValueError(f"Faults: expected a JSON object of faults, got {d!r}")
+        return cls(**cls._checked(d))
+
+    def __post_init__(self) -> None:
+        # the constructor checks what from_dict checks: a bad plan was accepted and injected
+        # nothing, or failed much later as a fake USB error
+        for k, v in self._checked({k: getattr(self, k)
+                                   for k in self.__dataclass_fields__}).items():
+            setattr(self, k, v)
+
+    @classmethod
+    def _checked(cls, d: dict) -> dict:
+        """The fields of ``d`` checked and normalised (sets of ints); a ValueError naming the
+        field otherwise."""
         kw = {}
         for k, v in d.items():
             if k in cls._ORDINALS:
@@ -195,7 +208,7 @@ class Faults:
             else:
                 raise ValueError(f"Faults: unknown fault {k!r}; expected one of "
                                  f"{sorted(cls.__dataclass_fields__)}")
-        return cls(**kw)
+        return kw
 
 
 def _is_ordinal(v) -> bool:
