@@ -310,6 +310,12 @@ _ARRAYS = ("patterns", "frames_ok", "frames_id", "frames_timestamp", "frames_dep
            "buckets_intensity", "buckets_taps")
 
 
+def store_attributes(path: str | Path) -> dict:
+    """The attributes of the store at ``path`` (status, plan, settings), read without its
+    arrays; :class:`StoreDamagedError` if its metadata does not load."""
+    return dict(_open_group(path, "r").attrs)
+
+
 def _open_group(path, mode: str):
     zarr = require_zarr3()
     try:

@@ -185,9 +185,9 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 def _store_status(path, recorded: int) -> str | None:
     """``None`` for a finished run (``--auto`` runs stopped by their rule included), else
     what the store holds of its plan (``recorded``: the verified pattern pairs)."""
-    from .acquisition import _open_group
+    from .acquisition import store_attributes
 
-    attrs = _open_group(path, "r").attrs
+    attrs = store_attributes(path)
     if attrs.get("status") == "complete":
         return None
     return (f"status {attrs.get('status', 'unknown')!r}: {recorded} of "

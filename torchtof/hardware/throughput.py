@@ -12,6 +12,7 @@ at 10 ms patterns on the internal trigger).
 
 from __future__ import annotations
 
+import argparse
 import math
 import tempfile
 import time
@@ -19,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..apps.args import OneLineParser, csv_list, positive_int, power_of_two, sampling_rate
 from ..experiment import ExperimentConfig
 from . import opt8241 as opt
 from .simulated import FakeOPT8241, SimulatedBench
@@ -81,15 +81,31 @@ def measure(mode: str, n: int = 32, sr: float = 0.25, width: int = 320, height: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = OneLineParser(prog="python -m torchtof.hardware.throughput",
-                      description=__doc__.split("\n\n")[0])
-    p.add_argument("--modes", type=csv_list(list(opt.FRAME_MODES)), default=["depth", "quad"],
+    class Parser(argparse.ArgumentParser):  # mistakes in one line, as torchtof's commands
+        def error(self, message: str):
+            self.exit(2, f"{self.prog}: error: {message}\n")
+
+    p = Parser(prog="python -m torchtof.hardware.throughput",
+               description=__doc__.split("\n\n")[0])
+    p.add_argument("--modes", default="depth,quad",
                    help=f"camera modes, comma-separated, of {', '.join(opt.FRAME_MODES)}")
-    p.add_argument("--n", type=power_of_two, default=32)
-    p.add_argument("--sr", type=sampling_rate, default=0.25)
-    p.add_argument("--width", type=positive_int, default=320)
-    p.add_argument("--height", type=positive_int, default=240)
+    p.add_argument("--n", type=int, default=32, help="DMD side, a power of two in [4, 256]")
+    p.add_argument("--sr", type=float, default=0.25, help="sampling rate in (0, 1]")
+    p.add_argument("--width", type=int, default=320)
+    p.add_argument("--height", type=int, default=240)
     args = p.parse_args(argv)
+    args.modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    bad = [m for m in args.modes if m not in opt.FRAME_MODES]
+    if bad or not args.modes:
+        p.error(f"argument --modes: expected a comma-separated subset of "
+                f"{', '.join(opt.FRAME_MODES)}, got {','.join(bad) or 'nothing'}")
+    if not (4 <= args.n <= 256 and args.n & (args.n - 1) == 0):
+        p.error(f"argument --n: expected a power of two in [4, 256], got {args.n}")
+    if not 0 < args.sr <= 1:
+        p.error(f"argument --sr: expected a sampling rate in (0, 1], got {args.sr}")
+    for flag, v in (("--width", args.width), ("--height", args.height)):
+        if v < 1:
+            p.error(f"argument {flag}: expected a positive int, got {v}")
     for mode in args.modes:
         r = measure(mode, args.n, args.sr, args.width, args.height)
         print(f"{mode:6s} {args.width}x{args.height}: {r['frames']} frames in "
