@@ -133,3 +133,20 @@ def test_faults_constructor_checks_the_plan(kw, msg):
     from torchtof.hardware.simulated import Faults
     with pytest.raises(ValueError, match=msg):
         Faults(**kw)
+
+
+@pytest.mark.parametrize("kw, err, msg", [
+    (dict(config="sky"), TypeError, "expected config an ExperimentConfig"),
+    (dict(faults={"drop": [3]}), TypeError, "expected faults a Faults"),
+    (dict(video_hz=0), ValueError, "expected video_hz a finite number > 0"),
+    (dict(video_hz=-60), ValueError, "expected video_hz"),
+    (dict(video_hz="60"), ValueError, "expected video_hz"),
+    (dict(mode_latency_s=float("nan")), ValueError, "expected mode_latency_s"),
+    (dict(frame_number_start=2.7), ValueError, "expected frame_number_start an int"),
+])
+def test_simulated_bench_checks_its_arguments(kw, err, msg):
+    # these failed later as fake USB or hardware errors (a 'extend the desktop onto the
+    # LightCrafter' message on a simulated bench) or were silently truncated
+    from torchtof.hardware.simulated import SimulatedBench
+    with pytest.raises(err, match=f"SimulatedBench: {msg}"):
+        SimulatedBench(**kw)

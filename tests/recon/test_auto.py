@@ -922,3 +922,15 @@ def test_folds_beyond_the_buckets_and_a_wrong_weights_file_are_refused_first(tmp
     held, train = holdout_split(Hadamard(8, m=4), 40, y, 0, "tail")  # more folds than rows
     for hd, tr in zip(held, train):  # empty folds past the first row, never wrapped ones
         assert not (hd & tr).any() and (not hd.any() or int(hd.nonzero()[0]) >= int(tr.sum()))
+
+
+@pytest.mark.parametrize("bounds", [(0, None), (0.0, None), (None, None)])
+def test_a_box_equal_to_a_built_in_group_is_not_fitted_twice(bounds):
+    # bounds=(0, None) repeated the x >= 0 group: 168 candidates, 56 of them duplicates
+    from torchtof.recon.auto import auto, candidates
+    A = Hadamard(8, sr=0.5)
+    x = torch.zeros(1, 1, 8, 8)
+    x[..., 2:6, 3:7] = 1.0
+    r = auto(A(x), A, bounds=bounds, cv_iter=5, max_iter=10, return_result=True)
+    keys = [(c["prior"], c["tv"], c["bounds"], c["mu"]) for c in r.candidates]
+    assert len(keys) == len(set(keys)) == len(candidates()) == len(candidates(bounds))

@@ -941,6 +941,22 @@ class SimulatedBench:
                  realtime: bool = False, speed: float = 1.0, fifo_frames: int = 4,
                  sdk_initialised: bool = True, video_hz: float = 60.0,
                  mode_latency_s: float = 0.0) -> None:
+        if config is not None and not isinstance(config, ExperimentConfig):
+            raise TypeError(f"SimulatedBench: expected config an ExperimentConfig, got "
+                            f"{type(config).__name__}")
+        if not isinstance(faults, (Faults, type(None))):
+            raise TypeError(f"SimulatedBench: expected faults a Faults (Faults.from_dict for "
+                            f"a JSON plan), got {type(faults).__name__}")
+        for name, v, lo in (("video_hz", video_hz, 0.0), ("mode_latency_s", mode_latency_s, None)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or (v <= lo if lo is not None else v < 0):
+                raise ValueError(f"SimulatedBench: expected {name} a finite number "
+                                 f"{'> 0' if lo is not None else '>= 0'}, got {v!r}")
+        if isinstance(frame_number_start, bool) or not isinstance(frame_number_start,
+                                                                  (int, np.integer)) \
+                or frame_number_start < 0:
+            raise ValueError(f"SimulatedBench: expected frame_number_start an int >= 0, got "
+                             f"{frame_number_start!r}")
         cfg = (config or ExperimentConfig()).validate()
         if cfg.gain_e_per_dn is not None and not (isinstance(cfg.gain_e_per_dn, (int, float))
                                              and math.isfinite(cfg.gain_e_per_dn)

@@ -318,7 +318,10 @@ class AutoResult(NamedTuple):
             remain those of the candidates without the box).
         cv_error: ``(B, C, len(candidates))`` cross-validation error of every candidate, in
             the squared units of ``y``; ``nan`` for a second-stage weight that was not fitted
-            for that sample (only the neighbours of its first-stage choice are).
+            for that sample (only the neighbours of its first-stage choice are). In squared
+            units these errors (and ``fit_error``, ``fit_bound``) overflow to ``inf`` or
+            underflow to 0 for float32 buckets beyond about ``1e±19``; the choice itself is
+            made on ``score``, which is scale-free and finite at every scale.
         candidates: the candidate list, as dicts (same order as ``cv_error``).
         fit_error: ``(B, C, len(candidates))`` each candidate's misfit of its own training
             rows, summed over the folds (``nan`` where not fitted).
@@ -350,7 +353,14 @@ def _finite_box(bounds) -> bool:
 
 
 def _boxes(bounds) -> list:
-    return [None, (0.0, None)] + ([tuple(bounds)] if bounds is not None else [])
+    """The bound groups: none, ``x ≥ 0`` and the caller's box unless it is one of those two
+    (``(0, None)`` or ``(None, None)`` would fit the same candidates twice)."""
+    out = [None, (0.0, None)]
+    if bounds is not None:
+        lo, hi = (None if v is None else float(v) for v in bounds)
+        if (lo, hi) not in ((None, None), (0.0, None)):
+            out.append((lo, hi))
+    return out
 
 
 def _groups(bounds, priors=AUTO_PRIORS) -> list:

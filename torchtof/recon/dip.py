@@ -646,7 +646,9 @@ def dip(
     fit: it is not fitted, and its image is the constant ``b`` minimising ``‖b·A1 − y‖²``
     (the calibration of ``x_cal`` without a fitted image; 0 for zero buckets, the exact
     image for one measurement of a constant scene; ``"unit"``: 0), without affecting the
-    other samples.
+    other samples. With ±1 patterns, non-zero constant buckets do describe a non-constant
+    image (``A⁺y``), which this constant does not fit (relative residual near 1, reported as
+    ``"direct"``): reconstruct such buckets with :func:`~torchtof.recon.pseudo_inverse`.
 
     Args:
         y: buckets ``(B, C, M)``.
