@@ -94,3 +94,20 @@ def test_noise_estimators_and_markov_covariance_check_their_inputs():
             markov_covariance(8, ell)
     with pytest.raises(ValueError, match="markov_covariance: expected n"):
         markov_covariance(6, 2.0)
+
+
+def test_noise_from_repeats_and_pair_sums_at_the_ends_of_float32():
+    from torchtof.recon.noise import noise_from_pair_sums, noise_from_repeats, pair_noise_dof
+    g = torch.Generator().manual_seed(0)
+    y = torch.randn(3, 2, 64, generator=g)
+    y[:, 1] *= 1e-3  # channels of different scales: one factor per channel
+    s = torch.randn(1, 1, 64, generator=g)
+    ref_r, ref_p = noise_from_repeats(y), noise_from_pair_sums(s, robust=False)
+    for c in (2.0**66, 2.0**-120):  # squares of these overflowed to inf / underflowed to 0
+        torch.testing.assert_close(noise_from_repeats(c * y) / c, ref_r, rtol=1e-5, atol=0)
+        torch.testing.assert_close(noise_from_pair_sums(c * s, robust=False) / c, ref_p,
+                                   rtol=1e-5, atol=0)
+    with pytest.raises(TypeError, match="noise_from_pair_sums: expected robust to be a bool"):
+        noise_from_pair_sums(s, robust="no")
+    with pytest.raises(TypeError, match="pair_noise_dof: expected robust to be a bool"):
+        pair_noise_dof(10, robust="x")

@@ -31,7 +31,15 @@ from statistics import NormalDist
 
 import torch
 
-from .._checks import check_finite, check_in_range, check_rank, check_real, check_tensor
+from .._checks import (
+    check_bool,
+    check_finite,
+    check_in_range,
+    check_rank,
+    check_real,
+    check_tensor,
+)
+from .base import pow2_scale
 
 __all__ = ["tail_noise_sigma", "abs_quantile_sigma", "noise_from_repeats", "noise_from_blocks",
            "noise_from_pairs", "noise_from_pair_sums", "pair_sums", "pair_differences",
@@ -147,7 +155,9 @@ def noise_from_repeats(y: torch.Tensor) -> torch.Tensor:
     if y.shape[0] < 2 or y.shape[-1] < 1:
         raise ValueError(f"{fn}: expected y of shape (R >= 2, C, M >= 1), got {tuple(y.shape)}")
     check_finite(y, "y", fn)
-    return y.var(dim=0, unbiased=True).mean(dim=-1).sqrt()
+    k = pow2_scale(y.transpose(0, 1).reshape(y.shape[1], -1))  # (C, 1), exact
+    # scaled by a power of two per channel: the squares neither overflow nor underflow
+    return (y * k).var(dim=0, unbiased=True).mean(dim=-1).sqrt() / k[:, 0]
 
 
 def noise_from_blocks(y: torch.Tensor, block: int = 32) -> torch.Tensor:
@@ -271,10 +281,12 @@ def noise_from_pair_sums(s: torch.Tensor, skip: int = 1, robust: bool = True) ->
         >>> round(float(noise_from_pair_sums(s)), 1)
         0.5
     """
+    check_bool(robust, "robust", "noise_from_pair_sums")
     d = pair_differences(s, skip)
     if robust:
         return d.abs().median(dim=-1).values / (_MAD * 2**0.5)
-    return (d.pow(2).mean(dim=-1) / 2).sqrt()
+    k = pow2_scale(d)  # (B, C, 1), exact: the squares neither overflow nor underflow
+    return ((d * k).pow(2).mean(dim=-1) / 2).sqrt() / k[..., 0]
 
 
 def noise_from_pairs(y_split: torch.Tensor, n: int, skip: int = 1,
@@ -307,6 +319,7 @@ def pair_noise_dof(k: int, robust: bool = True) -> int:
     """
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise ValueError(f"pair_noise_dof: expected k to be an int >= 1, got {k!r}")
+    check_bool(robust, "robust", "pair_noise_dof")
     return max(1, round(_PAIR_DOF[bool(robust)] * k))
 
 
