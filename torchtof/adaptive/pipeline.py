@@ -294,7 +294,8 @@ def run_adaptive(data, r: int = 0, block: int = 32, method: str | None = None,
         method: reconstructor, one of :data:`~torchtof.adaptive.SOLVERS` (``None``: TVAL3,
             or :func:`choose_method` with a budget; a budget is ignored when ``method`` is
             given).
-        time_budget_s, target_psnr: budget for :func:`choose_method` (``> 0``; finite).
+        time_budget_s, target_psnr: budget for :func:`choose_method` (``time_budget_s > 0``,
+            ``inf`` for no limit as there; ``target_psnr`` finite).
         fps: ToF frames per second for the acquisition time (``> 0``, finite).
         repeat: with ``noise="repeat"``, measure the second block twice for ``σ̂`` (else
             estimate it from the blocks; the far-background test, which needs a noise level,
