@@ -473,3 +473,20 @@ def test_dip_x0_with_nan_names_dip():
     y = A(torch.rand(1, 1, 8, 8))
     with pytest.raises(ValueError, match=r"^dip: x0 contains non-finite"):
         dip(y, A, x0=torch.full((1, 1, 8, 8), float("nan")), max_iter=2)
+
+
+def test_dip_calibrated_image_at_the_ends_of_float32():
+    # the calibration's sums overflowed at 1e38 (NaN image, no error); the fit runs on an
+    # exact power-of-two rescale, so c·y gives c times the image
+    from torchtof.operators import Hadamard
+    from torchtof.recon import dip
+    A = Hadamard(16, sr=0.25)
+    x = torch.zeros(1, 1, 16, 16)
+    x[..., 3:10, 4:12] = 1.0
+    y = A(x)
+    y = y / y.abs().max()
+    ref = dip(y, A, max_iter=15)
+    for c in (2.0**126, 2.0**-120):
+        torch.testing.assert_close(dip(c * y, A, max_iter=15) / c, ref, rtol=0, atol=0)
+    got = dip(torch.full((1, 1, 64), 1e38), A, max_iter=5)  # constant buckets: b = y/(A1)
+    torch.testing.assert_close(got, torch.full_like(got, 6.25e36), rtol=1e-6, atol=0)

@@ -603,16 +603,24 @@ def _dip_batch(y, A, x0, output, func, fit_kwargs):
             if not const[i][j] and float(tail_noise_sigma(yd[i : i + 1, j : j + 1])[0, 0]) <= 0:
                 raise ValueError(f"{func}: noise_sigma='auto' estimated 0 for sample ({i}, {j}) "
                                  "(noise-free tail); pass a noise level")
+    # an exact power of two per sample (1 at ordinary scales: bit for bit the same) keeps the
+    # calibration's sums finite for buckets near the dtype's ends (1e38 in float32 gave NaN);
+    # the network sees z-scored buckets, so only the calibrated image and σ scale with it
+    scale = pow2_scale(yd)[..., 0].tolist()  # (B, C), one host read
     for i in range(b):
         row = []
         for j in range(c):
+            k = scale[i][j]
             if const[i][j]:
-                x[i, j] = _constant_image(yd[i, j], A) if key == "x_cal" else 0.0
+                x[i, j] = _constant_image(yd[i, j] * k, A) / k if key == "x_cal" else 0.0
                 row.append("direct")
                 continue
             x0_ij = None if x0 is None else x0[i : i + 1, j : j + 1]
-            res = fit_dip(y[i : i + 1, j : j + 1], A, x0=x0_ij, **fit_kwargs)
-            x[i, j] = getattr(res, key)[0, 0].detach()
+            kw = dict(fit_kwargs)
+            if not isinstance(kw.get("noise_sigma"), (str, type(None))):
+                kw["noise_sigma"] = kw["noise_sigma"] * k
+            res = fit_dip(y[i : i + 1, j : j + 1] * k, A, x0=x0_ij, **kw)
+            x[i, j] = getattr(res, key)[0, 0].detach() / (k if key == "x_cal" else 1.0)
             iters[i, j] = res.n_iter
             row.append(res.stop_reason)
         reasons.append(tuple(row))
