@@ -61,7 +61,8 @@ def test_candidates_and_cv_error_layout():
     per_group = len(AUTO_WEIGHTS) + len(fine - set(AUTO_WEIGHTS))
     groups = len(AUTO_PRIORS) * len(AUTO_TVS) * len(AUTO_BOUNDARIES)
     assert len(candidates()) == groups * 2 * per_group
-    assert len(candidates((0.0, None))) == groups * 3 * per_group  # half-open: no box-only
+    assert len(candidates((0.5, None))) == groups * 3 * per_group  # half-open: no box-only
+    assert len(candidates((0.0, None))) == groups * 2 * per_group  # x >= 0 is built in
     cands = candidates((0.0, 1.0))
     assert len(cands) == groups * 3 * per_group + 1
     assert cands[-1]["tv"] is None and cands[-1]["bounds"] == (0.0, 1.0)
