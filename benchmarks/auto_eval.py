@@ -382,7 +382,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--bp", action="store_true",
                     help="basis pursuit's default against TVAL3's default instead (PSNR dB)")
     args = ap.parse_args(argv)
-    if not args.peers_cells:  # this script's own grid
+    if not args.peers_cells or args.bp or args.noise_table:  # this script's own grid
         args.scenes = list(SCENES) if args.scenes is None else args.scenes
         args.noise = 0.01 if args.noise is None else args.noise
     if args.orders is not None and not args.peers_cells:

@@ -150,3 +150,9 @@ def test_simulated_bench_checks_its_arguments(kw, err, msg):
     from torchtof.hardware.simulated import SimulatedBench
     with pytest.raises(err, match=f"SimulatedBench: {msg}"):
         SimulatedBench(**kw)
+
+
+def test_faults_hang_file_takes_a_path_object(tmp_path):
+    from torchtof.hardware.simulated import Faults
+    f = Faults(hang_at_frame=3, hang_file=tmp_path / "h")
+    assert f.hang_file == str(tmp_path / "h")

@@ -189,3 +189,22 @@ def test_buckets_near_the_ends_of_float32_give_the_scaled_image(name):
         assert torch.isfinite(got).all(), (name, c)
         tol = 1e-6 if c > 1 else 1e-3  # subnormal buckets keep fewer bits
         torch.testing.assert_close(got / c, ref, rtol=tol, atol=tol * float(ref.abs().max()))
+
+
+def test_tval3_auto_on_noisy_buckets_near_the_ends_of_float32():
+    # noisy buckets run mu='auto''s hold-out check, whose squared errors overflowed (2^64) or
+    # underflowed (2^-100): the check then always kept the constrained model
+    A = Hadamard(16, sr=0.3)
+    g = torch.Generator().manual_seed(0)
+    y = A(torch.rand(1, 1, 16, 16, generator=g))
+    y = y + 0.01 * torch.randn(1, 1, A.m, generator=g)
+    ref = recon.tval3(y, A, max_iter=50)
+    for c in (2.0**64, 2.0**100, 2.0**-100):
+        torch.testing.assert_close(recon.tval3(c * y, A, max_iter=50) / c, ref, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", ["tval3", "tgv"])
+def test_all_zero_buckets_keep_the_callers_box(name):
+    A = Hadamard(8, sr=0.5)
+    x = getattr(recon, name)(torch.zeros(1, 1, A.m), A, bounds=(0.5, 1.0), max_iter=20)
+    assert torch.equal(x, torch.full_like(x, 0.5))  # 0 projected onto the box, both solvers

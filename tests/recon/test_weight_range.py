@@ -40,14 +40,14 @@ def test_extreme_weights_are_refused_by_name(f, kw, msg):
 
 
 EDGE = [
-    (recon.tval3, dict(mu=2.0**32)), (recon.tval3, dict(mu=2.0**-32)),
-    (recon.tval3, dict(mu=2.0**32, tvl2=True)), (recon.tval3, dict(mu=2.0**-32, tvl2=True)),
-    (recon.tval3, dict(mu=256.0, beta=2.0**-32)), (recon.tval3, dict(mu=256.0, beta=2.0**32)),
+    (recon.tval3, dict(mu=2.0**56)), (recon.tval3, dict(mu=2.0**-56)),
+    (recon.tval3, dict(mu=2.0**56, tvl2=True)), (recon.tval3, dict(mu=2.0**-56, tvl2=True)),
+    (recon.tval3, dict(mu=256.0, beta=2.0**-56)), (recon.tval3, dict(mu=256.0, beta=2.0**56)),
     (recon.tval3, dict(mu=2.0**23, beta=1.0, u_step="exact")),
-    (recon.tgv, dict(mu=2.0**32, tvl2=True)), (recon.tgv, dict(mu=2.0**-32, tvl2=True)),
-    (recon.tgv, dict(alpha=(2.0**32, 1.0))), (recon.tgv, dict(alpha=(2.0**-32, 2.0**-32))),
-    (joint_tv, dict(mu=2.0**23, beta=1.0)), (joint_tv, dict(mu=2.0**-32)),
-    (joint_tv, dict(mu=256.0, beta=2.0**32)),
+    (recon.tgv, dict(mu=2.0**56, tvl2=True)), (recon.tgv, dict(mu=2.0**-56, tvl2=True)),
+    (recon.tgv, dict(alpha=(2.0**56, 1.0))), (recon.tgv, dict(alpha=(2.0**-56, 2.0**-56))),
+    (joint_tv, dict(mu=2.0**23, beta=1.0)), (joint_tv, dict(mu=2.0**-56)),
+    (joint_tv, dict(mu=256.0, beta=2.0**56)),
 ]
 
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import struct
 import threading
 import time
@@ -191,10 +192,10 @@ class Faults:
                                      f"count) or null, got {v!r}")
                 kw[k] = None if v is None else int(v)
             elif k == "hang_file":
-                if v is not None and not isinstance(v, str):
+                if v is not None and not isinstance(v, (str, os.PathLike)):
                     raise ValueError(f"Faults: expected 'hang_file' a path (a string) or null, "
                                      f"got {v!r}")
-                kw[k] = v
+                kw[k] = None if v is None else os.fspath(v)
             elif k == "hang_s":
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or \
                         not (math.isfinite(v) and v >= 0):

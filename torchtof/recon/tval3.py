@@ -55,6 +55,7 @@ from .tv import (
     exact_solve,
     largest_eig_normal,
     loop_differences,
+    project_box,
     scale_a,
     scaled_loop_pair,
     shrink,
@@ -576,6 +577,8 @@ def tval3(
         u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
                    boundary=boundary, disc_bound=bound)
     x = u.x * (math.sqrt(inv_s2) / _i(gain)) / _i(k)  # A_s u = b <=> A (u/(√s2·gain)) = y
+    if lo is not None or hi is not None:  # all-zero buckets: 0 projected onto the box (as tgv)
+        x = torch.where(_i(zero), project_box(torch.zeros_like(x), lo, hi), x)
     residual = relative_residual(x, y0, A)
     code = torch.where(u.count > opts["max_outer"], 1, 0)
     code = torch.where(u.disc, 2, code)
@@ -622,7 +625,11 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     r = tval3(yt, op, mu=mus.repeat(1, nf), tvl2=tl, beta=beta, max_iter=budget, tv=tv,
               nonneg=nonneg, bounds=bounds, boundary=boundary, return_result=True)
     hm = held.repeat_interleave(nm, dim=0).to(y.dtype)
-    err = ((A(r.x) - ys) * hm).pow(2).sum(-1).reshape(b * c, nf, nm).sum(1)  # (BC, nm)
+    # the residuals times an exact power of two per sample (1 at ordinary scales): the
+    # squares stay finite for buckets near the dtype's ends, and the comparison is the same
+    k = pow2_scale(ys)  # (BC, 1, 1), repeated for the nf·nm fits of each sample
+    res_ = (A(r.x) - ys) * k
+    err = (res_ * hm).pow(2).sum(-1).reshape(b * c, nf, nm).sum(1)  # (BC, nm)
     larger = err[:, 2] < err[:, 1]
     best = torch.where(larger, err[:, 2], err[:, 1])
     keep = err[:, 0] <= (1 + AUTO_CV_SLACK) * best
