@@ -181,8 +181,9 @@ def check_finite(x: torch.Tensor, name: str, func: str) -> None:
 
 
 def check_positive(value: float, name: str, func: str, strict: bool = True) -> float:
-    """Raise ``ValueError`` unless the scalar ``value`` is (strictly) positive and finite."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    """Raise ``ValueError`` unless the scalar ``value`` (a Python or NumPy real, not a bool) is
+    (strictly) positive and finite."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{func}: expected {name} to be a number, got {type(value).__name__}")
     v = float(value)
     if v != v or v in (float("inf"), float("-inf")) or (v <= 0 if strict else v < 0):

@@ -178,3 +178,16 @@ def test_shot_noise_small_means_keep_the_poisson_stream():
     assert torch.equal(got[small], got[small].round()) and (got[small] >= 0).all()
     assert abs(float(got[small].mean() - mixed[small].mean())) < 2.0  # 299 draws, σ ≈ 7/√299
     assert got[0, 0, 0, 0] > 0
+
+
+def test_noise_settings_take_numpy_scalars_and_generators_are_checked():
+    import numpy as np
+    t = torch.full((1, 4, 1, 1), 50.0)
+    g = torch.Generator().manual_seed(0)
+    want = tof_noise(t, adc_bits=12, read_noise_e=2.0, generator=g)
+    g = torch.Generator().manual_seed(0)
+    got = tof_noise(t, adc_bits=np.int64(12), read_noise_e=np.float32(2.0), generator=g)
+    assert torch.equal(got, want)
+    for f, kw in ((tof_noise, {}), (tof_noise, {"shot": None}), (read_noise, {"sigma_e": 1.0})):
+        with pytest.raises(TypeError, match=rf"{f.__name__}: expected generator to be a torch"):
+            f(t, generator=5, **kw)

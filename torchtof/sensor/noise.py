@@ -22,7 +22,7 @@ import math
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_positive, check_shape, is_tracing
+from .._checks import check_finite, check_int, check_positive, check_shape, is_tracing
 from .functional import check_real
 
 __all__ = ["SHOT_MODES", "shot_noise", "read_noise", "adc_quantize", "tof_noise", "ToFNoise"]
@@ -43,11 +43,17 @@ def _check_taps(taps: object, func: str) -> torch.Tensor:
 
 
 def _check_bits(bits: object, name: str, func: str) -> int:
-    if isinstance(bits, bool) or not isinstance(bits, int):
-        raise TypeError(f"{func}: expected {name} to be an int, got {type(bits).__name__}")
+    bits = check_int(bits, name, func)  # numpy integers too, as everywhere
     if not 1 <= bits <= 32:
         raise ValueError(f"{func}: expected {name} in [1, 32], got {bits}")
     return bits
+
+
+def _check_generator(generator: object, func: str) -> None:
+    """``None`` or a ``torch.Generator`` (checked even where no noise is drawn)."""
+    if generator is not None and not isinstance(generator, torch.Generator):
+        raise TypeError(f"{func}: expected generator to be a torch.Generator or None, got "
+                        f"{type(generator).__name__}")
 
 
 def check_noise_config(
@@ -112,6 +118,7 @@ def shot_noise(
     """
     func = "shot_noise"
     _check_taps(taps, func)
+    _check_generator(generator, func)
     if mode not in SHOT_MODES:
         raise ValueError(f"{func}: expected mode in {SHOT_MODES}, got {mode!r}")
     rate = taps.clamp_min(0)
@@ -154,6 +161,7 @@ def read_noise(
     """
     func = "read_noise"
     _check_taps(taps, func)
+    _check_generator(generator, func)
     sigma = check_positive(sigma_e, "sigma_e", func, strict=False)
     if sigma == 0.0:
         return taps
@@ -265,6 +273,7 @@ def tof_noise(
     """
     func = "tof_noise"
     _check_taps(taps, func)
+    _check_generator(generator, func)
     check_noise_config(func, shot, read_noise_e, full_well_e, adc_bits, gain_e_per_dn)
     if adc_bits is not None:  # before drawing any noise
         _check_bits_dtype(adc_bits, taps.dtype, "adc_bits", func)
