@@ -178,3 +178,14 @@ def test_extremely_bright_return_keeps_its_depth():
     torch.testing.assert_close(frame.depth, torch.full_like(frame.depth, 2.0), rtol=0, atol=1e-6)
     torch.testing.assert_close(frame.amplitude, torch.full_like(frame.amplitude, 5e29),
                                rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("taps, kw, msg", [
+    (torch.ones(1, 4, 2, 2), {"freq_hz": 0.0}, "camera_readout: expected freq_hz > 0"),
+    (torch.ones(1, 3, 1, 1), {}, r"camera_readout: expected taps of shape \(\*, 4, \*, \*\)"),
+])
+def test_camera_readout_errors_name_camera_readout(taps, kw, msg):
+    # they named phase_to_depth and tap_amplitude, which the caller never called
+    from torchtof.sensor.readout import camera_readout
+    with pytest.raises(ValueError, match=msg):
+        camera_readout(taps, **kw)

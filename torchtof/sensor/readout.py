@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import check_positive
+from .._checks import check_positive, check_shape, check_tensor
 from .functional import (
     camera_rules,
     check_rules_config,
@@ -61,6 +61,10 @@ def camera_readout(
         >>> round(depth[0, 0, 0, 0].item(), 4), round(amp[0, 0, 0, 0].item(), 3)
         (2.0, 50.0)
     """
+    func = "camera_readout"  # its own name in the errors of what it is given
+    check_tensor(taps, "taps", func)
+    check_shape(taps, (None, 4, None, None), "taps", func, "(B, 4, H, W)")
+    check_positive(freq_hz, "freq_hz", func)
     amplitude = tap_amplitude(taps)
     phase = tap_phase(taps)
     depth = camera_rules(
