@@ -112,6 +112,25 @@ def test_tof_noise_full_well_and_order():
     assert out.flatten().tolist() == [20.0, 1000.0, 2000.0, 2000.0]  # well clips before ADC
 
 
+def test_tof_noise_saturated_pixel_keeps_the_read_noise():
+    # The well clips the collected charge; the readout adds its noise afterwards (EMVA 1288
+    # linear model). A pixel far above the well W therefore reads W + σ_r·N(0, 1): mean W,
+    # variance σ_r² (clipping after the read noise would give variance 0).
+    w, sigma_r, n = 1000.0, 5.0, 200_000
+    x = torch.full((n, 4, 1, 1), 50_000.0, dtype=torch.float64)
+    out = tof_noise(x, shot="poisson", read_noise_e=sigma_r, full_well_e=w, adc_bits=None,
+                    generator=_gen(3))
+    se_mean = sigma_r / (4 * n) ** 0.5
+    assert abs(out.mean().item() - w) < 5 * se_mean
+    var = out.var().item()
+    assert abs(var - sigma_r**2) < 5 * sigma_r**2 * (2 / (4 * n - 1)) ** 0.5
+    # below the well nothing is clipped: Poisson(c) + σ_r² has variance c + σ_r²
+    c = 400.0
+    out = tof_noise(torch.full((n, 4, 1, 1), c, dtype=torch.float64), shot="poisson",
+                    read_noise_e=sigma_r, full_well_e=w, adc_bits=None, generator=_gen(4))
+    assert abs(out.var().item() - (c + sigma_r**2)) < 5 * (c + sigma_r**2) * (2 / (4 * n)) ** 0.5
+
+
 def test_tof_noise_seeded_and_module_equals_function():
     x = _const_taps(8, 8, torch.float32)
     kw = dict(shot="poisson", read_noise_e=2.0, full_well_e=None, adc_bits=12, gain_e_per_dn=1.0)

@@ -6,11 +6,15 @@ photo-electrons (e⁻). The chain (Lange & Seitz, IEEE J. Quantum Electron. 37(3
 .. math::
 
     c_k \\xrightarrow{\\text{shot}} \\mathrm{Poisson}(c_k)
-        \\xrightarrow{\\text{read}} {} + σ_r\\,\\mathcal N(0, 1)
         \\xrightarrow{\\text{full well}} \\min(\\cdot, W)
+        \\xrightarrow{\\text{read}} {} + σ_r\\,\\mathcal N(0, 1)
         \\xrightarrow{\\text{ADC}} \\mathrm{round}(\\mathrm{clip}(\\cdot / g,\\ 0,\\ 2^{b} − 1)),
 
-``g`` the conversion gain in e⁻/DN and ``b`` the ADC bit depth. Every random draw takes an
+``g`` the conversion gain in e⁻/DN and ``b`` the ADC bit depth. The well saturates in the
+charge domain, before the readout adds its noise (the linear camera model of EMVA
+Standard 1288, Release 4.0, 2021: photo-electrons, then the readout's dark noise, then the
+quantiser), so a saturated pixel still reads with the read noise's variance; the ADC's own
+clip is the only bound on the digital number. Every random draw takes an
 explicit ``torch.Generator`` (on the tensor's device), so a seeded run is reproducible;
 with no shot noise, zero read noise, no full well and no ADC the chain is the identity.
 """
@@ -243,11 +247,12 @@ def tof_noise(
     gain_e_per_dn: float = 1.0,
     generator: torch.Generator | None = None,
 ) -> torch.Tensor:
-    """The full noise chain of a ToF pixel: shot → read → full well → ADC.
+    """The full noise chain of a ToF pixel: shot → full well → read → ADC.
 
-    See the module docstring for the model (Lange & Seitz, 2001). Shot noise is drawn before
-    read noise from the same ``generator``; the full well clips the electrons at
-    ``full_well_e`` (pixel saturation); the ADC (:func:`adc_quantize`) converts to digital
+    See the module docstring for the model (Lange & Seitz, 2001; EMVA 1288). Shot noise is
+    drawn before read noise from the same ``generator``; the full well clips the collected
+    electrons at ``full_well_e`` (pixel saturation, in the charge domain, before the readout
+    adds its noise); the ADC (:func:`adc_quantize`) converts to digital
     numbers. With ``shot=None``, ``read_noise_e=0``, ``full_well_e=None`` and
     ``adc_bits=None`` the taps are returned unchanged (in e⁻).
 
@@ -279,9 +284,9 @@ def tof_noise(
         _check_bits_dtype(adc_bits, taps.dtype, "adc_bits", func)
     if shot is not None:
         taps = shot_noise(taps, shot, generator)
-    taps = read_noise(taps, read_noise_e, generator)
     if full_well_e is not None:
         taps = taps.clamp_max(float(full_well_e))
+    taps = read_noise(taps, read_noise_e, generator)
     if adc_bits is not None:
         taps = adc_quantize(taps, adc_bits, gain_e_per_dn)
     return taps
