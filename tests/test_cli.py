@@ -674,4 +674,10 @@ def test_bench_tradeoff_json_is_the_only_json(tmp_path, capsys, monkeypatch):
     saved = json.loads(js.read_text())
     assert saved["json"] == str(js) and saved["points"][0]["label"] == "PINV"
     assert set(saved["machine"]) == {"start", "end"}
-    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(f"wrote {js}")
+    table = out / "budget_table.json"
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(f"wrote {js}, {table}")
+    # the budget table is the shipped format: choose_method reads it as it is
+    from torchtof.adaptive import choose_method
+
+    pick = choose_method(8, 0.25, time_budget_s=1.0, table=table)
+    assert pick.method == "PINV" and pick.psnr == 10.0 and pick.met

@@ -182,7 +182,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     path.write_text(json.dumps(res, indent=2, default=str))
     rows = res.get("rows") if isinstance(res, dict) else None
     count = f"{len(rows)} rows" if isinstance(rows, list) else "done"
-    files = [str(path)] + [str(res[k]) for k in ("plot",) if isinstance(res, dict) and res.get(k)]
+    files = [str(path)] + [str(res[k]) for k in ("plot", "budget_table")
+                           if isinstance(res, dict) and res.get(k)]
     if isinstance(res, dict) and res.get("json") and res["json"] != str(path):
         files.append(str(res["json"]))
     print(f"\ntorchtof bench {args.which}: {count} in {time.perf_counter() - t0:.1f} s; "

@@ -6,8 +6,9 @@ over the scenes). A table measured on this machine ships with the package
 (``torchtof/adaptive/tradeoff_default.json``); regenerate it, or make your own, with::
 
     torchtof bench tradeoff --quick --out bench_out
-    python -m torchtof.adaptive.budget bench_out/tradeoff.json \\
-        torchtof/adaptive/tradeoff_default.json
+    cp bench_out/budget_table.json torchtof/adaptive/tradeoff_default.json
+
+(``bench tradeoff`` writes ``budget_table.json`` with :func:`save_table`.)
 
 Rules (:func:`choose_method`): among the rows of the nearest ``n`` and the nearest SR
 (``|log SR − log SR_row|`` smallest; the table lists few SRs):
@@ -176,12 +177,3 @@ def choose_method(n: int, sr: float, time_budget_s: float | None = None,
     return MethodChoice(method=pick["method"], n_iter=pick.get("budget"), time_s=pick["time_s"],
                         psnr=pick["psnr"], depth_rmse_m=pick.get("depth_rmse_m"), met=met,
                         why=f"{why} ({where})")
-
-
-if __name__ == "__main__":  # pragma: no cover - table conversion command (module docstring)
-    import sys
-
-    if len(sys.argv) != 3 or sys.argv[1] in ("-h", "--help"):
-        raise SystemExit("usage: python -m torchtof.adaptive.budget TRADEOFF_JSON OUT_JSON "
-                         "(the table conversion of this module's docstring)")
-    print(save_table(sys.argv[1], sys.argv[2]))

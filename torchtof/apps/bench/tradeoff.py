@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from ...adaptive.budget import save_table
 from ...experiment import PAPER_SRS
 from .recon import KNOBS, pareto, plot_sweep, print_recon, sweep
 
@@ -64,6 +65,8 @@ def bench_tradeoff(quick: bool = False, out: str | Path = "bench_out",
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=2, default=str))
     res["json"] = str(path)
+    # the scene-averaged points in the format choose_method reads (the shipped table's)
+    res["budget_table"] = str(save_table(path, out / "budget_table.json"))
     return res
 
 
@@ -74,4 +77,5 @@ def print_tradeoff(res: dict) -> None:
 
     print_table([{**r, "psnr": "-" if r["psnr"] is None else f"{r['psnr']:.2f}"}
                  for r in res["recommend"]], ["n", "budget_s", "method", "psnr", "time_s"])
-    print(f"wrote {res['json']}" + (f" and {res['plot']}" if res['plot'] else ""))
+    print(f"wrote {res['json']}, {res['budget_table']}"
+          + (f" and {res['plot']}" if res['plot'] else ""))
