@@ -212,3 +212,14 @@ def test_roi_box_takes_numpy_integers():
     from torchtof.bucket import roi_mask
     got = roi_mask((np.int64(4), np.int32(4)), (np.int64(1), 1, np.int32(2), 2))
     assert torch.equal(got, roi_mask((4, 4), (1, 1, 2, 2)))
+
+
+def test_empty_frames_are_named_by_their_argument():
+    from torchtof.bucket import depth_bucket, intensity_bucket, tap_buckets
+
+    with pytest.raises(ValueError, match=r"depth_bucket: expected depth frames of positive"):
+        depth_bucket(torch.zeros(1, 3, 0, 4))
+    with pytest.raises(ValueError, match=r"intensity_bucket: expected amplitude frames of "):
+        intensity_bucket(torch.zeros(1, 3, 4, 0))
+    with pytest.raises(ValueError, match=r"tap_buckets: expected taps frames of positive"):
+        tap_buckets(torch.zeros(1, 3, 4, 0, 4))

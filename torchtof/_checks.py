@@ -201,8 +201,9 @@ def check_in_range(
     lo_open: bool = False,
     hi_open: bool = False,
 ) -> float:
-    """Raise ``ValueError`` unless ``lo (<|<=) value (<|<=) hi``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    """``value`` as a float; ``TypeError`` unless it is a real number (a NumPy scalar too,
+    not a bool), ``ValueError`` unless ``lo (<|<=) value (<|<=) hi``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{func}: expected {name} to be a number, got {type(value).__name__}")
     v = float(value)
     ok_lo = v > lo if lo_open else v >= lo

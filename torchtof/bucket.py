@@ -81,15 +81,20 @@ def _check_box(roi: Sequence[int], func: str) -> tuple[int, int, int, int]:
 
 
 def _roi_mask(
-    shape_hw: Sequence[int], roi: object, device: torch.device | str | None, func: str
+    shape_hw: Sequence[int], roi: object, device: torch.device | str | None, func: str,
+    frames: str | None = None,
 ) -> torch.Tensor | None:
-    """Bool ``(H, W)`` mask of ``roi`` for a frame of ``shape_hw``; ``None`` = whole frame."""
+    """Bool ``(H, W)`` mask of ``roi`` for a frame of ``shape_hw``; ``None`` = whole frame.
+    ``frames``: the caller's frame argument, named instead of ``shape_hw`` in the errors."""
     if (not isinstance(shape_hw, (Sequence, torch.Size)) or len(shape_hw) != 2
             or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool)
                        for v in shape_hw)):
         raise TypeError(f"{func}: expected shape_hw as (H, W) ints, got {shape_hw!r}")
     h, w = (int(v) for v in shape_hw)
     if h <= 0 or w <= 0:
+        if frames is not None:
+            raise ValueError(f"{func}: expected {frames} frames of positive height and width, "
+                             f"got (H, W) = ({h}, {w})")
         raise ValueError(f"{func}: expected shape_hw of a frame of positive size, got {shape_hw}")
     if roi is None:
         return None
@@ -153,9 +158,9 @@ def roi_mask(
     return mask
 
 
-def _roi_sum(x: torch.Tensor, roi: object, func: str) -> torch.Tensor:
-    """Sum of the last two axes of ``x`` over the ROI."""
-    mask = _roi_mask(x.shape[-2:], roi, x.device, func)
+def _roi_sum(x: torch.Tensor, roi: object, func: str, name: str) -> torch.Tensor:
+    """Sum of the last two axes of ``x`` (the argument ``name``) over the ROI."""
+    mask = _roi_mask(x.shape[-2:], roi, x.device, func, name)
     if mask is not None:
         x = torch.where(mask, x, torch.zeros_like(x))
     return x.sum(dim=(-2, -1))
@@ -249,7 +254,7 @@ def depth_bucket(
     check_finite(depth, "depth", func)
     if gate_m is not None:
         depth = depth_gate(depth, gate_m)
-    return _roi_sum(depth, roi, func).unsqueeze(1)
+    return _roi_sum(depth, roi, func, "depth").unsqueeze(1)
 
 
 class _RoiModule(nn.Module):
@@ -336,7 +341,7 @@ def intensity_bucket(amplitude: torch.Tensor, roi: object = None) -> torch.Tenso
     func = "intensity_bucket"
     _check_frames(amplitude, 4, "amplitude", func, "(B, M, H, W)")
     check_finite(amplitude, "amplitude", func)
-    return _roi_sum(amplitude, roi, func).unsqueeze(1)
+    return _roi_sum(amplitude, roi, func, "amplitude").unsqueeze(1)
 
 
 class IntensityBucket(_RoiModule):
@@ -385,7 +390,7 @@ def tap_buckets(taps: torch.Tensor, roi: object = None) -> torch.Tensor:
     if taps.shape[2] != 4:
         raise ValueError(f"{func}: expected taps of shape (B, M, 4, H, W), got {tuple(taps.shape)}")
     check_finite(taps, "taps", func)
-    return _roi_sum(taps, roi, func).transpose(1, 2)
+    return _roi_sum(taps, roi, func, "taps").transpose(1, 2)
 
 
 class TapBuckets(_RoiModule):

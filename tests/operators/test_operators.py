@@ -376,3 +376,74 @@ def test_dense_views_refuse_what_cannot_fit():
             DMDSplit(Hadamard(4)).pinv(torch.zeros(1, 1, 32))
     finally:
         torchtof.set_memory_limit(None)
+
+
+@pytest.mark.parametrize("order", ["natural", "sequency", "cake_cutting", "russian_doll"])
+def test_dmd_all_off_frame_reads_exactly_zero(order):
+    # φ⁻ of the all-on row is the all-off frame: its bucket is 0 for any scene, exactly, so
+    # shot noise can be drawn from non-negative scenes' DMD buckets (it read −ε·Σx before)
+    x = torch.rand(4, 1, 64, 64, generator=torch.Generator().manual_seed(0))
+    y = DMDSplit(Hadamard(64, sr=0.25, order=order))(x)
+    assert torch.equal(y[..., 1], torch.zeros_like(y[..., 1]))
+    assert torch.allclose(y[..., 0], x.sum(dim=(-2, -1)), rtol=1e-6)  # all on: ⟨1, x⟩
+    assert bool((y >= 0).all())
+    torch.poisson(100 * y, generator=torch.Generator().manual_seed(1))  # valid rates
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.bool, torch.int8, torch.int64,
+                                   torch.float16])
+def test_dmd_patterns_in_mask_dtypes(dtype):
+    S = DMDSplit(Hadamard(8, sr=0.5))
+    ref = S.patterns(torch.float64)
+    for start, stop in ((0, None), (3, 9)):
+        p = S.patterns(dtype, start, stop)
+        assert p.dtype == dtype
+        assert torch.equal(p.to(torch.float64), ref[start:stop])
+    with pytest.raises(TypeError, match=r"DMDSplit\.patterns: expected dtype a real"):
+        S.patterns(torch.complex64)
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.bool])
+def test_hadamard_patterns_refuse_dtypes_without_minus_one(dtype):
+    # uint8 wrapped −1 to 255 and bool made every entry True
+    with pytest.raises(TypeError, match=r"Hadamard\.patterns: expected dtype a floating or "):
+        Hadamard(8, sr=0.5).patterns(dtype)
+
+
+def test_operators_take_numpy_sizes_and_rates():
+    import numpy as np
+
+    from torchtof.operators import hadamard_order, random_binary_patterns
+    from torchtof.operators.fwht import kron_factors
+
+    a, b = Hadamard(np.int64(8), sr=np.float32(0.25)), Hadamard(8, sr=0.25)
+    assert type(a.n) is int and a.m == b.m == 16
+    x = torch.rand(1, 1, 8, 8)
+    assert torch.equal(a(x), b(x))
+    assert torch.equal(hadamard_order(np.int64(8), "russian_doll"), hadamard_order(8, "russian_doll"))
+    assert kron_factors(np.int64(4096), np.int32(16)) == (16, 16, 16)
+    g = torch.Generator().manual_seed(0)
+    assert random_binary_patterns(np.int64(4), np.int32(8), generator=g).shape == (4, 8, 8)
+    with pytest.raises(TypeError, match="Hadamard: expected sr to be a number, got bool"):
+        Hadamard(8, sr=True)
+
+
+def test_pinv_errors_name_pinv():
+    with pytest.raises(ValueError, match=r"^Hadamard\.pinv: expected y"):
+        Hadamard(8).pinv(torch.ones(1, 1, 3))
+
+
+def test_pattern_operator_pinv_follows_a_dtype_round_trip():
+    # Module.half() cast the float64 A⁺ buffer to float16; .float() afterwards kept that
+    # rounding (1e-3 error where a fresh operator has 4e-7): A⁺ is derived again after a cast
+    g = torch.Generator().manual_seed(0)
+    p, x = torch.rand(20, 8, 8, generator=g), torch.rand(1, 1, 8, 8, generator=g)
+    a = PatternOperator(p)
+    v0 = a.state_version
+    a.half().float()
+    fresh = PatternOperator(a.patterns)  # the same float16-rounded patterns, derived once
+    assert a.pinv_matrix.dtype == torch.float64 and a.state_version > v0
+    assert torch.equal(a.pinv_matrix, fresh.pinv_matrix)
+    assert torch.equal(a.pinv(a(x)), fresh.pinv(fresh(x)))
+    a.double()
+    assert torch.equal(a.pinv_matrix, PatternOperator(a.patterns).pinv_matrix)

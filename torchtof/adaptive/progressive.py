@@ -123,7 +123,7 @@ def block_statistics(y: torch.Tensor, block: int, noise_sigma: torch.Tensor | fl
     if order not in ORDERS:
         raise ValueError(f"{fn}: expected order in {ORDERS}, got {order!r}")
     if n is not None:
-        check_n_order(n, order, fn)
+        n = check_n_order(n, order, fn)
         if y.shape[-1] > n * n:
             raise ValueError(f"{fn}: expected at most n² = {n * n} buckets for n = {n}, got "
                              f"M = {y.shape[-1]} (the n of another record?)")
@@ -236,7 +236,7 @@ class ProgressiveStop:
                  noise_sigma: float | torch.Tensor | None = None, min_patterns: int = 128,
                  recon: str = "tv", order: str = "cake_cutting") -> None:
         fn = "ProgressiveStop"
-        check_n_order(n, order, fn)
+        n = check_n_order(n, order, fn)
         block = check_int(block, "block", fn, lo=4)
         if rule not in PROGRESSIVE_RULES:
             raise ValueError(f"{fn}: expected rule in {PROGRESSIVE_RULES}, got {rule!r}")

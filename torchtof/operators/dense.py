@@ -80,6 +80,15 @@ class PatternOperator(LinearOperator):
         pinv = None if self.orthonormal_rows else torch.linalg.pinv(g)
         self.register_buffer("pinv_matrix", pinv, persistent=False)
 
+    def _apply(self, fn, recurse: bool = True):
+        """``Module.to``/``.half``/``.double`` cast the buffers, ``A⁺`` among them: derive it
+        again, in float64, from the patterns as cast (a ``.half().float()`` round trip left a
+        float16-rounded ``A⁺``, 2000× less accurate, behind the float32 patterns)."""
+        module = super()._apply(fn, recurse)
+        self._derive()
+        self.state_version += 1
+        return module
+
     @staticmethod
     def _loaded(module: PatternOperator, incompatible_keys) -> None:
         """After ``load_state_dict``: check the loaded patterns, derive again what depends

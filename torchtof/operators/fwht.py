@@ -130,8 +130,8 @@ def fwht2_matmul(x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
 def kron_factors(big: int, radix: int = 16) -> tuple[int, ...]:
     """Radices ``(r_1, …, r_k)`` with ``∏ r_i = big``: as many ``radix`` as fit, the
     remainder (a smaller power of two) first. ``kron_factors(4096) == (16, 16, 16)``."""
-    check_power_of_two(big, "big", "kron_factors")
-    check_power_of_two(radix, "radix", "kron_factors")
+    big = check_power_of_two(big, "big", "kron_factors")
+    radix = check_power_of_two(radix, "radix", "kron_factors")
     p, q = big.bit_length() - 1, radix.bit_length() - 1
     rest = p % q
     return ((1 << rest,) if rest else ()) + (radix,) * (p // q)

@@ -23,7 +23,7 @@ from .._checks import cache_build
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .fwht import fwht2_matmul, fwht2_unchecked, fwht_kron, kron_factors, sylvester
-from .patterns import check_n_order, hadamard_order, num_patterns
+from .patterns import check_n_order, check_sign_dtype, hadamard_order, num_patterns
 
 __all__ = ["Hadamard", "hadamard_forward", "hadamard_adjoint", "AUTO_KRON_MIN_N"]
 
@@ -61,7 +61,10 @@ def hadamard_forward(x: torch.Tensor, index: torch.Tensor, h: Transform = None) 
 
     Args:
         x: images ``(B, C, n, n)``.
-        index: natural indices ``(M,)`` of the selected rows (:func:`hadamard_order`).
+        index: natural indices ``(M,)`` of the selected rows (:func:`hadamard_order`): int64,
+            distinct, in ``[0, n²)``. Not checked here (these are the solvers' inner-loop
+            forms; :class:`Hadamard` checks its own): :func:`hadamard_adjoint` scatters one
+            value per index, so a repeated row is not the adjoint of this function.
         h: Sylvester ``H_n`` (``(n, n)``, dtype of ``x``) for the matmul path, a tuple of
             Kronecker factors ``H_{r_i}`` (``∏ r_i = n²``) for the kron path, or ``None``
             for the butterfly path.
@@ -82,7 +85,10 @@ def hadamard_forward(x: torch.Tensor, index: torch.Tensor, h: Transform = None) 
 def hadamard_adjoint(
     y: torch.Tensor, index: torch.Tensor, n: int, h: Transform = None
 ) -> torch.Tensor:
-    """``x = Aᵀ y = H_Nᵀ Pᵀ y / √N``: scatter into the coefficient grid, transform back."""
+    """``x = Aᵀ y = H_Nᵀ Pᵀ y / √N``: scatter into the coefficient grid, transform back.
+
+    ``index`` as in :func:`hadamard_forward` (distinct rows: the scatter keeps one value per
+    coefficient, which ONNX exports as a ScatterND with any batch size)."""
     if y.dtype in (torch.float16, torch.bfloat16):  # see hadamard_forward
         return hadamard_adjoint(y.float(), index, n, _to_float(h)).to(y.dtype)
     coef = y.new_zeros(*y.shape[:-1], n * n)
@@ -119,7 +125,7 @@ class Hadamard(LinearOperator):
         order: str = "cake_cutting",
         method: str = "auto",
     ) -> None:
-        check_n_order(n, order, "Hadamard")
+        n = check_n_order(n, order, "Hadamard")
         if sr is None and m is None:
             m = n * n
         m = num_patterns(n, sr, m, func="Hadamard")
@@ -177,7 +183,8 @@ class Hadamard(LinearOperator):
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
         """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
-        return self.adjoint(y)
+        self._check_y(y, "Hadamard.pinv")
+        return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
     def patterns(
         self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
@@ -190,6 +197,7 @@ class Hadamard(LinearOperator):
             ValueError: for a range outside ``[0, M]`` or a stack larger than the memory
                 limit (:func:`torchtof.set_memory_limit`).
         """
+        check_sign_dtype(dtype, "Hadamard.patterns")
         start, stop = check_rows(start, stop, self.m, "Hadamard.patterns")
         check_memory((stop - start) * self.n**2 * itemsize(dtype, "Hadamard.patterns"),
                      f"{stop - start} patterns of {self.n}x{self.n}", "Hadamard.patterns",

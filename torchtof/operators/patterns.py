@@ -28,7 +28,7 @@ import numbers
 
 import torch
 
-from .._checks import built_for_cache, check_in_range, check_power_of_two
+from .._checks import built_for_cache, check_in_range, check_int, check_power_of_two
 from .._memory import check_memory
 from .fwht import sylvester
 
@@ -76,10 +76,12 @@ def _order_cpu(n: int, order: str) -> torch.Tensor:
     return torch.argsort(key, stable=True)
 
 
-def check_n_order(n: int, order: str, func: str) -> None:
-    check_power_of_two(n, "n", func, lo=N_MIN, hi=N_MAX)
+def check_n_order(n: int, order: str, func: str) -> int:
+    """``n`` as a Python int (a NumPy integer too); errors name ``n`` or ``order``."""
+    n = check_power_of_two(n, "n", func, lo=N_MIN, hi=N_MAX)
     if order not in ORDERS:
         raise ValueError(f"{func}: expected order in {ORDERS}, got {order!r}")
+    return n
 
 
 def hadamard_order(n: int, order: str = "cake_cutting") -> torch.Tensor:
@@ -100,7 +102,7 @@ def hadamard_order(n: int, order: str = "cake_cutting") -> torch.Tensor:
         >>> hadamard_order(4, "natural")[:3]
         tensor([0, 1, 2])
     """
-    check_n_order(n, order, "hadamard_order")
+    n = check_n_order(n, order, "hadamard_order")
     return _order_cpu(n, order).clone()
 
 
@@ -133,11 +135,8 @@ def hadamard_patterns(
     Pattern ``r`` is ``h_i h_jᵀ`` with ``(i, j) = divmod(order[r], n)``; only the
     requested patterns are materialised (never the full ``N × N`` basis).
     """
-    check_n_order(n, order, "hadamard_patterns")
-    if not isinstance(dtype, torch.dtype) or not (dtype.is_floating_point or dtype in (
-            torch.int8, torch.int16, torch.int32, torch.int64)):
-        raise TypeError("hadamard_patterns: expected dtype a floating or signed integer "
-                        f"torch.dtype (the patterns are ±1), got {dtype!r}")
+    n = check_n_order(n, order, "hadamard_patterns")
+    check_sign_dtype(dtype, "hadamard_patterns")
     m = n * n if m is None else num_patterns(n, m=m, func="hadamard_patterns")
     check_memory(m * n * n * torch.empty((), dtype=dtype).element_size(),
                  f"{m} patterns of {n}x{n}", "hadamard_patterns")
@@ -147,16 +146,23 @@ def hadamard_patterns(
     return h[i.to(h.device)][:, :, None] * h[j.to(h.device)][:, None, :]
 
 
-def _check_sizes(m: object, n: object, dtype: object, func: str) -> None:
-    """``m``, ``n`` ints >= 1 and an ``(m, n, n)`` float64 draw within the memory limit."""
-    for name, v in (("m", m), ("n", n)):
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise TypeError(f"{func}: expected {name} to be an int, got {type(v).__name__}")
-        if v < 1:
-            raise ValueError(f"{func}: expected {name} >= 1, got {v}")
+def check_sign_dtype(dtype: object, func: str) -> None:
+    """``TypeError`` naming ``dtype`` unless it holds ±1: floating or signed integer (uint8
+    wraps −1 to 255, bool makes it True)."""
+    if not isinstance(dtype, torch.dtype) or not (dtype.is_floating_point or dtype in (
+            torch.int8, torch.int16, torch.int32, torch.int64)):
+        raise TypeError(f"{func}: expected dtype a floating or signed integer torch.dtype "
+                        f"(the patterns are ±1), got {dtype!r}")
+
+
+def _check_sizes(m: object, n: object, dtype: object, func: str) -> tuple[int, int]:
+    """``(m, n)`` as Python ints >= 1 (NumPy integers too) and an ``(m, n, n)`` float64 draw
+    within the memory limit."""
+    m, n = check_int(m, "m", func, lo=1), check_int(n, "n", func, lo=1)
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         raise TypeError(f"{func}: expected dtype to be a floating torch.dtype, got {dtype!r}")
     check_memory(2 * m * n * n * 8, f"{m} random patterns of {n}x{n}", func)
+    return m, n
 
 
 def random_binary_patterns(
@@ -165,7 +171,7 @@ def random_binary_patterns(
 ) -> torch.Tensor:
     """I.i.d. Bernoulli(``p``) 0/1 DMD patterns, shape ``(m, n, n)``, from ``generator``."""
     check_in_range(p, 0.0, 1.0, "p", "random_binary_patterns", lo_open=True, hi_open=True)
-    _check_sizes(m, n, dtype, "random_binary_patterns")
+    m, n = _check_sizes(m, n, dtype, "random_binary_patterns")
     u = torch.rand(m, n, n, generator=generator, dtype=torch.float64)
     return (u < p).to(dtype)
 
@@ -189,7 +195,7 @@ def gaussian_speckle_patterns(
             spread to re-standardise).
     """
     func = "gaussian_speckle_patterns"
-    _check_sizes(m, n, dtype, func)
+    m, n = _check_sizes(m, n, dtype, func)
     check_in_range(grain, 0.0, float(n), "grain", func)
     if grain > 0 and n == 1:
         raise ValueError(f"{func}: expected grain = 0 for n = 1 (one pixel cannot be blurred "

@@ -16,6 +16,7 @@ from .._checks import check_finite, check_int, check_rank, check_shape
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .hadamard import Hadamard
+from .patterns import hadamard_order
 
 #: ±1 rows split at a time by :meth:`DMDSplit.patterns`.
 PATTERN_CHUNK = 256
@@ -61,6 +62,15 @@ class DMDSplit(LinearOperator):
 
     Shape:
         ``(B, C, n, n) -> (B, C, 2M)``.
+
+    Note:
+        The buckets come from the transform as a difference, ``(Σx − √N·(Ax))/2`` for ``φ⁻``
+        (``Σx`` is the all-on row's own coefficient, so that row's all-off frame reads exactly
+        0); any other bucket whose exact value is 0 for ``x ≥ 0`` (a scene dark wherever its
+        ``φ⁻`` is on) is computed to within rounding, about ``ε·Σ|x|``, and can be slightly
+        negative. Clamp before drawing counts from it
+        (``torch.poisson(scale * y.clamp_min(0))``); ``PatternOperator(S.patterns())``
+        sums non-negative products instead (exactly ``≥ 0``, at dense cost).
     """
 
     def __init__(self, hadamard: Hadamard) -> None:
@@ -71,6 +81,9 @@ class DMDSplit(LinearOperator):
             )
         super().__init__(hadamard.n, 2 * hadamard.m)
         self.hadamard = hadamard
+        # every Hadamard order starts with the all-on row (natural index 0; read from the
+        # order on the CPU: the operator's own index may live on another device, or on meta)
+        self._dc_first = int(hadamard_order(hadamard.n, hadamard.order)[0]) == 0
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")
@@ -81,8 +94,13 @@ class DMDSplit(LinearOperator):
         return self._forward(x)
 
     def _forward(self, x: torch.Tensor) -> torch.Tensor:
-        half_total = (x / 2).sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩/2, halved first
         half_h = self.hadamard(x) * (self.n / 2)  # ⟨h, x⟩/2 with ±1 rows
+        if self._dc_first:
+            # ⟨1, x⟩/2 from the same transform: the all-on row's own coefficient, so the
+            # all-off frame φ⁻ of that row is exactly 0 (not ±ε·Σx from two roundings)
+            half_total = half_h[..., :1]
+        else:
+            half_total = (x / 2).sum(dim=(-2, -1)).unsqueeze(-1)  # ⟨1, x⟩/2, halved first
         return torch.stack((half_total + half_h, half_total - half_h), dim=-1).flatten(-2)
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
@@ -116,6 +134,12 @@ class DMDSplit(LinearOperator):
                 limit (:func:`torchtof.set_memory_limit`).
         """
         func = "DMDSplit.patterns"
+        # 0/1 masks: any real dtype, bool and uint8 (a DMD's own) included; for an integer
+        # or bool dtype the ±1 rows are built in float32 (exact) and each chunk cast once
+        if not isinstance(dtype, torch.dtype) or dtype.is_complex:
+            raise TypeError(f"{func}: expected dtype a real torch.dtype (floating, integer or "
+                            f"bool: the patterns are 0/1), got {dtype!r}")
+        build = dtype if dtype.is_floating_point else torch.float32
         start, stop = check_rows(start, stop, self.m, func)
         n = self.n
         rows = stop - start + min(2 * PATTERN_CHUNK, stop - start + 2)  # result + one chunk
@@ -127,7 +151,7 @@ class DMDSplit(LinearOperator):
         lo, hi = start // 2, (stop + 1) // 2  # the ±1 rows that cover split rows start:stop
         for a in range(lo, hi, PATTERN_CHUNK):
             b = min(a + PATTERN_CHUNK, hi)
-            rows = split_patterns(self.hadamard.patterns(dtype, a, b))  # split rows 2a:2b
+            rows = split_patterns(self.hadamard.patterns(build, a, b))  # split rows 2a:2b
             s0, s1 = max(2 * a, start), min(2 * b, stop)
             out[s0 - start : s1 - start] = rows[s0 - 2 * a : s1 - 2 * a]
         return out
