@@ -420,7 +420,8 @@ def test_operators_take_numpy_sizes_and_rates():
     assert type(a.n) is int and a.m == b.m == 16
     x = torch.rand(1, 1, 8, 8)
     assert torch.equal(a(x), b(x))
-    assert torch.equal(hadamard_order(np.int64(8), "russian_doll"), hadamard_order(8, "russian_doll"))
+    doll = hadamard_order(8, "russian_doll")
+    assert torch.equal(hadamard_order(np.int64(8), "russian_doll"), doll)
     assert kron_factors(np.int64(4096), np.int32(16)) == (16, 16, 16)
     g = torch.Generator().manual_seed(0)
     assert random_binary_patterns(np.int64(4), np.int32(8), generator=g).shape == (4, 8, 8)
