@@ -5,7 +5,12 @@ Each entry is a :class:`ReconSpec`: the function ``function(y, A, **options)``, 
 the demo, the benches and the adaptive mode use (``defaults``), and what the reconstructor is:
 
 - ``iterative``: it runs an iteration loop (budget keyword ``budget``; ``None`` for direct ones);
-- ``differentiable``: ``x`` is differentiable in ``y`` (gradients flow through ``forward``);
+- ``differentiable``: ``x`` is differentiable in ``y``: gradients flow through ``forward`` and,
+  for an iterative one, are those of the iterations it ran (float64 ``gradcheck`` of the
+  default options with a fixed budget). TVAL3 is not: its ``mu="auto"`` weight follows a
+  quantile of the buckets and a hold-out choice, whose derivative is not the solution's
+  (with a fixed ``mu`` its gradients pass ``gradcheck``); ``auto`` chooses among fits and
+  the DIP fits its network without a graph to ``y``;
 - ``exportable``: the module exports to ONNX as it is (``torchtof export``);
 - ``operator``: ``"split"`` when it is meant for the raw 0/1 DMD buckets of
   :class:`~torchtof.operators.DMDSplit` (the correlation estimators, paper Eq. 10), else
@@ -97,7 +102,7 @@ _SPECS = (
           summary="pseudo-inverse A^+ y (minimum-norm least squares)"),
     # noise-aware BPDN: the equality-constrained form over-fits noisy buckets
     _spec("bp", "BP", basis_pursuit, BasisPursuit, defaults={"eps": "auto"}, iterative=True,
-          exportable=True, budget="n_iter", fixed_budget={"adaptive": False},
+          differentiable=True, exportable=True, budget="n_iter", fixed_budget={"adaptive": False},
           summary="basis pursuit (denoising) in the DCT basis by ADMM"),
     _spec("tval3", "TVAL3", tval3, TVAL3, iterative=True, exportable=True, budget="max_iter",
           fixed_budget={"adaptive": False},
@@ -105,7 +110,8 @@ _SPECS = (
     _spec("auto", "Auto", auto, Auto, iterative=True, budget="cv_iter",
           summary="TV/TGV with prior, bounds and weight chosen by cross-validation on the "
                   "buckets, stacked with the learned network"),
-    _spec("tgv", "TGV", tgv, TGV, iterative=True, exportable=True, budget="max_iter",
+    _spec("tgv", "TGV", tgv, TGV, iterative=True, differentiable=True, exportable=True,
+          budget="max_iter",
           fixed_budget={"adaptive": False},
           summary="second-order TGV (Bredies et al. 2010) by primal-dual: planes, no staircase"),
     _spec("unrolled", "Unrolled", unrolled_tval3, UnrolledTVAL3, iterative=True,
@@ -117,7 +123,8 @@ _SPECS = (
     _spec("dip", "DIP", dip, DIP, iterative=True, budget="max_iter", per_sample=True,
           positive_prior=True,
           summary="deep image prior: an untrained U-Net fitted to y (paper Eq. 12)"),
-    _spec("joint_tv", "JointTV", joint_tv, JointTV, iterative=True, budget="n_iter",
+    _spec("joint_tv", "JointTV", joint_tv, JointTV, iterative=True, differentiable=True,
+          budget="n_iter",
           fixed_budget={"adaptive": False},
           summary="vectorial (joint) TV of C images sharing their edges (I/Q pair) by ADMM"),
 )

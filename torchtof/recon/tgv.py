@@ -173,8 +173,12 @@ def _proj_ball(v: torch.Tensor, radius: float, isotropic: bool) -> torch.Tensor:
     channel axis ``-3`` (Euclidean: scale; anisotropic, the ℓ∞ ball: clamp)."""
     if not isotropic:
         return v.clamp(-radius, radius)
-    norm = torch.sqrt((v * v).sum(dim=-3, keepdim=True))
-    return v / torch.clamp(norm / radius, min=1.0)
+    # max(‖v‖/r, 1), with √ never taken at 0: its infinite derivative made the gradient
+    # through the solver NaN wherever a dual variable was 0 (the values are unchanged)
+    sq = (v * v).sum(dim=-3, keepdim=True)
+    pos = sq > 0
+    norm = torch.sqrt(torch.where(pos, sq, 1.0))
+    return v / torch.where(pos, torch.clamp(norm / radius, min=1.0), 1.0)
 
 
 def tgv_prior(x: torch.Tensor, w: torch.Tensor, alpha: tuple[float, float] = (1.0, 2.0),
