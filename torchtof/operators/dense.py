@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import torch
+from torch import nn
 
-from .._checks import check_finite, check_rank, check_tensor
+from .._checks import check_finite, check_rank, check_tensor, is_tracing
 from .._memory import check_memory
 from .base import LinearOperator
 
@@ -26,11 +27,27 @@ def pattern_adjoint(y: torch.Tensor, patterns: torch.Tensor) -> torch.Tensor:
     return (y @ patterns.reshape(m, -1)).reshape(*y.shape[:-1], n1, n2)
 
 
+def _version(t: torch.Tensor) -> int | None:
+    """``t``'s in-place version counter (``None`` for an inference tensor: it has none)."""
+    try:
+        return t._version
+    except RuntimeError:
+        return None
+
+
 class PatternOperator(LinearOperator):
     """Linear operator from an explicit stack of DMD patterns (dense matmul).
 
     Args:
-        patterns: ``(M, n, n)`` real patterns (0/1 DMD masks, ±1 rows, speckle ...).
+        patterns: ``(M, n, n)`` real patterns (0/1 DMD masks, ±1 rows, speckle ...). A
+            tensor is copied into a buffer; an ``nn.Parameter`` is kept as it is, a
+            parameter of this module, so an optimiser stepping it learns the patterns (the
+            buckets are differentiable in them).
+
+    What is derived from the patterns (``orthonormal_rows``, the float64 ``A⁺`` and the
+    ``state_version`` that solvers' caches key on) follows them: after an in-place edit
+    (``P.patterns.mul_(g)``, an optimiser step), a new tensor assigned to ``P.patterns``, a
+    ``load_state_dict`` or a dtype/device move it is derived again on its next use.
 
     Example:
         >>> P = PatternOperator(torch.ones(3, 4, 4))
@@ -59,26 +76,55 @@ class PatternOperator(LinearOperator):
                      "use the fast Hadamard operator or fewer/smaller patterns")
         check_finite(patterns, "patterns", func)
         super().__init__(patterns.shape[1], patterns.shape[0])
-        # persistent: a model on random patterns is checkpointed with them (state_dict)
-        self.register_buffer("patterns", patterns.detach().clone())
+        self.__dict__["_state_version"] = 0
+        if isinstance(patterns, nn.Parameter):  # learned patterns: the caller's parameter
+            self.patterns = patterns
+        else:  # persistent: a model on random patterns is checkpointed with them (state_dict)
+            self.register_buffer("patterns", patterns.detach().clone())
         self._derive()
         self.register_load_state_dict_post_hook(PatternOperator._loaded)
 
     def _derive(self) -> None:
         """``orthonormal_rows`` and the pseudo-inverse from the current patterns."""
-        g = self.patterns.reshape(self.m, -1).double()
+        p = self.patterns
+        g = p.detach().reshape(self.m, -1).double()
         self.__dict__.pop("_pinv_cache", None)
         if g.is_meta:  # shape inference: no values to test or invert
-            self.orthonormal_rows = False
+            self._orthonormal = False
             self.register_buffer("pinv_matrix", g.new_empty(g.shape[1], self.m), persistent=False)
+        else:
+            self._orthonormal = bool(
+                torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64, device=g.device),
+                               atol=1e-6)
+            )
+            # A⁺ (float64 SVD) computed once here, not lazily, so pinv traces/exports to ONNX
+            pinv = None if self._orthonormal else torch.linalg.pinv(g)
+            self.register_buffer("pinv_matrix", pinv, persistent=False)
+        self.__dict__["_derived_from"] = (p, _version(p))
+
+    def _refresh(self) -> None:
+        """Derive again if the patterns changed since :meth:`_derive` (module docstring)."""
+        seen, version = self.__dict__.get("_derived_from", (None, None))
+        p = self.patterns
+        if is_tracing() or (p is seen and (version is None or _version(p) == version)):
             return
-        self.orthonormal_rows = bool(
-            torch.allclose(g @ g.T, torch.eye(self.m, dtype=torch.float64, device=g.device),
-                           atol=1e-6)
-        )
-        # A⁺ (float64 SVD) computed once here, not lazily, so pinv traces/exports to ONNX
-        pinv = None if self.orthonormal_rows else torch.linalg.pinv(g)
-        self.register_buffer("pinv_matrix", pinv, persistent=False)
+        check_finite(p, "patterns", "PatternOperator")
+        self._derive()
+        self._state_version += 1
+
+    @property
+    def orthonormal_rows(self) -> bool:  # type: ignore[override]
+        self._refresh()
+        return self._orthonormal
+
+    @property
+    def state_version(self) -> int:  # type: ignore[override]
+        self._refresh()
+        return self._state_version
+
+    @state_version.setter
+    def state_version(self, value: int) -> None:
+        self.__dict__["_state_version"] = int(value)
 
     def _apply(self, fn, recurse: bool = True):
         """``Module.to``/``.half``/``.double`` cast the buffers, ``A⁺`` among them: derive it
@@ -98,6 +144,7 @@ class PatternOperator(LinearOperator):
         module.state_version += 1
 
     def _cached_pinv(self, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        self._refresh()
         return self.pinv_matrix.to(dtype=dtype, device=device)
 
     def _p(self, like: torch.Tensor) -> torch.Tensor:
