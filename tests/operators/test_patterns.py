@@ -46,6 +46,27 @@ def test_sequency_sign_changes_nondecreasing(n):
     assert all(a <= b for a, b in zip(s, s[1:]))
 
 
+@pytest.mark.parametrize("n", [4, 8])
+def test_orders_are_the_full_sort_keys_of_their_definitions(n):
+    """The whole permutation, ties included, from scipy's Hadamard matrix: sequency sorts by
+    (s_i + s_j, max(s_i, s_j), natural index), s the sign changes of a 1-D row; cake-cutting
+    by (4-connected regions of the 2-D pattern, natural index) (Yu et al., Sensors 19:4122,
+    2019). The nondecreasing tests above pin only the first key."""
+    import scipy.linalg
+
+    h = scipy.linalg.hadamard(n)  # natural (Sylvester) rows
+    s = [int((row[1:] != row[:-1]).sum()) for row in h]
+    keys_seq, keys_cc = [], []
+    for k in range(n * n):
+        i, j = divmod(k, n)
+        keys_seq.append((s[i] + s[j], max(s[i], s[j]), k))
+        keys_cc.append((_regions(torch.from_numpy(np.outer(h[i], h[j]))), k))
+    seq = [k for *_, k in sorted(keys_seq)]
+    cc = [k for *_, k in sorted(keys_cc)]
+    assert hadamard_order(n, "sequency").tolist() == seq
+    assert hadamard_order(n, "cake_cutting").tolist() == cc
+
+
 @pytest.mark.parametrize("n", [8, 16, 32])
 def test_russian_doll_prefixes_are_block_bases(n):
     idx = hadamard_order(n, "russian_doll")

@@ -336,6 +336,16 @@ def test_dual_frequency_noise_tolerance():
     assert float(err.pow(2).mean().sqrt()) < 0.05  # inverse-variance mean: below 0.04 m
 
 
+def test_dual_frequency_is_the_inverse_variance_mean():
+    """Closed form: phases of depth d at f₁ and d + δ at f₂ (equal phase noise, weights ∝ f²)
+    combine to d + δ·f₂²/(f₁² + f₂²) = d + 4δ/13 for 30 and 20 MHz; either frequency alone
+    gives d or d + δ."""
+    d = torch.tensor([0.3, 2.2, 4.1, 6.7, 9.05, 12.8], dtype=torch.float64)
+    delta = 0.06
+    out = dual_frequency_depth(_wrapped(d, 30e6), _wrapped(d + delta, 20e6), 30e6, 20e6)
+    torch.testing.assert_close(out, d + delta * 4 / 13, rtol=0, atol=1e-9)
+
+
 def test_dual_frequency_on_a_scene_beyond_5_m():
     n = 16
     s = get_scene("steps_far", n)

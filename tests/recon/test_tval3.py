@@ -688,3 +688,26 @@ def test_per_sample_mu_and_tvl2_tensors_are_checked_and_solved_per_sample():
     alone = torch.cat([tval3(y[:1], A, mu=256.0, tvl2=True, max_iter=50),
                        tval3(y[1:], A, mu=256.0, tvl2=False, max_iter=50)])
     assert torch.equal(both, alone)
+
+
+@pytest.mark.parametrize("sigma_s", [0.05, 0.2, 0.005])
+def test_mu_auto_rule_from_its_arithmetic(sigma_s):
+    """mu="auto" with a given noise std: σ_s = σ·1.5/(max y − min y) (Scaleb's spread 1.5),
+    μ = 0.7·σ_s^−1.3; below 2⁸ TV-L2 (whose β is 4β, as with an explicit ``tvl2=True``),
+    else the constrained model with μ = 2⁸. Computed here by hand and compared with explicit
+    options (a 1.6× shift of μ was unseen by the end-to-end PSNR tests)."""
+    A = Hadamard(16, sr=0.5)
+    x = planar_depth(16, seed=2).to(torch.float64)
+    y = A(x)
+    spread = float(y.max() - y.min())
+    sigma = sigma_s * spread / 1.5
+    mu = 0.7 * sigma_s ** -1.3
+    beta = 2.0**5
+    got = tval3(y, A, noise_sigma=sigma, max_iter=60)
+    if mu < 2.0**8:
+        want = tval3(y, A, mu=mu, tvl2=True, beta=beta, max_iter=60)
+    else:  # σ_s = 0.005: μ = 689 > 2⁸
+        want = tval3(y, A, mu=2.0**8, beta=beta, max_iter=60)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+    off = tval3(y, A, mu=min(mu, 2.0**8) * 1.25, tvl2=mu < 2.0**8, beta=beta, max_iter=60)
+    assert float((off - got).abs().max()) > 1e-6  # the comparison can tell μ from 1.25 μ
