@@ -253,6 +253,7 @@ def depth_bucket(
     _check_frames(depth, 4, "depth", func, "(B, M, H, W)")
     check_finite(depth, "depth", func)
     if gate_m is not None:
+        check_positive(gate_m, "gate_m", func)  # named here, not as depth_gate's
         depth = depth_gate(depth, gate_m)
     return _roi_sum(depth, roi, func, "depth").unsqueeze(1)
 

@@ -164,8 +164,9 @@ class ExperimentConfig:
         top += 4 * math.sqrt(top)
         return top / (0.75 * (2 ** (self.adc_bits or 12) - 1))
 
-    def validate(self) -> ExperimentConfig:
-        func = "ExperimentConfig"
+    def validate(self, func: str = "ExperimentConfig") -> ExperimentConfig:
+        """``self`` if every field is valid; errors name ``func`` (the caller the user
+        called, e.g. ``PaperExperiment``) and the field."""
         check_power_of_two(self.n, "n", func, lo=4, hi=256)
         if self.order not in ORDERS:
             raise ValueError(f"{func}: expected order in {ORDERS}, got {self.order!r}")
@@ -467,7 +468,8 @@ class PaperExperiment:
         unknown = set(overrides) - set(ExperimentConfig.__dataclass_fields__)
         if unknown:
             raise TypeError(f"PaperExperiment: unknown arguments {sorted(unknown)}")
-        cfg = ExperimentConfig(scattering=scattering, gate_m=gate_m, **overrides).validate()
+        cfg = ExperimentConfig(scattering=scattering, gate_m=gate_m, **overrides).validate(
+            "PaperExperiment")
         check_in_range(sr, 0.0, 1.0, "sr", "PaperExperiment", lo_open=True)
         if sr not in cfg.srs:
             cfg = replace(cfg, srs=tuple(sorted(set(cfg.srs) | {sr})))

@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from torchtof._checks import check_float_dtype, check_positive, check_rank
+from torchtof._checks import check_float_dtype, check_int, check_positive, check_rank
 from torchtof._memory import check_memory
 
 __all__ = [
@@ -595,6 +595,7 @@ def get_scene(
         >>> get_scene("skimage:camera", 16).reflectance.shape
         torch.Size([1, 1, 16, 16])
     """
+    check_int(n, "n", "get_scene", lo=8)  # named here, not as the builder's
     check_positive(object_m, "object_m", "get_scene")
     _check_dtype(dtype, "get_scene")
     kw = {"dtype": dtype, "device": device}

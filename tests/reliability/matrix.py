@@ -6,8 +6,10 @@ Inf, a wrong rank; over all tensor arguments together: float64, float16, bfloat1
 an empty batch (B = 0) and meta tensors — plus the bad scalars each spec lists (negative or
 zero sizes, floats for ints, strings, NaN, Inf). Every case is classified:
 
-- ``clear``: ``ValueError``/``TypeError`` from the library's own checks (a message
-  ``"<call>: ..."``) that, for a single-argument misuse, names the argument;
+- ``clear``: ``ValueError``/``TypeError`` from the library's own checks, a message
+  ``"<call>: ..."`` that names the call the user made (the spec's, e.g. ``Hadamard.forward``
+  or ``Hadamard`` for ``Hadamard()``; not a helper it called) and, for a single-argument
+  misuse, the argument;
 - ``correct``: a result that passes the case's oracle — the float32 result for float64 and
   lists (tolerance from the dtype), ``f(Re z) + i·f(Im z)`` for a complex input to a linear
   map, ``f(float(k))`` for integers, shapes ``(0, …)`` for B = 0, meta tensors of the right
@@ -59,6 +61,9 @@ class Spec:
     batch0: bool = True  # has a batch axis to empty
     no_meta: bool = False  # meta case not applicable (works on numpy / Python values)
     xfail: dict[str, str] = field(default_factory=dict)  # case id -> reason (outside our modules)
+    #: other names an error may give for this call: a module's forward that validates in its
+    #: function (``CGI.forward`` -> ``cgi``)
+    aliases: tuple[str, ...] = ()
 
 
 @dataclass
@@ -211,8 +216,10 @@ def classify(case: Case) -> tuple[str, str]:
         return "crash", f"{type(e).__name__}: {e}"
     except (ValueError, TypeError) as e:
         msg = str(e)
-        # the library's own check: "<call>: expected ..." naming the misused argument
-        ours = re.match(r"^[A-Za-z_][\w.]*(\(\))?: ", msg) is not None
+        # the library's own check: "<call>: expected ..." naming the call the user made
+        # and the misused argument
+        calls = (s.name.split(": ", 1)[-1].removesuffix("()"), *s.aliases)
+        ours = any(re.match(rf"^{re.escape(c)}(\(\))?: ", msg) for c in calls)
         named = case.arg is None or re.search(rf"\b{re.escape(case.arg)}\b", msg) is not None
         return ("clear" if ours and named else "cryptic"), f"{type(e).__name__}: {msg[:160]}"
     except Exception as e:  # noqa: BLE001 - the point is to classify every exception
