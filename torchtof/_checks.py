@@ -83,6 +83,42 @@ def built_for_cache(fn):
     return build
 
 
+def autograd_free(*tensors: object, module: torch.nn.Module | None = None
+                  ) -> contextlib.AbstractContextManager:
+    """``torch.inference_mode()`` for a solver's loop where no gradient can flow: grad mode
+    off, or no input (``tensors``, ``module``'s parameters) requiring grad; not while
+    tracing. The dispatcher then skips the autograd and view-tracking layers: the same
+    kernels, the same bits, less overhead per op (auto and TVAL3 1.1× faster at n = 32 and
+    64). What is made inside is an inference tensor: hand it out through :func:`ordinary`.
+    Caches built inside stay ordinary (:func:`cache_build`). Else a ``nullcontext``."""
+    if torch.is_inference_mode_enabled() or is_tracing():
+        return contextlib.nullcontext()
+    if torch.is_grad_enabled() and (
+            any(isinstance(t, torch.Tensor) and t.requires_grad for t in tensors)
+            or (module is not None and any(p.requires_grad for p in module.parameters()))):
+        return contextlib.nullcontext()
+    return torch.inference_mode()
+
+
+def ordinary(value):
+    """``value`` with every inference tensor in it (a tensor, or a tuple, NamedTuple, list or
+    dict of them and other values) cloned into an ordinary one, outside inference mode: an
+    inference tensor handed to the caller could not be updated in place nor saved for
+    backward there. Inside inference mode, ``value`` itself."""
+    if torch.is_inference_mode_enabled():
+        return value
+    if isinstance(value, torch.Tensor):
+        return value.clone() if value.is_inference() else value
+    if isinstance(value, tuple):
+        vals = [ordinary(v) for v in value]
+        return type(value)(*vals) if hasattr(value, "_fields") else tuple(vals)
+    if isinstance(value, list):
+        return [ordinary(v) for v in value]
+    if isinstance(value, dict):
+        return {k: ordinary(v) for k, v in value.items()}
+    return value
+
+
 def is_tracing() -> bool:
     """True while ``torch.compile``/``torch.jit``/``torch.onnx`` trace the code."""
     compiler = getattr(torch, "compiler", None)

@@ -99,6 +99,25 @@ y = A(x).detach().requires_grad_()
 recon.get("unrolled").build(A)(y).sum().backward()
 assert torch.isfinite(y.grad).all()
 """,
+    # an ordinary call without a graph runs its loop in inference mode itself (autograd_free):
+    # the caches it fills (exact u-step factors, ScaleA's s2, the network's weights) and what
+    # it returns stay ordinary tensors
+    "ordinary_calls_then_gradients": """
+A = Hadamard(32, sr=0.25); x = torch.rand(1, 1, 32, 32)
+P = PatternOperator(torch.rand(128, 16, 16)); xp = torch.rand(1, 1, 16, 16)
+outs = [recon.tval3(A(x), A, u_step="exact"), recon.tval3(P(xp), P, mu=2**6),
+        recon.auto(A(x), A, priors=("tv",), cv_iter=10, max_iter=40, return_result=True).x]
+for out in outs:
+    assert not out.is_inference()
+    out.mul_(2.0)  # in place, outside inference mode: an inference tensor would refuse
+for yy, op, kw in ((A(x), A, dict(u_step="exact", mu=2**6)), (P(xp), P, dict(mu=2**6))):
+    yy = yy.detach().requires_grad_()
+    recon.tval3(yy, op, max_iter=5, adaptive=False, **kw).sum().backward()
+    assert yy.grad is not None and torch.isfinite(yy.grad).all() and yy.grad.abs().sum() > 0
+y = A(x).detach().requires_grad_()
+recon.get("learned").build(A)(y).sum().backward()
+assert torch.isfinite(y.grad).all()
+""",
 }
 
 

@@ -222,7 +222,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import check_bool, check_int, check_positive
+from .._checks import autograd_free, check_bool, check_int, check_positive, ordinary
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
@@ -734,6 +734,16 @@ def auto(
     _check_folds(fn, folds, A)
     opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
                 seed=seed, priors=tuple(priors), tv_solver=tv_solver, fit_iter=fit_iter)
+    with autograd_free(y, module=A):  # no graph to build: the same bits, less overhead
+        res = _auto_stages(y, A, bounds, infer_box, gauss, learned, opts)
+    res = ordinary(res)
+    return res if return_result else res.x
+
+
+def _auto_stages(y: torch.Tensor, A: LinearOperator, bounds, infer_box: bool, gauss: bool,
+                 learned, opts: dict) -> AutoResult:
+    """The stages of :func:`auto` for validated inputs."""
+    fn, split = "auto", opts["split"]
     res, errs = _auto(y, A, bounds, **opts)
     nonempty = y.shape[0] * y.shape[1] > 0
     if bounds is None and infer_box and nonempty:
@@ -749,8 +759,8 @@ def auto(
             warnings.warn(f"{fn}: the learned network's weights "
                           f"({weights}) are missing: returning the TV/TGV "
                           "choice without stacking (learned=False does so silently)",
-                          stacklevel=2)
-    return res if return_result else res.x
+                          stacklevel=3)
+    return res
 
 
 def _auto(y, A, bounds, folds, cv_iter, max_iter, split, slack, seed, priors, tv_solver,

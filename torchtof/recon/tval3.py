@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from .._checks import (
+    autograd_free,
     check_bool,
     check_broadcast,
     check_finite,
@@ -40,6 +41,7 @@ from .._checks import (
     check_tensor,
     check_weight_range,
     is_tracing,
+    ordinary,
     unchecked,
 )
 from ..constants import DISCREPANCY_TAU
@@ -573,9 +575,12 @@ def tval3(
         else:
             sd = _sigma_tensor(discrepancy, y0, "discrepancy", fn) * k
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
-    with unchecked():  # y was validated above: operator calls in the loop skip check_finite
+    # y was validated above: operator calls in the loop skip check_finite; without a graph
+    # to build the loop runs in inference mode (the same bits, less overhead per op)
+    with unchecked(), autograd_free(b, mu_f, beta_f, *box, module=A):
         u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
                    boundary=boundary, disc_bound=bound)
+    u = ordinary(u)
     x = u.x * (math.sqrt(inv_s2) / _i(gain)) / _i(k)  # A_s u = b <=> A (u/(√s2·gain)) = y
     if lo is not None or hi is not None:  # all-zero buckets: 0 projected onto the box (as tgv)
         x = torch.where(_i(zero), project_box(torch.zeros_like(x), lo, hi), x)
@@ -871,7 +876,7 @@ def _solve(
         g1 = adj(au1) - atb
         # 3. nonmonotone line search: f(up + a (u1 - up)) = f + a a1 + a^2 a2
         dU, dDU, dAu = u1 - up, du1 - dup, au1 - aup
-        vp, rp = dup - w, aup - b
+        vp, rp = st["p_v"], st["p_r"]  # Du − w and Au − b at the last iterate (finish)
         a1 = bet * _dot_f(vp, dDU) + mu * _dot_v(rp, dAu) - _dot_f(sig, dDU) - _dot_v(dlt, dAu)
         a2 = bet / 2 * _dot_f(dDU, dDU) + mu / 2 * _dot_v(dAu, dAu)
         const = c * bet * tau * _dot_i(d, d)
