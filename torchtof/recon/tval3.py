@@ -862,7 +862,7 @@ def _solve(
         """Steps 1–3 of a BB step: ``(u, du, au, g, gam, fallback)``. ``tau_sd`` ``None``: no
         active sample is on a first step, so every length that can be taken is a BB one."""
         first, bet, mu, gam = st["first"], st["bet"], st["mu"], st["gam"]
-        sig, dlt, w, d, f = st["sig"], st["dlt"], st["w"], st["d"], st["f"]
+        sig, dlt, d, f = st["sig"], st["dlt"], st["d"], st["f"]
         up, gp, aup, dup = st["u"], st["g"], st["au"], st["du"]
         # 1. step length: steepest descent on first steps, Barzilai-Borwein otherwise
         # (both lengths computed where needed: choosing by mask needs no host read)
