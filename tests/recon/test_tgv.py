@@ -283,3 +283,17 @@ def test_bad_y_and_operator_raise():
         TGV(None)
     with pytest.raises(ValueError, match="alpha"):
         TGV(A, alpha=-1.0)
+
+
+@pytest.mark.parametrize("tv", ["isotropic", "anisotropic"])
+def test_tgv_prior_gradient_on_flat_regions(tv):
+    # as a training loss: a flat image (∇x − w = 0, Ew = 0 everywhere) has the subgradient 0,
+    # not NaN (√ of a zero sum), and the gradient elsewhere is the norm's
+    x = torch.zeros(1, 1, 6, 6, dtype=torch.float64, requires_grad=True)
+    w = torch.zeros(1, 1, 2, 6, 6, dtype=torch.float64, requires_grad=True)
+    tgv_prior(x, w, (1.0, 2.0), tv).sum().backward()
+    assert torch.equal(x.grad, torch.zeros_like(x)) and torch.equal(w.grad, torch.zeros_like(w))
+    g = torch.Generator().manual_seed(0)
+    x2 = torch.rand(1, 1, 5, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    w2 = torch.rand(1, 1, 2, 5, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: tgv_prior(a, b, (1.0, 2.0), tv), (x2, w2))

@@ -175,10 +175,14 @@ def _proj_ball(v: torch.Tensor, radius: float, isotropic: bool) -> torch.Tensor:
         return v.clamp(-radius, radius)
     # max(‖v‖/r, 1), with √ never taken at 0: its infinite derivative made the gradient
     # through the solver NaN wherever a dual variable was 0 (the values are unchanged)
-    sq = (v * v).sum(dim=-3, keepdim=True)
+    norm = _safe_norm((v * v).sum(dim=-3, keepdim=True))
+    return v / torch.clamp(norm / radius, min=1.0)
+
+
+def _safe_norm(sq: torch.Tensor) -> torch.Tensor:
+    """``√sq`` with the gradient 0 where ``sq = 0`` (a subgradient of the norm), not NaN."""
     pos = sq > 0
-    norm = torch.sqrt(torch.where(pos, sq, 1.0))
-    return v / torch.where(pos, torch.clamp(norm / radius, min=1.0), 1.0)
+    return torch.where(pos, torch.sqrt(torch.where(pos, sq, 1.0)), 0.0)
 
 
 def tgv_prior(x: torch.Tensor, w: torch.Tensor, alpha: tuple[float, float] = (1.0, 2.0),
@@ -198,9 +202,8 @@ def tgv_prior(x: torch.Tensor, w: torch.Tensor, alpha: tuple[float, float] = (1.
     iso = tv == "isotropic"
     g = grad2(x, boundary) - _support(w, boundary)
     e = sym_grad2(w, boundary)
-    if iso:
-        n1 = torch.sqrt((g * g).sum(dim=-3))
-        n0 = torch.sqrt((e * e).sum(dim=-3))
+    if iso:  # √ of a zero sum has an infinite derivative: 0 there, a subgradient instead
+        n1, n0 = _safe_norm((g * g).sum(dim=-3)), _safe_norm((e * e).sum(dim=-3))
     else:
         n1, n0 = g.abs().sum(dim=-3), e.abs().sum(dim=-3)
     return (a1 * n1.flatten(1).sum(1)) + (a0 * n0.flatten(1).sum(1))
