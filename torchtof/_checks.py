@@ -86,7 +86,7 @@ def built_for_cache(fn):
 def autograd_free(*tensors: object, module: torch.nn.Module | None = None
                   ) -> contextlib.AbstractContextManager:
     """``torch.inference_mode()`` for a solver's loop where no gradient can flow: grad mode
-    off, or no input (``tensors``, ``module``'s parameters) requiring grad; not while
+    off, or no input (``tensors``, ``module``'s parameters and buffers) requiring grad; not
     tracing. The dispatcher then skips the autograd and view-tracking layers: the same
     kernels, the same bits, less overhead per op (auto and TVAL3 1.1× faster at n = 32 and
     64). What is made inside is an inference tensor: hand it out through :func:`ordinary`.
@@ -95,7 +95,8 @@ def autograd_free(*tensors: object, module: torch.nn.Module | None = None
         return contextlib.nullcontext()
     if torch.is_grad_enabled() and (
             any(isinstance(t, torch.Tensor) and t.requires_grad for t in tensors)
-            or (module is not None and any(p.requires_grad for p in module.parameters()))):
+            or (module is not None
+                and any(p.requires_grad for p in (*module.parameters(), *module.buffers())))):
         return contextlib.nullcontext()
     return torch.inference_mode()
 

@@ -110,3 +110,73 @@ def test_parameter_patterns_are_learned():
     q = PatternOperator(torch.zeros(24, 8, 8, dtype=torch.float64))
     q.load_state_dict(p.state_dict())
     assert torch.equal(q.patterns, w.detach())
+
+
+def test_patterns_computed_from_a_parameter_keep_their_gradient():
+    # P.patterns = base * gain (a buffer that requires grad): the solvers must not run it in
+    # inference mode, the gradient reaches the gain
+    g = torch.Generator().manual_seed(0)
+    base = torch.rand(40, 8, 8, generator=g, dtype=torch.float64)
+    p = PatternOperator(base)
+    gain = torch.nn.Parameter(torch.tensor(1.05, dtype=torch.float64))
+    p.patterns = base * gain
+    y = torch.rand(1, 1, 40, generator=g, dtype=torch.float64)
+    tval3(y, p, mu=256.0, max_iter=20, adaptive=False).sum().backward()
+    assert gain.grad is not None and torch.isfinite(gain.grad) and gain.grad != 0
+
+
+def test_rederived_inside_inference_mode_stays_ordinary():
+    g = torch.Generator().manual_seed(0)
+    p = PatternOperator(torch.rand(20, 8, 8, generator=g, dtype=torch.float64))
+    with torch.no_grad():
+        p.patterns.mul_(1.1)
+    y = torch.rand(1, 1, 20, generator=g, dtype=torch.float64)
+    with torch.inference_mode():
+        p.pinv(y)  # the first use after the edit derives A⁺ here
+    assert not p.pinv_matrix.is_inference()
+    yg = y.clone().requires_grad_()
+    p.pinv(yg).sum().backward()
+    assert torch.isfinite(yg.grad).all()
+
+
+def test_meta_then_to_empty_then_load():
+    with torch.device("meta"):
+        m = PatternOperator(torch.rand(20, 8, 8))
+    src = _random(3, m=20)
+    m.to_empty(device="cpu")  # uninitialised memory: not derived (nor refused) until used
+    m.load_state_dict({"patterns": src.patterns.float()})
+    ref = PatternOperator(src.patterns.float())
+    assert torch.equal(m.pinv_matrix, ref.pinv_matrix)
+
+
+def test_a_module_pickled_before_the_version_tracking_loads():
+    import io
+
+    p = _random(4, m=20)
+    for k in ("_state_version", "_derived_from", "_orthonormal"):  # what older pickles lack
+        p.__dict__.pop(k, None)
+    buf = io.BytesIO()
+    torch.save(p, buf)
+    buf.seek(0)
+    q = torch.load(buf, weights_only=False)
+    assert q.state_version >= 0 and not q.orthonormal_rows
+    y = q(_x())
+    torch.testing.assert_close(q.pinv(y), PatternOperator(q.patterns).pinv(y))
+
+
+def test_hadamard_subclass_pinv_uses_its_own_adjoint():
+    class Signed(Hadamard):  # rows with a sign each: still A Aᵀ = I
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self.register_buffer("s", torch.where(torch.arange(self.m) % 3 == 0, -1.0, 1.0))
+
+        def forward(self, x):
+            return super().forward(x) * self.s.to(x)
+
+        def adjoint(self, y):
+            return super().adjoint(y * self.s.to(y))
+
+    a = Signed(8, sr=0.5)
+    x = torch.rand(1, 1, 8, 8, dtype=torch.float64)
+    dense = torch.linalg.pinv(a.matrix()) @ a(x).reshape(-1)
+    torch.testing.assert_close(a.pinv(a(x)).reshape(-1), dense)

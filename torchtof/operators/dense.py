@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import check_finite, check_rank, check_tensor, is_tracing
+from .._checks import cache_build, check_finite, check_rank, check_tensor, is_tracing
 from .._memory import check_memory
 from .base import LinearOperator
 
@@ -47,7 +47,11 @@ class PatternOperator(LinearOperator):
     What is derived from the patterns (``orthonormal_rows``, the float64 ``A⁺`` and the
     ``state_version`` that solvers' caches key on) follows them: after an in-place edit
     (``P.patterns.mul_(g)``, an optimiser step), a new tensor assigned to ``P.patterns``, a
-    ``load_state_dict`` or a dtype/device move it is derived again on its next use.
+    ``load_state_dict`` or a dtype/device move it is derived again on its next eager use.
+    Not followed: an edit seen only by code compiled with ``torch.compile`` or being exported
+    (tracing never re-derives; make one eager call, e.g. ``P.orthonormal_rows``, after the
+    edit), and in-place edits of patterns created inside ``torch.inference_mode()`` (inference
+    tensors keep no version counter; assign a new tensor instead).
 
     Example:
         >>> P = PatternOperator(torch.ones(3, 4, 4))
@@ -85,7 +89,12 @@ class PatternOperator(LinearOperator):
         self.register_load_state_dict_post_hook(PatternOperator._loaded)
 
     def _derive(self) -> None:
-        """``orthonormal_rows`` and the pseudo-inverse from the current patterns."""
+        """``orthonormal_rows`` and the pseudo-inverse from the current patterns (ordinary
+        tensors even when first used inside ``torch.inference_mode()``)."""
+        with cache_build():
+            self._derive_values()
+
+    def _derive_values(self) -> None:
         p = self.patterns
         g = p.detach().reshape(self.m, -1).double()
         self.__dict__.pop("_pinv_cache", None)
@@ -110,7 +119,7 @@ class PatternOperator(LinearOperator):
             return
         check_finite(p, "patterns", "PatternOperator")
         self._derive()
-        self._state_version += 1
+        self.__dict__["_state_version"] = self.__dict__.get("_state_version", 0) + 1
 
     @property
     def orthonormal_rows(self) -> bool:  # type: ignore[override]
@@ -120,7 +129,8 @@ class PatternOperator(LinearOperator):
     @property
     def state_version(self) -> int:  # type: ignore[override]
         self._refresh()
-        return self._state_version
+        # (a module pickled whole by an earlier version has no _state_version: 0)
+        return self.__dict__.get("_state_version", 0)
 
     @state_version.setter
     def state_version(self, value: int) -> None:
@@ -131,8 +141,16 @@ class PatternOperator(LinearOperator):
         again, in float64, from the patterns as cast (a ``.half().float()`` round trip left a
         float16-rounded ``A⁺``, 2000× less accurate, behind the float32 patterns)."""
         module = super()._apply(fn, recurse)
-        self._derive()
-        self.state_version += 1
+        p = self.patterns
+        try:
+            derived = p.is_meta or bool(torch.isfinite(p).all())
+            if derived:
+                self._derive()
+        except torch.linalg.LinAlgError:  # finite values too large for the SVD
+            derived = False
+        if not derived:  # to_empty: uninitialised memory, derived on first use (after a load)
+            self.__dict__["_derived_from"] = (None, None)
+        self.__dict__["_state_version"] = self.__dict__.get("_state_version", 0) + 1
         return module
 
     @staticmethod

@@ -182,8 +182,10 @@ class Hadamard(LinearOperator):
         )
 
     def pinv(self, y: torch.Tensor) -> torch.Tensor:
-        """``A⁺ y = Aᵀ y`` (orthonormal rows)."""
+        """``A⁺ y = Aᵀ y`` (orthonormal rows; a subclass's own ``adjoint`` where it has one)."""
         self._check_y(y, "Hadamard.pinv")
+        if type(self).adjoint is not Hadamard.adjoint:
+            return self.adjoint(y)
         return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
 
     def patterns(

@@ -82,8 +82,11 @@ class DMDSplit(LinearOperator):
         super().__init__(hadamard.n, 2 * hadamard.m)
         self.hadamard = hadamard
         # every Hadamard order starts with the all-on row (natural index 0; read from the
-        # order on the CPU: the operator's own index may live on another device, or on meta)
-        self._dc_first = int(hadamard_order(hadamard.n, hadamard.order)[0]) == 0
+        # order on the CPU: the operator's own index may live on another device, or on meta;
+        # the index is the order's, set at construction, not an editable setting)
+        # (a subclass with its own forward, e.g. signed rows, may change that row: summed)
+        self._dc_first = (type(hadamard).forward is Hadamard.forward
+                          and int(hadamard_order(hadamard.n, hadamard.order)[0]) == 0)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")
