@@ -106,10 +106,13 @@ assert torch.isfinite(y.grad).all()
 A = Hadamard(32, sr=0.25); x = torch.rand(1, 1, 32, 32)
 P = PatternOperator(torch.rand(128, 16, 16)); xp = torch.rand(1, 1, 16, 16)
 outs = [recon.tval3(A(x), A, u_step="exact"), recon.tval3(P(xp), P, mu=2**6),
-        recon.auto(A(x), A, priors=("tv",), cv_iter=10, max_iter=40, return_result=True).x]
+        recon.auto(A(x), A, priors=("tv",), cv_iter=10, max_iter=40, return_result=True).x,
+        recon.tgv(A(x), A, max_iter=30), recon.basis_pursuit(P(xp), P, n_iter=30)]
+res = recon.tgv(A(x), A, max_iter=30, return_result=True)
+outs += [t for t in res if isinstance(t, torch.Tensor)]
 for out in outs:
     assert not out.is_inference()
-    out.mul_(2.0)  # in place, outside inference mode: an inference tensor would refuse
+    out.copy_(out.clone())  # in place, outside inference mode: an inference tensor refuses
 for yy, op, kw in ((A(x), A, dict(u_step="exact", mu=2**6)), (P(xp), P, dict(mu=2**6))):
     yy = yy.detach().requires_grad_()
     recon.tval3(yy, op, max_iter=5, adaptive=False, **kw).sum().backward()
@@ -117,6 +120,10 @@ for yy, op, kw in ((A(x), A, dict(u_step="exact", mu=2**6)), (P(xp), P, dict(mu=
 y = A(x).detach().requires_grad_()
 recon.get("learned").build(A)(y).sum().backward()
 assert torch.isfinite(y.grad).all()
+for f in (recon.tgv, recon.basis_pursuit):
+    y = A(x).detach().requires_grad_()
+    f(y, A, **({"max_iter": 10} if f is recon.tgv else {"n_iter": 10})).sum().backward()
+    assert torch.isfinite(y.grad).all() and y.grad.abs().sum() > 0
 """,
 }
 

@@ -407,9 +407,9 @@ def tgv(
     # y validated above: no check_finite per operator call in the loop; without a graph to
     # build, the loop runs in inference mode (the same bits, less overhead per op)
     with unchecked(), autograd_free(b, mu_t, *(box or ()), module=A):
-        u, w, n_iter, done = ordinary(_pdhg(b, A, sq, mu_t, ~tvl2_t, (a1, a0),
-                                            tv == "isotropic", boundary, box, max_iter, tol,
-                                            adaptive, check_every, zero))
+        out = _pdhg(b, A, sq, mu_t, ~tvl2_t, (a1, a0), tv == "isotropic", boundary, box,
+                    max_iter, tol, adaptive, check_every, zero)
+    u, w, n_iter, done = ordinary(out)
     unscale = (sq / gain)[..., None, None]
     # all-zero buckets: 0, projected onto the caller's box (a bound is kept for them too)
     x0 = project_box(torch.zeros_like(u), lo, hi) if box is not None else torch.zeros_like(u)
