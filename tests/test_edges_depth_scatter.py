@@ -263,14 +263,19 @@ def test_zero_multipath_spread_is_an_unspread_copy():
 
 
 @pytest.mark.parametrize("over, msg", [
-    (dict(stray_sigma_px=0.0), "ExperimentConfig: expected stray_sigma_px > 0"),
-    (dict(dust_sigma_px=0.0), "ExperimentConfig: expected dust_sigma_px > 0"),
-    (dict(stray_far_m=1.0), "ExperimentConfig: expected stray_far_m >= stray_near_m"),
-    (dict(multipath_sigma_px=-1.0), "ExperimentConfig: expected multipath_sigma_px >= 0"),
+    (dict(stray_sigma_px=0.0), "expected stray_sigma_px > 0"),
+    (dict(dust_sigma_px=0.0), "expected dust_sigma_px > 0"),
+    (dict(stray_far_m=1.0), "expected stray_far_m >= stray_near_m"),
+    (dict(multipath_sigma_px=-1.0), "expected multipath_sigma_px >= 0"),
 ])
 def test_experiment_config_names_the_field(over, msg):
-    with pytest.raises(ValueError, match=msg):
+    # the call the user made is named: PaperExperiment, or the config's own validate()
+    with pytest.raises(ValueError, match=f"^PaperExperiment: {msg}"):
         PaperExperiment(0.25, n=8, roi_px=16, srs=(0.25,), **over)
+    from torchtof.experiment import ExperimentConfig
+
+    with pytest.raises(ValueError, match=f"^ExperimentConfig: {msg}"):
+        ExperimentConfig(n=8, roi_px=16, srs=(0.25,), **over).validate()
 
 
 # -- 8, 9. mixing ----------------------------------------------------------------------------
