@@ -1,5 +1,5 @@
-"""``torch.compile(fullgraph=True)``: the Hadamard operator, the unrolled TVAL3 and the U-Net
-trace into one graph each (no graph break: no host sync, no data-dependent Python branch) and
+"""``torch.compile(fullgraph=True)``: the Hadamard operator, the unrolled TVAL3, the U-Net and
+the fixed-iteration TGV and basis pursuit trace into one graph each (no graph break: no host sync, no data-dependent Python branch) and
 compute what eager mode computes.
 
 The default run compiles with dynamo's ``"eager"`` backend (the graph capture that
@@ -14,7 +14,7 @@ import torch
 import torch._dynamo
 
 from torchtof.operators import Hadamard
-from torchtof.recon import UNet, UnrolledTVAL3
+from torchtof.recon import TGV, BasisPursuit, UNet, UnrolledTVAL3
 
 
 def _models(device):
@@ -22,8 +22,10 @@ def _models(device):
     x = torch.rand(2, 1, 16, 16, generator=torch.Generator().manual_seed(0)).to(device)
     unrolled = UnrolledTVAL3(A, n_layers=3, pretrained=False).to(device)
     unet = UNet(base=4, depth=2).to(device).eval()
+    tgv = TGV(A, max_iter=5, adaptive=False).to(device)
+    bp = BasisPursuit(A, n_iter=5, adaptive=False).to(device)
     return {"hadamard": (A, x), "adjoint": (A.adjoint, A(x)), "unrolled": (unrolled, A(x)),
-            "unet": (unet, x)}
+            "unet": (unet, x), "tgv": (tgv, A(x)), "bp": (bp, A(x))}
 
 
 def _check(name, backend, device):
@@ -40,6 +42,13 @@ def _check(name, backend, device):
 
 def test_hadamard_compiles_fullgraph(device):
     _check("hadamard", "eager", device)
+
+
+@pytest.mark.parametrize("name", ["tgv", "bp"])
+def test_solvers_compile_fullgraph(name, device):
+    # their fixed-iteration loops, through the inference-mode switch that an eager call
+    # without gradients takes (it must stay out of the traced graph): 2 s together
+    _check(name, "eager", device)
 
 
 @pytest.mark.slow

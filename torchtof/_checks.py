@@ -91,7 +91,7 @@ def autograd_free(*tensors: object, module: torch.nn.Module | None = None
     kernels, the same bits, less overhead per op (auto and TVAL3 1.1× faster at n = 32 and
     64). What is made inside is an inference tensor: hand it out through :func:`ordinary`.
     Caches built inside stay ordinary (:func:`cache_build`). Else a ``nullcontext``."""
-    if torch.is_inference_mode_enabled() or is_tracing():
+    if is_tracing() or torch.is_inference_mode_enabled():  # (dynamo cannot trace the latter)
         return contextlib.nullcontext()
     if torch.is_grad_enabled() and (
             any(isinstance(t, torch.Tensor) and t.requires_grad for t in tensors)
@@ -105,8 +105,8 @@ def ordinary(value):
     """``value`` with every inference tensor in it (a tensor, or a tuple, NamedTuple, list or
     dict of them and other values) cloned into an ordinary one, outside inference mode: an
     inference tensor handed to the caller could not be updated in place nor saved for
-    backward there. Inside inference mode, ``value`` itself."""
-    if torch.is_inference_mode_enabled():
+    backward there. Inside inference mode or while tracing, ``value`` itself."""
+    if is_tracing() or torch.is_inference_mode_enabled():
         return value
     if isinstance(value, torch.Tensor):
         return value.clone() if value.is_inference() else value

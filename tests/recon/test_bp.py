@@ -473,3 +473,20 @@ def test_operator_too_small_for_float32_is_named_not_nan():
     with pytest.raises(ValueError, match="basis_pursuit: A's rows are too small for torch.float32"):
         basis_pursuit(P(x), P)
     assert torch.isfinite(basis_pursuit(P(x.double()), P)).all()  # float64 holds them
+
+
+def test_a_gram_requiring_grad_keeps_the_graph():
+    # patterns being learned give a Gram factor that requires grad: the loop must not run in
+    # inference mode then (the gradient reaches the patterns through it)
+    from torchtof.recon.bp import gram_factor
+
+    g = torch.Generator().manual_seed(4)
+    w = torch.nn.Parameter(torch.randn(10, 4, 4, generator=g, dtype=torch.float64))
+    P = PatternOperator(w.detach())  # the solve's operator holds no gradient itself...
+    y = P(torch.rand(1, 1, 4, 4, generator=g, dtype=torch.float64)).detach()
+    gram = gram_factor(PatternOperator(w))  # ...the Gram factor passed in does
+    assert any(t.requires_grad for t in gram)
+    x = basis_pursuit(y, P, n_iter=5, adaptive=False, gram=gram)
+    assert x.requires_grad
+    x.sum().backward()
+    assert w.grad is not None and torch.isfinite(w.grad).all()

@@ -402,7 +402,7 @@ def basis_pursuit(
 
     # y was validated above: operator calls in the loop skip check_finite; without a graph to
     # build, the loop runs in inference mode (the same bits, less overhead per op)
-    with unchecked(), autograd_free(yn, eps_n, module=A):
+    with unchecked(), autograd_free(yn, eps_n, *(gram or ()), module=A):
         x0 = project(y.new_zeros(*y.shape[:-1], n, n))  # A⁺ y (or its ε-projection)
         if lam is None:
             x, iters, done = _admm(x0, project, fwd, inv, n_iter, rho, alpha, tol, adaptive)
