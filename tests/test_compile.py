@@ -1,6 +1,6 @@
 """``torch.compile(fullgraph=True)``: the Hadamard operator, the unrolled TVAL3, the U-Net and
-the fixed-iteration TGV and basis pursuit trace into one graph each (no graph break: no host sync, no data-dependent Python branch) and
-compute what eager mode computes.
+the fixed-iteration TGV and basis pursuit trace into one graph each (no graph break: no host
+sync, no data-dependent Python branch) and compute what eager mode computes.
 
 The default run compiles with dynamo's ``"eager"`` backend (the graph capture that
 ``fullgraph=True`` checks, without code generation); the slow tests also generate code with
