@@ -38,6 +38,7 @@ CALLS = {
     "tval3 n=128": ("tval3", 128, 0.125, "cake_cutting", {}),
     "tgv n=32": ("tgv", 32, 0.25, "cake_cutting", {}),
     "bp n=32": ("basis_pursuit", 32, 0.25, "cake_cutting", {}),
+    "joint_tv n=32": ("joint_tv", 32, 0.25, "cake_cutting", {}),
     "auto n=32": ("auto", 32, 0.125, "cake_cutting", {}),
     "auto n=64": ("auto", 64, 0.125, "cake_cutting", {}),
 }
