@@ -122,3 +122,10 @@ def test_pattern_sizes_take_numpy_integers_and_dtypes_are_checked():
     assert hadamard_patterns(4, 2, dtype=torch.int8).dtype == torch.int8
     with pytest.raises(TypeError, match=r"hadamard_patterns: expected dtype"):
         hadamard_patterns(4, 2, dtype=torch.bool)
+
+
+@pytest.mark.parametrize("n", [4, 8, 16, 32, 64, 128])
+@pytest.mark.parametrize("order", ORDERS)
+def test_every_order_starts_with_the_dc_row(n, order):
+    # DMDSplit reads ⟨1, x⟩ from the first row's coefficient: the all-on row comes first
+    assert int(hadamard_order(n, order)[0]) == 0

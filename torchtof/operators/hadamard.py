@@ -181,13 +181,6 @@ class Hadamard(LinearOperator):
             lambda y: hadamard_adjoint(y, index, n, h),
         )
 
-    def pinv(self, y: torch.Tensor) -> torch.Tensor:
-        """``A⁺ y = Aᵀ y`` (orthonormal rows; a subclass's own ``adjoint`` where it has one)."""
-        self._check_y(y, "Hadamard.pinv")
-        if type(self).adjoint is not Hadamard.adjoint:
-            return self.adjoint(y)
-        return hadamard_adjoint(y, self.index.to(y.device), self.n, self.transform_spec(y))
-
     def patterns(
         self, dtype: torch.dtype = torch.float32, start: int = 0, stop: int | None = None
     ) -> torch.Tensor:

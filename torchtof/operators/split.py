@@ -16,7 +16,6 @@ from .._checks import check_finite, check_int, check_rank, check_shape
 from .._memory import check_memory, check_rows, itemsize
 from .base import LinearOperator
 from .hadamard import Hadamard
-from .patterns import hadamard_order
 
 #: ±1 rows split at a time by :meth:`DMDSplit.patterns`.
 PATTERN_CHUNK = 256
@@ -81,12 +80,10 @@ class DMDSplit(LinearOperator):
             )
         super().__init__(hadamard.n, 2 * hadamard.m)
         self.hadamard = hadamard
-        # every Hadamard order starts with the all-on row (natural index 0; read from the
-        # order on the CPU: the operator's own index may live on another device, or on meta;
-        # the index is the order's, set at construction, not an editable setting)
-        # (a subclass with its own forward, e.g. signed rows, may change that row: summed)
-        self._dc_first = (type(hadamard).forward is Hadamard.forward
-                          and int(hadamard_order(hadamard.n, hadamard.order)[0]) == 0)
+        # every Hadamard order starts with the all-on row, natural index 0 (its sort key is
+        # the smallest in each order; tests/operators: test_every_order_starts_with_the_dc_row);
+        # a subclass with its own forward (e.g. signed rows) may change that row: summed
+        self._dc_first = type(hadamard).forward is Hadamard.forward
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         self._check_x(x, "DMDSplit.forward")

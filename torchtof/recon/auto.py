@@ -732,8 +732,9 @@ def auto(
     _check(fn, folds, cv_iter, max_iter, bounds, split, slack, priors, infer_box, learned,
            gauss, tv_solver, fit_iter, seed)
     _check_folds(fn, folds, A)
-    opts = dict(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split, slack=slack,
-                seed=seed, priors=tuple(priors), tv_solver=tv_solver, fit_iter=fit_iter)
+    opts = auto_options(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split,
+                        slack=slack, seed=seed, priors=priors, tv_solver=tv_solver,
+                        fit_iter=fit_iter)
     with autograd_free(y, module=A):  # no graph to build: the same bits, less overhead
         res = _auto_stages(y, A, bounds, infer_box, gauss, learned, opts)
     res = ordinary(res)

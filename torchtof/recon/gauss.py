@@ -36,9 +36,7 @@ def markov_covariance(n: int, ell: float, dtype: torch.dtype = torch.float64,
     its image ``T = Ĥ S Ĥᵀ`` in the normalised Sylvester basis (module docstring); ``n`` a
     power of two, ``ℓ > 0`` finite."""
     check_power_of_two(n, "n", "markov_covariance")
-    check_positive(ell, "ell", "markov_covariance")
-    if not math.isfinite(ell):
-        raise ValueError(f"markov_covariance: expected ell finite, got {ell}")
+    check_positive(ell, "ell", "markov_covariance")  # > 0 and finite
     s = _exp_kernel(n, ell, dtype, device)
     h = sylvester(n, dtype, device) / math.sqrt(n)
     return s, h @ s @ h.T
