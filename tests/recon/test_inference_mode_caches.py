@@ -108,8 +108,9 @@ P = PatternOperator(torch.rand(128, 16, 16)); xp = torch.rand(1, 1, 16, 16)
 outs = [recon.tval3(A(x), A, u_step="exact"), recon.tval3(P(xp), P, mu=2**6),
         recon.auto(A(x), A, priors=("tv",), cv_iter=10, max_iter=40, return_result=True).x,
         recon.tgv(A(x), A, max_iter=30), recon.basis_pursuit(P(xp), P, n_iter=30)]
-res = recon.tgv(A(x), A, max_iter=30, return_result=True)
-outs += [t for t in res if isinstance(t, torch.Tensor)]
+for res in (recon.tgv(A(x), A, max_iter=30, return_result=True),
+            recon.joint_tv(A(x.expand(1, 2, 32, 32)), A, n_iter=30, return_result=True)):
+    outs += [t for t in res if isinstance(t, torch.Tensor)]
 for out in outs:
     assert not out.is_inference()
     out.copy_(out.clone())  # in place, outside inference mode: an inference tensor refuses

@@ -75,7 +75,6 @@ import torch
 from torch import nn
 
 from .._checks import (
-    autograd_free,
     check_bool,
     check_finite,
     check_positive,
@@ -84,7 +83,6 @@ from .._checks import (
     check_tensor,
     check_weight_range,
     is_tracing,
-    ordinary,
 )
 from .._memory import check_memory, format_bytes
 from ..operators.base import LinearOperator
@@ -426,17 +424,14 @@ def joint_tv(
         constrained = torch.ones_like(zero)
     c = y.shape[1]
     per = (y.shape[0], c)
-    # without a graph to build, the loop runs in inference mode (the same bits, less overhead)
-    with autograd_free(b, mu_b, beta_b, module=A):
-        out = admm_tv(
-            b, A, mu_b[:, None].expand(per), beta_b[:, None].expand(per),
-            constrained[:, None].expand(per), tv="isotropic", boundary=boundary, joint=joint,
-            bounds=tuple(None if v is None else float(v) * (gain / sq).reshape(-1, 1, 1, 1)
-                         for v in box),
-            inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
-            done=zero[:, None].expand(per), stop_over_channels=True,
-        )
-    out = ordinary(out)
+    out = admm_tv(  # (in inference mode where no gradient can flow: admm_tv)
+        b, A, mu_b[:, None].expand(per), beta_b[:, None].expand(per),
+        constrained[:, None].expand(per), tv="isotropic", boundary=boundary, joint=joint,
+        bounds=tuple(None if v is None else float(v) * (gain / sq).reshape(-1, 1, 1, 1)
+                     for v in box),
+        inv_s2=inv_s2, max_iter=n_iter, tol=tol, adaptive=adaptive,
+        done=zero[:, None].expand(per), stop_over_channels=True,
+    )
     x = out.u * (sq / gain).reshape(-1, 1, 1, 1)
     if not return_result:
         return x
