@@ -338,14 +338,8 @@ def _bounds(b) -> str:
     return "[" + ", ".join("-" if v is None else f"{v:.2f}" for v in b) + "]"
 
 
-def _shard(v: str) -> tuple[int, int]:
-    i, _, k = v.partition("/")
-    if not (i.isdigit() and k.isdigit() and 0 <= int(i) < int(k)):
-        raise argparse.ArgumentTypeError(f"expected I/K with 0 <= I < K, got {v!r}")
-    return int(i), int(k)
-
-
 def main(argv=None) -> list[dict]:
+    import peers_scenes as ps
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[32, 64])
     ap.add_argument("--sr", type=float, nargs="+", default=list(SRS))
@@ -373,7 +367,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--orders", nargs="+", default=None, metavar="ORDER",
                     help="with --peers-cells: only the cells of these Hadamard orders "
                          "(cake_cutting, sequency; default every order)")
-    ap.add_argument("--shard", default="0/1", type=_shard, metavar="I/K",
+    ap.add_argument("--shard", default="0/1", type=ps.shard, metavar="I/K",
                     help="run every K-th cell from the I-th (two processes: 0/2 and 1/2)")
     ap.add_argument("--reuse", default=None, metavar="AUTO_EVAL_JSON",
                     help="take each cell's candidate PSNRs (best, median) from this earlier "

@@ -81,7 +81,7 @@ def main() -> int:
     p.add_argument("--min-n", type=int, default=64)
     p.add_argument("--max-n", type=int, default=256)
     p.add_argument("--level", type=float, nargs="+", default=[0.01])
-    p.add_argument("--shard", default="0/1")
+    p.add_argument("--shard", default="0/1", type=ps.shard, metavar="I/K")
     p.add_argument("--out", default=None)
     p.add_argument("--summary", nargs="+", default=None)
     a = p.parse_args()
@@ -90,11 +90,7 @@ def main() -> int:
         return 0
     if not a.weights:
         p.error("WEIGHTS is required unless --summary is given")
-    i, _, k = a.shard.partition("/")
-    if not (i.isdigit() and k.isdigit() and 0 <= int(i) < int(k)):
-        p.error(f"argument --shard: expected I/K with 0 <= I < K, got {a.shard!r}")
-    i, k = int(i), int(k)
-    run(a.weights, a.min_n, a.max_n, a.level, (i, k), a.out)
+    run(a.weights, a.min_n, a.max_n, a.level, a.shard, a.out)
     return 0
 
 

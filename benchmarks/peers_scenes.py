@@ -134,3 +134,13 @@ def cell_parser(description: str):
     p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES + HELD_OUT_SCENES)
     p.add_argument("--noise", type=float, default=0.01)
     return p
+
+
+def shard(v: str) -> tuple[int, int]:
+    """``--shard I/K`` of the benchmark scripts: this run takes every K-th problem from I."""
+    import argparse
+
+    i, _, k = v.partition("/")
+    if not (i.isdigit() and k.isdigit() and 0 <= int(i) < int(k)):
+        raise argparse.ArgumentTypeError(f"expected I/K with 0 <= I < K, got {v!r}")
+    return int(i), int(k)

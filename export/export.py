@@ -24,7 +24,7 @@ import onnx
 
 from torchtof.apps.args import OneLineParser, positive_int, power_of_two, sampling_rate
 from torchtof.apps.onnx_models import MODELS, export_model
-from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, check, model_opset
+from torchtof.onnx import DEFAULT_OPSET, EXPORTER_KEY, OPSETS, check, model_opset
 
 
 def readme_table() -> str:
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--sr", type=sampling_rate, default=0.25, help="sampling rate M / n^2")
     p.add_argument("--n-iter", type=positive_int, default=None,
                    help="iterations of iterative models")
-    p.add_argument("--opset", type=int, choices=(17, 18), default=DEFAULT_OPSET)
+    p.add_argument("--opset", type=int, choices=OPSETS, default=DEFAULT_OPSET)
     p.add_argument(
         "--exporter",
         choices=["dynamo", "torchscript"],

@@ -59,7 +59,6 @@ from ._checks import (
     check_positive,
     check_power_of_two,
     check_shape,
-    check_tensor,
     unchecked,
 )
 from ._memory import check_memory
@@ -297,11 +296,9 @@ def simulate_frames(
     n, p = cfg.n, cfg.roi_px
     for name, t in (("scene.reflectance", scene.reflectance), ("scene.depth_m", scene.depth_m)):
         check_shape(t, (1, 1, n, n), name, func, f"(1, 1, n, n), n = cfg.n = {n}")
-    check_tensor(patterns, "patterns", func)
     check_shape(patterns, (None, n, n), "patterns", func, f"(F, n, n), n = cfg.n = {n}")
     for name, t in (("dust", dust), ("stray", stray)):
-        if t is not None:
-            check_tensor(t, name, func)
+        if t is not None:  # (check_shape checks the tensor and its dtype first)
             check_shape(t, (1, 1, p, p), name, func, f"(1, 1, P, P), P = cfg.roi_px = {p}")
     if cfg.scattering and dust is None:
         raise ValueError(f"{func}: cfg.scattering needs the sheet's dust map: pass dust "

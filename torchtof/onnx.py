@@ -63,6 +63,7 @@ onnx = require("onnx", "torchtof.onnx")
 
 __all__ = [
     "DEFAULT_OPSET",
+    "OPSETS",
     "EXPORTERS",
     "EXPORTER_KEY",
     "EXPORT_BATCH",
@@ -77,6 +78,8 @@ __all__ = [
 
 #: Opset of every exported file (the dynamo exporter's native opset).
 DEFAULT_OPSET = 18
+#: The opsets :func:`export` writes (17: down-converted, or by the tracer).
+OPSETS = (17, 18)
 #: The two back ends of ``torch.onnx.export`` (see the module docstring).
 EXPORTERS = ("dynamo", "torchscript")
 #: Example batch of the exports; :func:`check` compares at other batch sizes.
@@ -304,7 +307,7 @@ def export(
     if exporter not in EXPORTERS:
         raise ValueError(f"{func}: expected exporter in {EXPORTERS}, got {exporter!r}")
     opset = DEFAULT_OPSET if opset is None else opset
-    if isinstance(opset, bool) or not isinstance(opset, int) or opset not in (17, 18):
+    if isinstance(opset, bool) or not isinstance(opset, int) or opset not in OPSETS:
         raise ValueError(f"{func}: expected opset 17 or 18, got {opset!r}")
     check_bool(dynamic_batch, "dynamic_batch", func)
     input_names = _names(input_names, "input_names", func)
