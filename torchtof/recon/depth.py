@@ -92,15 +92,16 @@ from .tv import BOUNDARIES, admm_tv, box_bounds, check_exact_memory, scale_a
 from .tval3 import (
     AUTO_CV_FACTOR,
     AUTO_CV_MAX_ITER,
-    AUTO_CV_SLACK,
     AUTO_MU_MAX,
     B_SPREAD,
     NOISE_QUANTILE,
     MaskedRows,
+    apply_holdout,
     auto_weights,
     bucket_noise_sigma,
     check_buckets,
     default_split,
+    holdout_choice,
     holdout_split,
 )
 
@@ -414,10 +415,8 @@ def joint_tv(
             # one host read at entry: TVAL3's hold-out check of the estimate's TV-L2 choice
             keep, mu_cv = _validate_constrained(b, A, mu_b, beta_b, beta, joint, boundary,
                                                 box, gain / sq, inv_s2, n_iter)
-            mu_b = torch.where(constrained, mu_b, mu_cv)
-            constrained = constrained | keep
-            mu_b = torch.where(keep, torch.full_like(mu_b, AUTO_MU_MAX), mu_b)
-            beta_b = torch.where(keep, torch.full_like(beta_b, float(beta)), beta_b)
+            mu_b, beta_b, constrained = apply_holdout(mu_b, beta_b, constrained, keep, mu_cv,
+                                                      beta)
     else:
         mu_b = y.new_full((y.shape[0],), float(mu))
         beta_b = y.new_full((y.shape[0],), float(beta))
@@ -473,10 +472,7 @@ def _validate_constrained(b, A, mu_b, beta_b, beta, joint, boundary, box, scale,
         pred = A(out.u) * sq  # the scaled buckets' prediction, all rows
         err = err + ((pred - b.repeat(nm, 1, 1)) * held[f].to(b.dtype)).pow(2).sum(dim=(1, 2))
     err = err.reshape(nm, bsz)
-    larger = err[2] < err[1]
-    best = torch.where(larger, err[2], err[1])
-    keep = err[0] <= (1 + AUTO_CV_SLACK) * best
-    return keep, torch.where(larger, AUTO_CV_FACTOR * mu_b, mu_b)
+    return holdout_choice(err[0], err[1], err[2], mu_b)
 
 
 class JointTVResult(NamedTuple):

@@ -550,10 +550,8 @@ def tval3(
             # one host read at entry: validate the estimate's TV-L2 choice on held-out rows
             keep, mu_cv = _validate_constrained(y0, A, mu_f, beta, tv, nonneg, bounds,
                                                 boundary, max_iter)
-            mu_f = torch.where(constrained, mu_f, mu_cv)
-            constrained = constrained | keep
-            mu_f = torch.where(keep, torch.full_like(mu_f, AUTO_MU_MAX), mu_f)
-            beta_f = torch.where(keep, torch.full_like(beta_f, float(beta)), beta_f)
+            mu_f, beta_f, constrained = apply_holdout(mu_f, beta_f, constrained, keep, mu_cv,
+                                                      beta)
     else:  # the same β rule as a per-sample weight: a float and a tensor solve alike
         mu_f = torch.full_like(spread, float(mu))
         if isinstance(tvl2, torch.Tensor):  # per sample
@@ -600,6 +598,28 @@ def stop_names(code: torch.Tensor) -> tuple:
     return tuple(tuple(STOP_REASONS[k] for k in row) for row in code.tolist())
 
 
+def holdout_choice(err_cons: torch.Tensor, err_mu: torch.Tensor, err_4mu: torch.Tensor,
+                   mu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(keep, mu)`` of ``mu="auto"``'s hold-out check from the held-out errors of the
+    constrained model and the TV-L2 weights ``μ`` and ``4μ``: ``keep`` where the constrained
+    model is within :data:`AUTO_CV_SLACK` of the better TV-L2 one, ``mu`` that one's weight
+    (shared by :func:`tval3` and :func:`~torchtof.recon.depth.joint_tv`)."""
+    larger = err_4mu < err_mu
+    best = torch.where(larger, err_4mu, err_mu)
+    return err_cons <= (1 + AUTO_CV_SLACK) * best, torch.where(larger, AUTO_CV_FACTOR * mu, mu)
+
+
+def apply_holdout(mu: torch.Tensor, beta_t: torch.Tensor, constrained: torch.Tensor,
+                  keep: torch.Tensor, mu_cv: torch.Tensor, beta: float
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(μ, β, constrained)`` after the hold-out check: the TV-L2 samples take the better
+    weight ``mu_cv``, those where ``keep`` the published constrained model (``μ = 2⁸``, β)."""
+    mu = torch.where(constrained, mu, mu_cv)
+    mu = torch.where(keep, torch.full_like(mu, AUTO_MU_MAX), mu)
+    beta_t = torch.where(keep, torch.full_like(beta_t, float(beta)), beta_t)
+    return mu, beta_t, constrained | keep
+
+
 def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_iter
                           ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(keep, mu)``, each ``(B, C)``: ``keep`` where the published constrained model
@@ -635,10 +655,7 @@ def _validate_constrained(y, A, mu_f, beta, tv, nonneg, bounds, boundary, max_it
     k = pow2_scale(ys)  # (BC, 1, 1), repeated for the nf·nm fits of each sample
     res_ = (A(r.x) - ys) * k
     err = (res_ * hm).pow(2).sum(-1).reshape(b * c, nf, nm).sum(1)  # (BC, nm)
-    larger = err[:, 2] < err[:, 1]
-    best = torch.where(larger, err[:, 2], err[:, 1])
-    keep = err[:, 0] <= (1 + AUTO_CV_SLACK) * best
-    mu = torch.where(larger, mus[:, 2], mus[:, 1])
+    keep, mu = holdout_choice(err[:, 0], err[:, 1], err[:, 2], mus[:, 1])
     return keep.reshape(b, c), mu.reshape(b, c)
 
 
