@@ -120,6 +120,18 @@ def ordinary(value):
     return value
 
 
+def run_loop(fn, *args, inputs: tuple = (), module: torch.nn.Module | None = None,
+             checks: bool = False, **kwargs):
+    """``fn(*args, **kwargs)``, a solver's loop on validated inputs: under :func:`unchecked`
+    (no ``check_finite`` per operator call; ``checks=True`` keeps them) and, where no
+    gradient can flow through ``inputs`` or ``module``, :func:`autograd_free`; the result
+    through :func:`ordinary` (after leaving inference mode: inside, it is a no-op)."""
+    with contextlib.nullcontext() if checks else unchecked(), \
+            autograd_free(*inputs, module=module):
+        out = fn(*args, **kwargs)
+    return ordinary(out)
+
+
 def is_tracing() -> bool:
     """True while ``torch.compile``/``torch.jit``/``torch.onnx`` trace the code."""
     compiler = getattr(torch, "compiler", None)

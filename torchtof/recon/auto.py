@@ -222,7 +222,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .._checks import autograd_free, check_bool, check_int, check_positive, ordinary
+from .._checks import check_bool, check_int, check_positive, run_loop
 from ..operators.base import LinearOperator
 from ..operators.hadamard import Hadamard
 from . import learned as _learned_mod
@@ -735,9 +735,9 @@ def auto(
     opts = auto_options(folds=folds, cv_iter=cv_iter, max_iter=max_iter, split=split,
                         slack=slack, seed=seed, priors=priors, tv_solver=tv_solver,
                         fit_iter=fit_iter)
-    with autograd_free(y, module=A):  # no graph to build: the same bits, less overhead
-        res = _auto_stages(y, A, bounds, infer_box, gauss, learned, opts)
-    res = ordinary(res)
+    # no graph to build: the same bits, less overhead (the stages check their operator calls)
+    res = run_loop(_auto_stages, y, A, bounds, infer_box, gauss, learned, opts, inputs=(y,),
+                   module=A, checks=True)
     return res if return_result else res.x
 
 

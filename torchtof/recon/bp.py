@@ -69,7 +69,6 @@ import torch
 from torch import nn
 
 from .._checks import (
-    autograd_free,
     check_bool,
     check_finite,
     check_in_range,
@@ -77,8 +76,7 @@ from .._checks import (
     check_power_of_two,
     check_shape,
     is_tracing,
-    ordinary,
-    unchecked,
+    run_loop,
 )
 from ..operators.base import LinearOperator
 from .base import relative_residual
@@ -402,15 +400,15 @@ def basis_pursuit(
 
     # y was validated above: operator calls in the loop skip check_finite; without a graph to
     # build, the loop runs in inference mode (the same bits, less overhead per op)
-    with unchecked(), autograd_free(yn, eps_n, *(gram or ()), module=A):
+    def solve():
         x0 = project(y.new_zeros(*y.shape[:-1], n, n))  # A⁺ y (or its ε-projection)
         if lam is None:
-            x, iters, done = _admm(x0, project, fwd, inv, n_iter, rho, alpha, tol, adaptive)
-        else:
-            big_l = 1.0 if gram is None else gram[1].amax()
-            thresh = lam / (s[..., None] * big_l)
-            x, iters, done = _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
-    x, iters, done = ordinary((x, iters, done))
+            return _admm(x0, project, fwd, inv, n_iter, rho, alpha, tol, adaptive)
+        big_l = 1.0 if gram is None else gram[1].amax()
+        thresh = lam / (s[..., None] * big_l)
+        return _fista(x0, A, yn, fwd, inv, big_l, thresh, n_iter, tol, adaptive)
+
+    x, iters, done = run_loop(solve, inputs=(yn, eps_n, *(gram or ())), module=A)
     x = x * s[..., None]
     residual = relative_residual(x, y, A)
     names = _stop_names(done)

@@ -90,13 +90,11 @@ import torch
 from torch import nn
 
 from .._checks import (
-    autograd_free,
     check_bool,
     check_positive,
     check_weight_range,
     is_tracing,
-    ordinary,
-    unchecked,
+    run_loop,
 )
 from ..operators.base import LinearOperator
 from .base import pow2_scale, relative_residual
@@ -406,10 +404,9 @@ def tgv(
         None if hi is None else (hi * k4) * scale[..., None, None])
     # y validated above: no check_finite per operator call in the loop; without a graph to
     # build, the loop runs in inference mode (the same bits, less overhead per op)
-    with unchecked(), autograd_free(b, mu_t, *(box or ()), module=A):
-        out = _pdhg(b, A, sq, mu_t, ~tvl2_t, (a1, a0), tv == "isotropic", boundary, box,
-                    max_iter, tol, adaptive, check_every, zero)
-    u, w, n_iter, done = ordinary(out)
+    u, w, n_iter, done = run_loop(_pdhg, b, A, sq, mu_t, ~tvl2_t, (a1, a0), tv == "isotropic",
+                                  boundary, box, max_iter, tol, adaptive, check_every, zero,
+                                  inputs=(b, mu_t, *(box or ())), module=A)
     unscale = (sq / gain)[..., None, None]
     # all-zero buckets: 0, projected onto the caller's box (a bound is kept for them too)
     x0 = project_box(torch.zeros_like(u), lo, hi) if box is not None else torch.zeros_like(u)

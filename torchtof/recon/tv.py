@@ -47,7 +47,7 @@ from typing import NamedTuple
 
 import torch
 
-from .._checks import autograd_free, cache_build, is_tracing, ordinary, unchecked
+from .._checks import cache_build, is_tracing, run_loop, unchecked
 from .._memory import check_memory
 from ..operators.base import LinearOperator
 from .dct import dct_matrix
@@ -662,11 +662,10 @@ def admm_tv(
     atb = adj(b)
     # inputs validated at the public entry: no check_finite per call; without a graph to
     # build, the loop runs in inference mode (the same bits, less overhead per op)
-    with unchecked(), autograd_free(b, mu, beta, lo, hi, u0, module=A):
-        out = _admm_loop(b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt, done,
-                         n_iter, tiny, atb, lo, hi, beta, mu, tv, boundary, joint, inv_s2,
-                         max_iter, tol, adaptive, check_every, stop_over_channels)
-    return ordinary(out)
+    return run_loop(_admm_loop, b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt,
+                    done, n_iter, tiny, atb, lo, hi, beta, mu, tv, boundary, joint, inv_s2,
+                    max_iter, tol, adaptive, check_every, stop_over_channels,
+                    inputs=(b, mu, beta, lo, hi, u0), module=A)
 
 
 def _admm_loop(b, fwd, adj, factors, rho, ib, imu, mu_dlt, u, du, sig, dlt, done, n_iter, tiny,

@@ -31,7 +31,6 @@ import torch
 from torch import nn
 
 from .._checks import (
-    autograd_free,
     check_bool,
     check_broadcast,
     check_finite,
@@ -41,8 +40,7 @@ from .._checks import (
     check_tensor,
     check_weight_range,
     is_tracing,
-    ordinary,
-    unchecked,
+    run_loop,
 )
 from ..constants import DISCREPANCY_TAU
 from ..operators.base import LinearOperator
@@ -575,10 +573,8 @@ def tval3(
         bound = DISCREPANCY_TAU * A.m * (sd * gain) ** 2
     # y was validated above: operator calls in the loop skip check_finite; without a graph
     # to build the loop runs in inference mode (the same bits, less overhead per op)
-    with unchecked(), autograd_free(b, mu_f, beta_f, *box, module=A):
-        u = _solve(b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
-                   boundary=boundary, disc_bound=bound)
-    u = ordinary(u)
+    u = run_loop(_solve, b, A, mu_f, beta_f, constrained, zero, inv_s2, box, adaptive, **opts,
+                 boundary=boundary, disc_bound=bound, inputs=(b, mu_f, beta_f, *box), module=A)
     x = u.x * (math.sqrt(inv_s2) / _i(gain)) / _i(k)  # A_s u = b <=> A (u/(√s2·gain)) = y
     if lo is not None or hi is not None:  # all-zero buckets: 0 projected onto the box (as tgv)
         x = torch.where(_i(zero), project_box(torch.zeros_like(x), lo, hi), x)
